@@ -1,0 +1,125 @@
+//! The library's error type; each variant maps to one stable C result code.
+
+use std::path::PathBuf;
+
+/// Errors of the port writer, reader and control client.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// An argument is out of range; the message names it and its value.
+    #[error("invalid argument: {0}")]
+    InvalidArgument(String),
+    /// No port file with that name.
+    #[error("no port {name:?} at {}", path.display())]
+    NotFound {
+        /// Port name.
+        name: String,
+        /// Path tried.
+        path: PathBuf,
+    },
+    /// The port exists but its header is not published yet (version 0); retry.
+    #[error("port is not initialised yet (format version 0); retry")]
+    NotReady,
+    /// Not a bass port.
+    #[error("not a bass port: magic {found:#018x}")]
+    BadMagic {
+        /// Magic found.
+        found: u64,
+    },
+    /// A port of another major format version.
+    #[error("incompatible port format: major version {found}, this library reads {expected}")]
+    Incompatible {
+        /// Major version found.
+        found: u32,
+        /// Major version supported.
+        expected: u32,
+    },
+    /// The header or the shared state is inconsistent.
+    #[error("corrupt port: {0}")]
+    Corrupt(String),
+    /// An operating-system call failed.
+    #[error("{context}: {source}")]
+    Io {
+        /// What was being done.
+        context: String,
+        /// The OS error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A wait expired.
+    #[error("timed out waiting for frame {frame} (last frame {last})")]
+    Timeout {
+        /// Frame waited for.
+        frame: u64,
+        /// Last frame index when the wait gave up.
+        last: u64,
+    },
+    /// The acquisition was stopped.
+    #[error("acquisition stopped at frame {last}")]
+    Stopped {
+        /// Last frame index.
+        last: u64,
+    },
+    /// The acquisition ended on a device error.
+    #[error("device error (code {code}): {message}")]
+    Device {
+        /// `format::error_code`.
+        code: u32,
+        /// Message from the broker.
+        message: String,
+    },
+    /// A newer acquisition replaced this port; reopen it.
+    #[error("a new acquisition replaced this port; reopen it")]
+    Restarted,
+    /// The writer process is gone.
+    #[error("the broker (pid {pid}) that writes this port is gone")]
+    WriterGone {
+        /// Writer pid.
+        pid: u32,
+    },
+    /// The frame has left the window.
+    #[error("frame {frame} has left the window (oldest frame {oldest})")]
+    FrameLost {
+        /// Frame asked for.
+        frame: u64,
+        /// Oldest frame on the port.
+        oldest: u64,
+    },
+    /// The frame is not published yet.
+    #[error("frame {frame} is not published yet (last frame {last})")]
+    FrameNotYet {
+        /// Frame asked for.
+        frame: u64,
+        /// Last frame index.
+        last: u64,
+    },
+    /// A signal interrupted a wait.
+    #[error("interrupted by a signal")]
+    Interrupted,
+    /// The broker refused or failed a request.
+    #[error("broker: {0}")]
+    Broker(String),
+    /// The broker could not be reached.
+    #[error("cannot reach broker {name:?} at {}: {source}", path.display())]
+    NoBroker {
+        /// Broker name.
+        name: String,
+        /// Socket path.
+        path: PathBuf,
+        /// The OS error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The broker answered with something this library does not understand.
+    #[error("control protocol: {0}")]
+    Protocol(String),
+}
+
+impl Error {
+    /// Wraps an OS error with what was being done.
+    pub fn io(context: impl Into<String>, source: std::io::Error) -> Error {
+        Error::Io { context: context.into(), source }
+    }
+}
+
+/// Shorthand.
+pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -1,0 +1,29 @@
+//! bass client library: the shared audio port of the bass broker.
+//!
+//! - [`format`]: the port format v1 (the one definition of the shared layout);
+//! - [`ring`]: the lock-free one-writer / many-readers window protocol;
+//! - [`writer::Writer`]: creates a port and publishes chunks (used by `bassd`, simulators, tests);
+//! - [`reader::Port`]: opens a port read-only; `get_audio_data` is the formal
+//!   `getAudioData` algorithm of the BASS documentation;
+//! - [`ffi`]: the C ABI (`include/bass.h`).
+
+pub mod error;
+pub mod ffi;
+pub mod format;
+pub mod paths;
+pub mod reader;
+pub mod ring;
+mod shm;
+pub mod sys;
+pub mod writer;
+
+/// The atomics the protocol is written against (std here; loom in the loom model).
+pub(crate) mod sync {
+    pub use std::sync::atomic;
+}
+
+pub use error::{Error, Result};
+pub use format::{Geometry, State};
+pub use reader::{ChunkInfo, Port, PortInfo, Read, View};
+pub use ring::Source;
+pub use writer::{ChunkMeta, PortParams, Writer};

@@ -1,0 +1,371 @@
+//! The port reader: opens a port read-only and reads blocks with the formal
+//! `getAudioData` algorithm, waits for frames, reads chunk metadata and zero-copy views.
+//!
+//! A `Port` holds no mutable state (the next frame to read belongs to the caller), so
+//! one `Port` may be shared by any number of threads.
+
+use std::fs::{File, OpenOptions};
+use std::os::unix::fs::OpenOptionsExt;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{fence, AtomicI32, Ordering::Acquire, Ordering::Relaxed};
+use std::time::{Duration, Instant};
+
+use crate::error::{Error, Result};
+use crate::format::{self, Geometry, Header, Layout, State};
+use crate::paths;
+use crate::ring::{Plan, Ring};
+use crate::shm::Mapping;
+use crate::sys::{self, FutexWait};
+
+/// Longest futex wait between two checks that the writer process still exists.
+pub const LIVENESS_SLICE: Duration = Duration::from_millis(100);
+
+/// An open port (read-only mapping).
+pub struct Port {
+    mapping: Mapping,
+    file: File,
+    path: PathBuf,
+    geometry: Geometry,
+    layout: Layout,
+    epoch: u64,
+    version_minor: u32,
+}
+
+/// Result of one `getAudioData` call.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Read {
+    /// Frames delivered (`n`).
+    pub frames: usize,
+    /// Frames lost before them.
+    pub loss: u64,
+}
+
+/// A snapshot of the header.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PortInfo {
+    /// Geometry.
+    pub geometry: Geometry,
+    /// nFOP.
+    pub frames_on_port: u64,
+    /// Newest frame.
+    pub last_frame_index: u64,
+    /// Acquisition epoch.
+    pub epoch: u64,
+    /// State (None if the header holds an unknown value).
+    pub state: Option<State>,
+    /// Error code (see `format::error_code`).
+    pub error_code: u32,
+    /// Error message.
+    pub message: String,
+    /// Device name.
+    pub device: String,
+    /// Recovered overruns.
+    pub xruns: u64,
+    /// Zero-filled gap frames.
+    pub gap_frames: u64,
+    /// Chunks published.
+    pub chunks_published: u64,
+    /// Device rate estimate in Hz (0 = none yet).
+    pub rate_estimate_hz: f64,
+    /// Writer pid.
+    pub writer_pid: u32,
+    /// Whether the writer process is alive.
+    pub writer_alive: bool,
+    /// CLOCK_MONOTONIC (ns) of the acquisition start.
+    pub started_mono_ns: u64,
+    /// CLOCK_MONOTONIC (ns) of the writer's last sign of life.
+    pub heartbeat_mono_ns: u64,
+    /// Minor format version.
+    pub version_minor: u32,
+}
+
+/// Timestamps and flags of the chunk holding a frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ChunkInfo {
+    /// The chunk's first frame.
+    pub first_frame: u64,
+    /// Frames in the chunk.
+    pub frames: u32,
+    /// CLOCK_MONOTONIC (ns) of the first frame.
+    pub mono_ns: u64,
+    /// CLOCK_REALTIME (ns) of the first frame.
+    pub realtime_ns: u64,
+    /// `format::chunk_flags`.
+    pub flags: u32,
+}
+
+/// Frames to be read in place; valid only after [`Port::view_overwritten`] says so.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct View {
+    /// First frame of the view.
+    pub first_frame: u64,
+    /// Frames in the view.
+    pub frames: usize,
+    /// Frames lost before the view.
+    pub loss: u64,
+    /// (start slot, length) of up to two ring segments, the same for every channel.
+    pub segments: [(usize, usize); 2],
+}
+
+impl Port {
+    /// Opens the port `name` in the runtime directory.
+    pub fn open(name: &str) -> Result<Port> {
+        let path = paths::port_path(name)?;
+        Port::open_path_named(&path, name)
+    }
+
+    /// Opens the port file at `path`.
+    pub fn open_path(path: &Path) -> Result<Port> {
+        Port::open_path_named(path, &path.display().to_string())
+    }
+
+    fn open_path_named(path: &Path, name: &str) -> Result<Port> {
+        let file = match OpenOptions::new().read(true).custom_flags(libc::O_CLOEXEC).open(path) {
+            Ok(f) => f,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Err(Error::NotFound { name: name.to_owned(), path: path.to_owned() })
+            }
+            Err(e) => return Err(Error::io(format!("open {}", path.display()), e)),
+        };
+        let len = file.metadata().map_err(|e| Error::io("fstat of the port file", e))?.len();
+        if len == 0 {
+            return Err(Error::Corrupt(format!("{} is empty", path.display())));
+        }
+        let mapping = Mapping::new(&file, len, false)?;
+        let v = format::validate(mapping.header(), len)?;
+        let epoch = mapping.header().epoch.load(Relaxed);
+        Ok(Port {
+            mapping,
+            file,
+            path: path.to_owned(),
+            geometry: v.geometry,
+            layout: v.layout,
+            epoch,
+            version_minor: v.version_minor,
+        })
+    }
+
+    /// Path of the port file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Geometry (fixed for the life of the port).
+    pub fn geometry(&self) -> &Geometry {
+        &self.geometry
+    }
+
+    /// nFOP.
+    pub fn frames_on_port(&self) -> u64 {
+        self.layout.frames_on_port
+    }
+
+    /// Acquisition epoch.
+    pub fn epoch(&self) -> u64 {
+        self.epoch
+    }
+
+    fn header(&self) -> &Header {
+        self.mapping.header()
+    }
+
+    fn ring(&self) -> Ring<'_> {
+        let h = self.header();
+        Ring {
+            last_frame_index: &h.last_frame_index,
+            write_intent: &h.write_intent,
+            samples: self.mapping.samples(&self.layout, self.geometry.channels),
+            frames_on_port: self.layout.frames_on_port,
+        }
+    }
+
+    /// Guards every size-dependent access: a port file shrunk under our mapping would
+    /// raise SIGBUS on access, so refuse before touching it.
+    fn check_size(&self) -> Result<()> {
+        let len = self.file.metadata().map_err(|e| Error::io("fstat of the port file", e))?.len();
+        if len < self.layout.total_size {
+            return Err(Error::Corrupt(format!(
+                "port file shrank to {len} bytes under the reader (needs {})",
+                self.layout.total_size
+            )));
+        }
+        Ok(())
+    }
+
+    /// Loads the last frame index (Acquire) and checks it is plausible.
+    fn last_frame_index(&self) -> Result<u64> {
+        let lfi = self.header().last_frame_index.load(Acquire);
+        if lfi > format::MAX_FRAME_INDEX {
+            return Err(Error::Corrupt(format!("last frame index {lfi} is beyond the format's limit")));
+        }
+        Ok(lfi)
+    }
+
+    /// The formal `getAudioData`: copies up to `max` frames from `*nfr` into `out`, one slice
+    /// per channel (channels `0..out.len()`), and advances `*nfr`. Never blocks.
+    ///
+    /// Every `out` slice must hold at least `min(max, nFOP)` samples.
+    pub fn get_audio_data(&self, max: usize, nfr: &mut u64, out: &mut [&mut [i32]]) -> Result<Read> {
+        if out.is_empty() || out.len() > self.geometry.channels as usize {
+            return Err(Error::InvalidArgument(format!(
+                "{} output channels requested; the port has {}",
+                out.len(),
+                self.geometry.channels
+            )));
+        }
+        let need = (max as u64).min(self.layout.frames_on_port) as usize;
+        if let Some((c, s)) = out.iter().enumerate().find(|(_, s)| s.len() < need) {
+            return Err(Error::InvalidArgument(format!(
+                "output channel {c} holds {} frames, fewer than N = {need}",
+                s.len()
+            )));
+        }
+        self.check_size()?;
+        let lfi = self.last_frame_index()?;
+        let r = self.ring().read(lfi, max, *nfr, out);
+        *nfr = r.next_frame;
+        Ok(Read { frames: r.frames, loss: r.loss })
+    }
+
+    /// Like [`Port::get_audio_data`] but leaves the frames in place: returns where they are.
+    /// Check [`Port::view_overwritten`] after using them. Advances `*nfr` past the view.
+    pub fn view(&self, max: usize, nfr: &mut u64) -> Result<View> {
+        self.check_size()?;
+        let lfi = self.last_frame_index()?;
+        let ring = self.ring();
+        let Plan { first, frames, loss } = ring.plan(lfi, max, *nfr);
+        let nfop = self.layout.frames_on_port;
+        let start = format::slot(first, nfop) as usize;
+        let len0 = frames.min(nfop as usize - start);
+        let segments = [(start, len0), (0, frames - len0)];
+        *nfr = first + frames as u64;
+        Ok(View { first_frame: first, frames, loss, segments })
+    }
+
+    /// How many frames at the start of `view` may have been overwritten since the view was
+    /// taken (0 = all of it is intact). Call after processing the frames in place.
+    pub fn view_overwritten(&self, view: &View) -> u64 {
+        fence(Acquire);
+        let intact = self.ring().first_intact(self.header().write_intent.load(Relaxed));
+        intact.saturating_sub(view.first_frame).min(view.frames as u64)
+    }
+
+    /// Channel `c`'s ring (nFOP samples), for reading a [`View`] in place.
+    pub fn channel_ring(&self, c: usize) -> Option<&[AtomicI32]> {
+        (c < self.geometry.channels as usize).then(|| self.ring().channel(c))
+    }
+
+    /// Blocks until frame `frame` is published (returns the last frame index), the timeout
+    /// expires, the acquisition ends, is replaced, or its writer dies.
+    ///
+    /// A futex wait on the header's futex word; the writer's liveness is checked at least
+    /// every [`LIVENESS_SLICE`] while nothing is published.
+    pub fn wait(&self, frame: u64, timeout: Duration) -> Result<u64> {
+        let deadline = Instant::now().checked_add(timeout);
+        let h = self.header();
+        let mut check_writer = true;
+        loop {
+            self.check_size()?;
+            let seq = h.futex.load(Acquire);
+            let lfi = self.last_frame_index()?;
+            if lfi >= frame {
+                return Ok(lfi);
+            }
+            match State::from_u32(h.state.load(Acquire)) {
+                Some(State::Stopped) => return Err(Error::Stopped { last: lfi }),
+                Some(State::Error) => {
+                    return Err(Error::Device { code: h.error_code.load(Relaxed), message: self.message() })
+                }
+                Some(State::Superseded) => return Err(Error::Restarted),
+                Some(State::Idle | State::Capturing) => {
+                    if check_writer {
+                        let pid = h.writer_pid.load(Relaxed);
+                        if !sys::writer_alive(pid, h.writer_start_time.load(Relaxed)) {
+                            return Err(Error::WriterGone { pid });
+                        }
+                    }
+                }
+                None => return Err(Error::Corrupt(format!("state {}", h.state.load(Relaxed)))),
+            }
+            let remaining = match deadline {
+                Some(d) => d.saturating_duration_since(Instant::now()),
+                None => Duration::MAX,
+            };
+            if remaining.is_zero() {
+                return Err(Error::Timeout { frame, last: lfi });
+            }
+            match sys::futex_wait(&h.futex, seq, remaining.min(LIVENESS_SLICE)) {
+                FutexWait::Woken => check_writer = false,
+                FutexWait::TimedOut => check_writer = true,
+                FutexWait::Interrupted => return Err(Error::Interrupted),
+            }
+        }
+    }
+
+    fn message(&self) -> String {
+        format::read_text(&self.header().message)
+    }
+
+    /// Timestamps and flags of the chunk that holds `frame`.
+    pub fn chunk_info(&self, frame: u64) -> Result<ChunkInfo> {
+        self.check_size()?;
+        let lfi = self.last_frame_index()?;
+        let ring = self.ring();
+        let oldest = (lfi + 1).saturating_sub(self.layout.frames_on_port).max(1);
+        if frame > lfi {
+            return Err(Error::FrameNotYet { frame, last: lfi });
+        }
+        if frame < oldest {
+            return Err(Error::FrameLost { frame, oldest });
+        }
+        let nfpc = u64::from(self.geometry.frames_per_chunk);
+        let chunk = (frame - 1) / nfpc;
+        let table = self.mapping.chunk_table(&self.layout, self.geometry.chunks_on_port);
+        let e = &table[(chunk % u64::from(self.geometry.chunks_on_port)) as usize];
+        let info = ChunkInfo {
+            first_frame: e.first_frame.load(Relaxed),
+            frames: e.frames.load(Relaxed),
+            mono_ns: e.mono_ns.load(Relaxed),
+            realtime_ns: e.realtime_ns.load(Relaxed),
+            flags: e.flags.load(Relaxed),
+        };
+        fence(Acquire);
+        let intact = ring.first_intact(self.header().write_intent.load(Relaxed));
+        if frame < intact {
+            return Err(Error::FrameLost { frame, oldest: intact });
+        }
+        if info.first_frame != chunk * nfpc + 1 || u64::from(info.frames) != nfpc {
+            return Err(Error::Corrupt(format!(
+                "chunk table entry for frame {frame} says first frame {}, {} frames",
+                info.first_frame, info.frames
+            )));
+        }
+        Ok(info)
+    }
+
+    /// A snapshot of the header.
+    pub fn info(&self) -> Result<PortInfo> {
+        self.check_size()?;
+        let h = self.header();
+        let pid = h.writer_pid.load(Relaxed);
+        Ok(PortInfo {
+            geometry: self.geometry.clone(),
+            frames_on_port: self.layout.frames_on_port,
+            last_frame_index: h.last_frame_index.load(Acquire),
+            epoch: self.epoch,
+            state: State::from_u32(h.state.load(Acquire)),
+            error_code: h.error_code.load(Relaxed),
+            message: self.message(),
+            device: format::read_text(&h.device),
+            xruns: h.xruns.load(Relaxed),
+            gap_frames: h.gap_frames.load(Relaxed),
+            chunks_published: h.chunks_published.load(Relaxed),
+            rate_estimate_hz: h.rate_estimate_mhz.load(Relaxed) as f64 / 1000.0,
+            writer_pid: pid,
+            writer_alive: sys::writer_alive(pid, h.writer_start_time.load(Relaxed)),
+            started_mono_ns: h.started_mono_ns.load(Relaxed),
+            heartbeat_mono_ns: h.heartbeat_mono_ns.load(Relaxed),
+            version_minor: self.version_minor,
+        })
+    }
+}

@@ -1,0 +1,65 @@
+//! Mapping a port file and viewing it as the typed structures of [`crate::format`].
+//!
+//! This is the only place that turns raw mapped bytes into references; every view is
+//! bounds-checked against the mapping length first.
+
+use std::fs::File;
+use std::sync::atomic::AtomicI32;
+
+use memmap2::{MmapOptions, MmapRaw};
+
+use crate::error::{Error, Result};
+use crate::format::{ChunkEntry, Header, Layout, CHUNK_ENTRY_SIZE, HEADER_SIZE};
+
+/// A shared mapping of a whole port file.
+pub struct Mapping {
+    raw: MmapRaw,
+    len: usize,
+}
+
+impl Mapping {
+    /// Maps `len` bytes of `file` shared; read-only (PROT_READ) unless `writable`.
+    pub fn new(file: &File, len: u64, writable: bool) -> Result<Mapping> {
+        let len = usize::try_from(len)
+            .map_err(|_| Error::Corrupt(format!("file length {len} does not fit in memory")))?;
+        if len < HEADER_SIZE {
+            return Err(Error::Corrupt(format!(
+                "file is {len} bytes, smaller than the {HEADER_SIZE}-byte header"
+            )));
+        }
+        let mut opts = MmapOptions::new();
+        opts.len(len);
+        let raw = if writable { opts.map_raw(file) } else { opts.map_raw_read_only(file) }
+            .map_err(|e| Error::io("mmap of the port file", e))?;
+        Ok(Mapping { raw, len })
+    }
+
+    /// The header.
+    pub fn header(&self) -> &Header {
+        // SAFETY: the mapping is at least HEADER_SIZE bytes (checked in `new`), page aligned,
+        // and Header consists only of atomics and padding, valid for any bit pattern. The
+        // memory stays mapped for the lifetime of `self`. Atomic loads on a PROT_READ
+        // mapping are plain loads on the supported targets (x86_64, aarch64).
+        unsafe { &*(self.raw.as_ptr() as *const Header) }
+    }
+
+    /// The chunk table of a validated layout.
+    pub fn chunk_table(&self, layout: &Layout, chunks: u32) -> &[ChunkEntry] {
+        let start = layout.chunk_table_offset as usize;
+        let count = chunks as usize;
+        assert!(start % 8 == 0 && start + count * CHUNK_ENTRY_SIZE <= self.len, "layout checked against mapping");
+        // SAFETY: bounds and alignment asserted above; ChunkEntry is atomics only, valid for
+        // any bit pattern; the memory lives as long as `self`.
+        unsafe { std::slice::from_raw_parts(self.raw.as_ptr().add(start) as *const ChunkEntry, count) }
+    }
+
+    /// The sample rings of a validated layout (`channels * nFOP` samples).
+    pub fn samples(&self, layout: &Layout, channels: u32) -> &[AtomicI32] {
+        let start = layout.samples_offset as usize;
+        let count = layout.frames_on_port as usize * channels as usize;
+        assert!(start % 4 == 0 && start + count * 4 <= self.len, "layout checked against mapping");
+        // SAFETY: bounds and alignment asserted above; AtomicI32 is valid for any bit
+        // pattern; the memory lives as long as `self`.
+        unsafe { std::slice::from_raw_parts(self.raw.as_ptr().add(start) as *const AtomicI32, count) }
+    }
+}

@@ -1,0 +1,319 @@
+//! The port writer: creates a port file and publishes chunks into it.
+//!
+//! Used by the broker, and through the C ABI by simulators and test rigs.
+
+use std::fs::{File, OpenOptions};
+use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering::{Relaxed, Release};
+
+use crate::error::{Error, Result};
+use crate::format::{self, ChunkEntry, Geometry, Header, Layout, State};
+use crate::paths;
+use crate::ring::{Ring, Source};
+use crate::shm::Mapping;
+use crate::sys;
+
+/// Parameters of a new port.
+#[derive(Clone, Debug)]
+pub struct PortParams {
+    /// Geometry (channels, rate, nFPC, nCOP).
+    pub geometry: Geometry,
+    /// Device name recorded in the header.
+    pub device: String,
+    /// Group owning the file (mode 0640), if not the creator's.
+    pub group: Option<u32>,
+}
+
+/// Timestamps and flags of a chunk.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ChunkMeta {
+    /// CLOCK_MONOTONIC (ns) of the chunk's first frame; 0 = now.
+    pub mono_ns: u64,
+    /// CLOCK_REALTIME (ns) of the chunk's first frame; 0 = now.
+    pub realtime_ns: u64,
+    /// [`format::chunk_flags`].
+    pub flags: u32,
+}
+
+/// Writes one port. One writer per port; not shareable between threads without a lock.
+pub struct Writer {
+    mapping: Mapping,
+    _file: File,
+    path: PathBuf,
+    geometry: Geometry,
+    layout: Layout,
+    epoch: u64,
+}
+
+impl Writer {
+    /// Creates the port `name` in the runtime directory (see [`paths::runtime_dir`]).
+    pub fn create(name: &str, params: &PortParams) -> Result<Writer> {
+        Writer::create_at(&paths::port_path(name)?, params)
+    }
+
+    /// Creates a port file at `path`, replacing (and marking superseded) any port there.
+    ///
+    /// The file is built under a temporary name and renamed into place, and its version is
+    /// written last, so no reader ever sees a half-initialised header.
+    pub fn create_at(path: &Path, params: &PortParams) -> Result<Writer> {
+        let geometry = params.geometry.clone();
+        let layout = geometry.layout()?;
+        let previous = Previous::inspect(path)?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let file_name = path.file_name().and_then(|f| f.to_str()).unwrap_or("port");
+        let tmp = dir.join(format!(".{file_name}.{}.tmp", std::process::id()));
+        let _ = std::fs::remove_file(&tmp);
+        let file = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create_new(true)
+            .mode(0o640)
+            .custom_flags(libc::O_CLOEXEC)
+            .open(&tmp)
+            .map_err(|e| Error::io(format!("create {}", tmp.display()), e))?;
+        let built = (|| {
+            file.set_permissions(std::fs::Permissions::from_mode(0o640))
+                .map_err(|e| Error::io("chmod 0640 of the port file", e))?;
+            if let Some(gid) = params.group {
+                std::os::unix::fs::fchown(&file, None, Some(gid))
+                    .map_err(|e| Error::io(format!("chown of the port file to group {gid}"), e))?;
+            }
+            file.set_len(layout.total_size)
+                .map_err(|e| Error::io(format!("resize the port file to {} bytes", layout.total_size), e))?;
+            let mapping = Mapping::new(&file, layout.total_size, true)?;
+            let epoch = previous.as_ref().map_or(1, |p| p.epoch + 1);
+            init_header(mapping.header(), &geometry, &layout, epoch, &params.device);
+            std::fs::rename(&tmp, path)
+                .map_err(|e| Error::io(format!("rename {} to {}", tmp.display(), path.display()), e))?;
+            Ok((mapping, epoch))
+        })();
+        let (mapping, epoch) = match built {
+            Ok(v) => v,
+            Err(e) => {
+                let _ = std::fs::remove_file(&tmp);
+                return Err(e);
+            }
+        };
+        if let Some(p) = previous {
+            p.supersede();
+        }
+        Ok(Writer { mapping, _file: file, path: path.to_owned(), geometry, layout, epoch })
+    }
+
+    /// Path of the port file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The port's geometry.
+    pub fn geometry(&self) -> &Geometry {
+        &self.geometry
+    }
+
+    /// The port's layout.
+    pub fn layout(&self) -> &Layout {
+        &self.layout
+    }
+
+    /// The acquisition epoch of this port.
+    pub fn epoch(&self) -> u64 {
+        self.epoch
+    }
+
+    fn header(&self) -> &Header {
+        self.mapping.header()
+    }
+
+    /// Index of the newest published frame.
+    pub fn last_frame_index(&self) -> u64 {
+        self.header().last_frame_index.load(Relaxed)
+    }
+
+    /// Publishes one chunk of nFPC frames. Returns the new last frame index.
+    pub fn publish(&mut self, src: Source<'_>, meta: ChunkMeta) -> Result<u64> {
+        let nfpc = self.geometry.frames_per_chunk as usize;
+        let channels = self.geometry.channels as usize;
+        match &src {
+            Source::Interleaved(s) if s.len() != nfpc * channels => {
+                return Err(Error::InvalidArgument(format!(
+                    "interleaved chunk of {} samples; this port needs {nfpc} frames x {channels} channels = {}",
+                    s.len(),
+                    nfpc * channels
+                )))
+            }
+            Source::Planar(p) if p.len() != channels => {
+                return Err(Error::InvalidArgument(format!(
+                    "planar chunk with {} channels; this port has {channels}",
+                    p.len()
+                )))
+            }
+            Source::Planar(p) => {
+                if let Some((c, s)) = p.iter().enumerate().find(|(_, s)| s.len() != nfpc) {
+                    return Err(Error::InvalidArgument(format!(
+                        "planar chunk: channel {c} has {} frames; this port needs {nfpc}",
+                        s.len()
+                    )));
+                }
+            }
+            _ => {}
+        }
+        let h = self.mapping.header();
+        let lfi = h.last_frame_index.load(Relaxed);
+        if lfi + nfpc as u64 > format::MAX_FRAME_INDEX {
+            return Err(Error::InvalidArgument(format!("frame index {lfi} would pass the format's limit")));
+        }
+        let table = self.mapping.chunk_table(&self.layout, self.geometry.chunks_on_port);
+        let entry = &table[((lfi / nfpc as u64) % u64::from(self.geometry.chunks_on_port)) as usize];
+        let ring = Ring {
+            last_frame_index: &h.last_frame_index,
+            write_intent: &h.write_intent,
+            samples: self.mapping.samples(&self.layout, self.geometry.channels),
+            frames_on_port: self.layout.frames_on_port,
+        };
+        let now_mono = sys::monotonic_ns();
+        let mono = if meta.mono_ns == 0 { now_mono } else { meta.mono_ns };
+        let real = if meta.realtime_ns == 0 { sys::realtime_ns() } else { meta.realtime_ns };
+        let new_lfi = ring.publish(nfpc, channels, &src, || {
+            write_entry(entry, lfi + 1, mono, real, meta.flags, nfpc as u32);
+        });
+        h.chunks_published.fetch_add(1, Relaxed);
+        if matches!(src, Source::Zeros) {
+            h.gap_frames.fetch_add(nfpc as u64, Relaxed);
+        }
+        h.heartbeat_mono_ns.store(now_mono, Relaxed);
+        if h.state.load(Relaxed) == State::Idle as u32 {
+            h.state.store(State::Capturing as u32, Release);
+        }
+        wake(h);
+        Ok(new_lfi)
+    }
+
+    /// Sets the state (with an error code and message for [`State::Error`]) and wakes readers.
+    pub fn set_state(&self, state: State, code: u32, message: &str) {
+        let h = self.header();
+        format::write_text(&h.message, message);
+        h.error_code.store(code, Relaxed);
+        h.state.store(state as u32, Release);
+        wake(h);
+    }
+
+    /// The current state.
+    pub fn state(&self) -> State {
+        State::from_u32(self.header().state.load(Relaxed)).unwrap_or(State::Error)
+    }
+
+    /// Counts `n` recovered device overruns.
+    pub fn add_xruns(&self, n: u64) {
+        self.header().xruns.fetch_add(n, Relaxed);
+    }
+
+    /// Publishes the device-clock rate estimate (Hz).
+    pub fn set_rate_estimate(&self, hz: f64) {
+        let mhz = if hz.is_finite() && hz > 0.0 { (hz * 1000.0).round() as u64 } else { 0 };
+        self.header().rate_estimate_mhz.store(mhz, Relaxed);
+    }
+
+    /// Records that the writer is alive without publishing.
+    pub fn heartbeat(&self) {
+        self.header().heartbeat_mono_ns.store(sys::monotonic_ns(), Relaxed);
+    }
+
+    /// Stops the acquisition: the port keeps its frames and shows [`State::Stopped`].
+    pub fn stop(&self) {
+        if matches!(self.state(), State::Idle | State::Capturing) {
+            self.set_state(State::Stopped, format::error_code::NONE, "");
+        }
+    }
+
+    /// Stops and removes the port file (readers that have it mapped keep their view).
+    pub fn remove(self) -> Result<()> {
+        self.stop();
+        std::fs::remove_file(&self.path).map_err(|e| Error::io(format!("remove {}", self.path.display()), e))
+    }
+}
+
+impl Drop for Writer {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+fn wake(h: &Header) {
+    h.futex.fetch_add(1, Release);
+    sys::futex_wake_all(&h.futex);
+}
+
+fn write_entry(e: &ChunkEntry, first: u64, mono: u64, real: u64, flags: u32, frames: u32) {
+    e.first_frame.store(first, Relaxed);
+    e.mono_ns.store(mono, Relaxed);
+    e.realtime_ns.store(real, Relaxed);
+    e.flags.store(flags, Relaxed);
+    e.frames.store(frames, Relaxed);
+}
+
+fn init_header(h: &Header, g: &Geometry, l: &Layout, epoch: u64, device: &str) {
+    h.magic.store(format::MAGIC, Relaxed);
+    h.version_minor.store(format::VERSION_MINOR, Relaxed);
+    h.header_size.store(format::HEADER_SIZE as u32, Relaxed);
+    h.channels.store(g.channels, Relaxed);
+    h.sample_format.store(format::SAMPLE_FORMAT_S32, Relaxed);
+    h.sample_rate.store(g.sample_rate, Relaxed);
+    h.frames_per_chunk.store(g.frames_per_chunk, Relaxed);
+    h.chunks_on_port.store(g.chunks_on_port, Relaxed);
+    h.chunk_table_offset.store(l.chunk_table_offset, Relaxed);
+    h.samples_offset.store(l.samples_offset, Relaxed);
+    h.total_size.store(l.total_size, Relaxed);
+    h.epoch.store(epoch, Relaxed);
+    h.writer_pid.store(std::process::id(), Relaxed);
+    h.writer_start_time.store(sys::own_start_time(), Relaxed);
+    h.created_realtime_ns.store(sys::realtime_ns(), Relaxed);
+    let now = sys::monotonic_ns();
+    h.started_mono_ns.store(now, Relaxed);
+    h.heartbeat_mono_ns.store(now, Relaxed);
+    h.state.store(State::Idle as u32, Relaxed);
+    format::write_text(&h.device, device);
+    // Last, with Release: a reader that sees the version sees everything above.
+    h.version_major.store(format::VERSION_MAJOR, Release);
+}
+
+/// A port file found where a new one is being created.
+struct Previous {
+    mapping: Mapping,
+    epoch: u64,
+}
+
+impl Previous {
+    /// Looks at an existing file: a live port of another process is an error; a valid
+    /// port is remembered so its epoch continues and its readers can be told; anything
+    /// else (stale garbage) is simply replaced.
+    fn inspect(path: &Path) -> Result<Option<Previous>> {
+        let Ok(file) = OpenOptions::new().read(true).write(true).open(path) else {
+            return Ok(None);
+        };
+        let Ok(len) = file.metadata().map(|m| m.len()) else { return Ok(None) };
+        let Ok(mapping) = Mapping::new(&file, len, true) else { return Ok(None) };
+        let h = mapping.header();
+        if format::validate(h, len).is_err() {
+            return Ok(None);
+        }
+        let pid = h.writer_pid.load(Relaxed);
+        let start = h.writer_start_time.load(Relaxed);
+        let state = h.state.load(Relaxed);
+        let live = matches!(State::from_u32(state), Some(State::Idle | State::Capturing));
+        if live && pid != std::process::id() && sys::writer_alive(pid, start) {
+            return Err(Error::InvalidArgument(format!(
+                "port {} is being written by live process {pid}",
+                path.display()
+            )));
+        }
+        let epoch = h.epoch.load(Relaxed);
+        Ok(Some(Previous { mapping, epoch }))
+    }
+
+    fn supersede(self) {
+        let h = self.mapping.header();
+        h.state.store(State::Superseded as u32, Release);
+        wake(h);
+    }
+}

@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# Installs what bass needs on a fresh Debian machine (idempotent; skips what is present).
+# Usage: scripts/install-deps.sh [--with-octave]
+set -euo pipefail
+
+need=()
+have_pkg() { dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q 'install ok installed'; }
+
+pkgs=(build-essential pkg-config libasound2-dev libasound2-plugins alsa-utils jackd2 procps util-linux cmake)
+if [[ "${1:-}" == "--with-octave" ]]; then
+  pkgs+=(octave liboctave-dev)
+fi
+for p in "${pkgs[@]}"; do have_pkg "$p" || need+=("$p"); done
+
+if ((${#need[@]})); then
+  sudo=""
+  [[ $(id -u) -eq 0 ]] || sudo="sudo"
+  export DEBIAN_FRONTEND=noninteractive
+  echo "install-deps: installing ${need[*]}"
+  $sudo apt-get update -q
+  $sudo apt-get install -y -q --no-install-recommends "${need[@]}"
+fi
+
+if ! python3 -c 'import numpy, pytest' 2>/dev/null; then
+  python3 -m pip install -q numpy pytest
+fi
