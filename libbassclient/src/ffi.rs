@@ -27,7 +27,6 @@ use crate::reader::{ChunkInfo, Port, PortInfo, View};
 use crate::ring::Source;
 use crate::writer::{ChunkMeta, PortParams, Writer};
 
-
 /// Result codes. `BASS_OK` is 0; the codes are stable and never renumbered.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -348,8 +347,7 @@ pub(crate) unsafe fn c_str<'a>(p: *const c_char, name: &'static str) -> Result<&
     let p = nonnull(p, name)?;
     // SAFETY: non-null, and the caller guarantees NUL termination.
     let s = unsafe { CStr::from_ptr(p) };
-    s.to_str()
-        .map_err(|_| Failure::Lib(Error::InvalidArgument(format!("{name} is not valid UTF-8"))))
+    s.to_str().map_err(|_| Failure::Lib(Error::InvalidArgument(format!("{name} is not valid UTF-8"))))
 }
 
 /// Writes `v` through an out pointer already checked for NULL.
@@ -468,7 +466,10 @@ pub unsafe extern "C" fn bass_port_open(name: *const c_char, out_port: *mut *mut
 /// # Safety
 /// `path` must be NULL or a NUL-terminated string; `out_port` NULL or valid for a write.
 #[no_mangle]
-pub unsafe extern "C" fn bass_port_open_path(path: *const c_char, out_port: *mut *mut bass_port) -> bass_result {
+pub unsafe extern "C" fn bass_port_open_path(
+    path: *const c_char,
+    out_port: *mut *mut bass_port,
+) -> bass_result {
     boundary("bass_port_open_path", || {
         // SAFETY: forwarded caller guarantee.
         let path = unsafe { c_str(path, "path") }?;
@@ -639,7 +640,10 @@ fn info_to_c(i: &PortInfo) -> bass_port_info {
 /// # Safety
 /// `out_info` must be NULL or valid for a write.
 #[no_mangle]
-pub unsafe extern "C" fn bass_port_get_info(port: *const bass_port, out_info: *mut bass_port_info) -> bass_result {
+pub unsafe extern "C" fn bass_port_get_info(
+    port: *const bass_port,
+    out_info: *mut bass_port_info,
+) -> bass_result {
     boundary("bass_port_get_info", || {
         let p = self::port(port)?;
         let out = nonnull_mut(out_info, "out_info")?;
@@ -857,12 +861,7 @@ unsafe fn meta_from(meta: *const bass_chunk_meta) -> ChunkMeta {
     ChunkMeta { mono_ns: m.mono_ns, realtime_ns: m.realtime_ns, flags: m.flags }
 }
 
-fn publish(
-    w: *mut bass_writer,
-    src: Source<'_>,
-    meta: ChunkMeta,
-    out_lfi: *mut u64,
-) -> Result<(), Failure> {
+fn publish(w: *mut bass_writer, src: Source<'_>, meta: ChunkMeta, out_lfi: *mut u64) -> Result<(), Failure> {
     let w = writer(w)?;
     let lfi = w.lock().unwrap_or_else(|e| e.into_inner()).publish(src, meta)?;
     if !out_lfi.is_null() {
@@ -966,7 +965,12 @@ pub unsafe extern "C" fn bass_writer_set_state(
         let w = self::writer(writer)?;
         let st = match State::from_u32(state) {
             Some(s @ (State::Idle | State::Capturing | State::Stopped | State::Error)) => s,
-            _ => return Err(Error::InvalidArgument(format!("state = {state} (use BASS_STATE_IDLE..BASS_STATE_ERROR)")).into()),
+            _ => {
+                return Err(Error::InvalidArgument(format!(
+                    "state = {state} (use BASS_STATE_IDLE..BASS_STATE_ERROR)"
+                ))
+                .into())
+            }
         };
         // SAFETY: forwarded caller guarantee.
         let msg = if message.is_null() { "" } else { unsafe { c_str(message, "message") }? };

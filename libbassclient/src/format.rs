@@ -319,11 +319,8 @@ pub fn validate(h: &Header, file_len: u64) -> Result<Validated, Error> {
         chunks_on_port: h.chunks_on_port.load(Relaxed),
     };
     let layout = geometry.layout().map_err(|e| corrupt(format!("geometry: {e}")))?;
-    let stored = (
-        h.chunk_table_offset.load(Relaxed),
-        h.samples_offset.load(Relaxed),
-        h.total_size.load(Relaxed),
-    );
+    let stored =
+        (h.chunk_table_offset.load(Relaxed), h.samples_offset.load(Relaxed), h.total_size.load(Relaxed));
     if stored != (layout.chunk_table_offset, layout.samples_offset, layout.total_size) {
         return Err(corrupt(format!(
             "offsets (table {}, samples {}, total {}) disagree with the geometry (table {}, samples {}, total {})",

@@ -15,6 +15,7 @@ pub mod reader;
 pub mod ring;
 mod shm;
 pub mod sys;
+pub mod testsignal;
 pub mod writer;
 
 /// The atomics the protocol is written against (std here; loom in the loom model).

@@ -47,7 +47,10 @@ impl Mapping {
     pub fn chunk_table(&self, layout: &Layout, chunks: u32) -> &[ChunkEntry] {
         let start = layout.chunk_table_offset as usize;
         let count = chunks as usize;
-        assert!(start % 8 == 0 && start + count * CHUNK_ENTRY_SIZE <= self.len, "layout checked against mapping");
+        assert!(
+            start % 8 == 0 && start + count * CHUNK_ENTRY_SIZE <= self.len,
+            "layout checked against mapping"
+        );
         // SAFETY: bounds and alignment asserted above; ChunkEntry is atomics only, valid for
         // any bit pattern; the memory lives as long as `self`.
         unsafe { std::slice::from_raw_parts(self.raw.as_ptr().add(start) as *const ChunkEntry, count) }

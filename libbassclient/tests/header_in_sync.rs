@@ -19,8 +19,5 @@ fn committed_header_matches_cbindgen_output() {
         std::fs::write(&path, &generated).expect("write include/bass.h");
     }
     let committed = std::fs::read(&path).unwrap_or_default();
-    assert!(
-        committed == generated,
-        "include/bass.h is out of date: run `make header` and commit it"
-    );
+    assert!(committed == generated, "include/bass.h is out of date: run `make header` and commit it");
 }

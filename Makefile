@@ -1,0 +1,62 @@
+# bass: top-level entry points. `make demo` and `make test` work on a fresh Debian machine.
+SHELL := /bin/bash
+CARGO ?= cargo
+export CARGO_TERM_COLOR ?= never
+RELEASE_DIR := target/release
+CFLAGS_STRICT := -std=c11 -Wall -Wextra -Wpedantic -Werror
+
+.PHONY: all deps build demo test test-rust test-loom test-c test-broker test-clients test-faults \
+        header fmt lint bench install clean
+
+all: build
+
+# System packages (apt) and Python modules the build and the tests need.
+deps:
+	scripts/install-deps.sh --with-octave
+
+build: deps
+	$(CARGO) build --release --workspace
+
+demo: build
+	scripts/demo.sh
+
+# Everything CI runs.
+test: deps lint test-rust test-loom test-c test-broker test-clients test-faults
+	@echo "make test: all suites passed"
+
+lint:
+	$(CARGO) fmt --all -- --check
+	$(CARGO) clippy --release --workspace --all-targets -- -D warnings
+
+test-rust:
+	$(CARGO) build --release --workspace --all-targets
+	$(CARGO) test --release --workspace
+
+# The loom model of the window protocol (its own cfg, its own target directory).
+test-loom:
+	RUSTFLAGS="--cfg loom" CARGO_TARGET_DIR=target/loom $(CARGO) test --release -p bassclient --test loom_ring
+
+test-c: build
+	tests/c/run.sh
+
+test-broker: build
+	@if [ -x tests/broker/run.sh ]; then tests/broker/run.sh; else echo "test-broker: no suite yet"; fi
+
+test-clients: build
+	@if [ -x tests/clients/run.sh ]; then tests/clients/run.sh; else echo "test-clients: no suite yet"; fi
+
+test-faults: build
+	@if [ -x tests/faults/run.sh ]; then tests/faults/run.sh; else echo "test-faults: no suite yet"; fi
+
+# Regenerate include/bass.h from the Rust sources.
+header:
+	BASS_BLESS=1 $(CARGO) test -p bassclient --test header_in_sync
+
+fmt:
+	$(CARGO) fmt --all
+
+bench: build
+	@if [ -x scripts/bench.sh ]; then scripts/bench.sh; else echo "bench: not yet"; fi
+
+clean:
+	$(CARGO) clean
