@@ -74,18 +74,19 @@ impl<'a> Ring<'a> {
         ((frame + self.frames_on_port - 1) % self.frames_on_port) as usize
     }
 
-    /// Publishes `count` frames (writer only; `count <= nFOP`). Returns the new last frame index.
+    /// Publishes `count` frames after frame `lfi`, the current last frame index (writer only,
+    /// which owns that value; `count <= nFOP`). Returns the new last frame index.
     ///
     /// `under_intent` runs after the intent is announced and before the frames are
     /// published: the writer updates the chunk table there.
     pub fn publish(
         &self,
+        lfi: u64,
         count: usize,
         channels: usize,
         src: &Source<'_>,
         under_intent: impl FnOnce(),
     ) -> u64 {
-        let lfi = self.last_frame_index.load(Ordering::Relaxed);
         let new_lfi = lfi + count as u64;
         // Announce the frames about to be overwritten before touching any sample.
         self.write_intent.store(new_lfi, Ordering::Relaxed);

@@ -174,7 +174,7 @@ impl Writer {
         let now_mono = sys::monotonic_ns();
         let mono = if meta.mono_ns == 0 { now_mono } else { meta.mono_ns };
         let real = if meta.realtime_ns == 0 { sys::realtime_ns() } else { meta.realtime_ns };
-        let new_lfi = ring.publish(nfpc, channels, &src, || {
+        let new_lfi = ring.publish(lfi, nfpc, channels, &src, || {
             write_entry(entry, lfi + 1, mono, real, meta.flags, nfpc as u32);
         });
         h.chunks_published.fetch_add(1, Relaxed);
