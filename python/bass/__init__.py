@@ -1,0 +1,309 @@
+"""bass: Python client of the bass audio streaming broker (ctypes over libbassclient).
+
+Reading a port, in the vocabulary of the BASS documentation::
+
+    import bass
+    bass.acquire("sim:pattern", 44100, 2205, 20)        # the broker's Acquire service
+    with bass.Port("default") as port:
+        d = port.get_audio_data(12000, nfr)              # formal getAudioData, never blocks
+        d.left, d.right, d.nfr, d.n, d.loss              # int32 numpy arrays, next frame, ...
+        for block in port.blocks(4410, start_offs=0):    # consecutive blocks (blocking)
+            ...
+
+Frames are numbered from 1; frame 0 is the zero frame before the acquisition. Errors raise
+:class:`BassError` carrying the C result code, its name and the library's message.
+"""
+
+import collections
+import ctypes
+import time
+
+import numpy as np
+
+from . import _lib
+from ._lib import BASS_WAIT_FOREVER, lib
+
+__all__ = [
+    "BassError", "Port", "Writer", "AudioData", "Block", "acquire", "stop", "status", "list_devices",
+    "version", "pattern_expected", "RESULT_NAMES", "STATE_NAMES",
+]
+
+# Result codes of include/bass.h (stable, never renumbered).
+RESULT_NAMES = {
+    0: "OK", 1: "NULL_ARGUMENT", 2: "INVALID_ARGUMENT", 3: "INVALID_HANDLE", 4: "NOT_FOUND",
+    5: "NOT_READY", 6: "BAD_MAGIC", 7: "INCOMPATIBLE", 8: "CORRUPT", 9: "IO", 10: "TIMEOUT",
+    11: "STOPPED", 12: "DEVICE", 13: "RESTARTED", 14: "WRITER_GONE", 15: "FRAME_LOST",
+    16: "FRAME_NOT_YET", 17: "INTERRUPTED", 18: "BROKER", 19: "NO_BROKER", 20: "PROTOCOL",
+    21: "PANIC", 22: "BUFFER_TOO_SMALL",
+}
+for _code, _name in RESULT_NAMES.items():
+    globals()["BASS_" + ("OK" if _code == 0 else "ERR_" + _name)] = _code
+
+STATE_NAMES = {0: "idle", 1: "capturing", 2: "stopped", 3: "error", 4: "superseded"}
+
+# Longest single wait inside the library, so that Ctrl-C (KeyboardInterrupt) is seen promptly.
+WAIT_SLICE_MS = 100
+
+
+class BassError(Exception):
+    """A failed libbassclient call: `code` (int), `name` (e.g. "TIMEOUT"), `message`."""
+
+    def __init__(self, call, code, message=""):
+        self.call, self.code, self.message = call, code, message
+        self.name = RESULT_NAMES.get(code, f"UNKNOWN_{code}")
+        text = lib.bass_result_str(code).decode()
+        super().__init__(f"{call}: {text}" + (f" ({message})" if message else ""))
+
+
+def _check(call, code):
+    if code != 0:
+        raise BassError(call, code, lib.bass_last_error().decode(errors="replace"))
+
+
+def _bytes(s):
+    return None if s is None else s.encode()
+
+
+def version():
+    """The library's version string."""
+    return lib.bass_version().decode()
+
+
+def pattern_expected(frames, channel):
+    """The pattern test signal for the given frame indices (0 for the zero frame 0)."""
+    f = np.asarray(frames, dtype=np.uint64)
+    v = (((f & np.uint64(0x3FFFFFF)) << np.uint64(6)) | np.uint64(channel & 63)).astype(np.uint32).view(np.int32)
+    return np.where(f == 0, 0, v).astype(np.int32)
+
+
+AudioData = collections.namedtuple("AudioData", "left right nfr n loss")
+AudioData.__doc__ = "Result of getAudioData: int32 arrays of n frames, the new nfr, n, frames lost."
+
+Block = collections.namedtuple("Block", "left right first_frame next_frame loss")
+Block.__doc__ = ("A complete block: int32 arrays, the index of its first frame, the frame after it, and "
+                 "the frames lost while it was assembled (0: the block follows the previous one exactly).")
+
+
+def _i32p(a, offset=0):
+    return ctypes.cast(a.ctypes.data + 4 * offset, ctypes.POINTER(ctypes.c_int32))
+
+
+class Port:
+    """A port opened read-only (`name` = the broker's name, default "default")."""
+
+    def __init__(self, name="default"):
+        self._h = None
+        h = ctypes.c_void_p()
+        _check("bass_port_open", lib.bass_port_open(name.encode(), ctypes.byref(h)))
+        self._h = h
+        self.name = name
+        info = self.info()
+        self.channels = info["channels"]
+        self.frames_on_port = info["frames_on_port"]
+        self.epoch = info["epoch"]
+
+    def close(self):
+        if self._h is not None:
+            lib.bass_port_close(self._h)
+            self._h = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __del__(self):
+        self.close()
+
+    def _handle(self):
+        if self._h is None:
+            raise BassError("Port", 3, "the port is closed")
+        return self._h
+
+    def info(self):
+        """A snapshot of the port header as a dict (state as a name, device and message as str)."""
+        i = _lib.PortInfo()
+        _check("bass_port_get_info", lib.bass_port_get_info(self._handle(), ctypes.byref(i)))
+        d = {name: getattr(i, name) for name, _ in _lib.PortInfo._fields_}
+        d["device"] = i.device.decode(errors="replace")
+        d["message"] = i.message.decode(errors="replace")
+        d["state_name"] = STATE_NAMES.get(i.state, str(i.state))
+        d["writer_alive"] = bool(i.writer_alive)
+        return d
+
+    @property
+    def last_frame_index(self):
+        return self.info()["last_frame_index"]
+
+    def get_audio_data(self, n_frames, nfr):
+        """The formal getAudioData: up to `n_frames` frames from `nfr` (never blocks)."""
+        if n_frames < 0 or nfr < 0:
+            raise ValueError("n_frames and nfr must be >= 0")
+        cap = max(1, min(n_frames, self.frames_on_port))
+        left = np.empty(cap, dtype=np.int32)
+        right = np.empty(cap, dtype=np.int32)
+        c_nfr, n, loss = ctypes.c_uint64(nfr), ctypes.c_size_t(), ctypes.c_uint64()
+        _check("bass_get_audio_data", lib.bass_get_audio_data(
+            self._handle(), min(n_frames, cap), ctypes.byref(c_nfr), _i32p(left), _i32p(right),
+            ctypes.byref(n), ctypes.byref(loss)))
+        return AudioData(left[:n.value], right[:n.value], c_nfr.value, n.value, loss.value)
+
+    def get_audio_data_multi(self, n_frames, nfr, channels=None):
+        """getAudioData for the first `channels` channels: returns (array[channels, n], nfr, n, loss)."""
+        channels = self.channels if channels is None else channels
+        cap = max(1, min(n_frames, self.frames_on_port))
+        out = np.empty((channels, cap), dtype=np.int32)
+        ptrs = (ctypes.POINTER(ctypes.c_int32) * channels)(*[_i32p(out[c]) for c in range(channels)])
+        c_nfr, n, loss = ctypes.c_uint64(nfr), ctypes.c_size_t(), ctypes.c_uint64()
+        _check("bass_get_audio_data_multi", lib.bass_get_audio_data_multi(
+            self._handle(), min(n_frames, cap), ctypes.byref(c_nfr), ptrs, channels,
+            ctypes.byref(n), ctypes.byref(loss)))
+        return out[:, :n.value], c_nfr.value, n.value, loss.value
+
+    def wait(self, frame, timeout=None):
+        """Blocks until `frame` is published; returns the last frame index.
+
+        Waits in slices of WAIT_SLICE_MS so that Ctrl-C raises KeyboardInterrupt promptly.
+        Raises BassError TIMEOUT after `timeout` seconds (None: no limit), STOPPED, DEVICE,
+        RESTARTED or WRITER_GONE when the acquisition ends.
+        """
+        deadline = None if timeout is None else time.monotonic() + timeout
+        lfi = ctypes.c_uint64()
+        while True:
+            slice_ms = WAIT_SLICE_MS
+            if deadline is not None:
+                slice_ms = max(0, min(slice_ms, int((deadline - time.monotonic()) * 1000)))
+            r = lib.bass_port_wait(self._handle(), frame, slice_ms, ctypes.byref(lfi))
+            if r == 0:
+                return lfi.value
+            if r in (BASS_ERR_TIMEOUT, BASS_ERR_INTERRUPTED):  # noqa: F821 (defined above)
+                if deadline is not None and time.monotonic() >= deadline:
+                    _check("bass_port_wait", r)
+                continue
+            _check("bass_port_wait", r)
+
+    def start_frame(self, start_offs=0):
+        """nfr for a start offset counted from the next frame (0 = fresh frames only;
+        -N = the last N frames on the port), clamped at 0, as BASC does."""
+        return max(0, self.last_frame_index + 1 + start_offs)
+
+    def blocks(self, n_frames, start_offs=0, nfr=None, count=None, timeout=None):
+        """Iterates over consecutive blocks of `n_frames` frames (blocking on the port).
+
+        Starts at `nfr` if given, else at `start_frame(start_offs)`. Reads at least every half
+        window, so no frame is lost while the consumer keeps up; frames lost anyway are
+        reported in `Block.loss`. Stops after `count` blocks (None: forever).
+        """
+        if n_frames <= 0:
+            raise ValueError("n_frames must be > 0")
+        nfr = self.start_frame(start_offs) if nfr is None else nfr
+        half = max(1, self.frames_on_port // 2)
+        done = 0
+        while count is None or done < count:
+            left = np.empty(n_frames, dtype=np.int32)
+            right = np.empty(n_frames, dtype=np.int32)
+            filled, loss, first = 0, 0, None
+            while filled < n_frames:
+                rem = n_frames - filled
+                self.wait(nfr + min(rem, half) - 1, timeout)
+                want = min(rem, self.frames_on_port)
+                c_nfr, n, l = ctypes.c_uint64(nfr), ctypes.c_size_t(), ctypes.c_uint64()
+                _check("bass_get_audio_data", lib.bass_get_audio_data(
+                    self._handle(), want, ctypes.byref(c_nfr), _i32p(left, filled), _i32p(right, filled),
+                    ctypes.byref(n), ctypes.byref(l)))
+                if first is None and n.value:
+                    first = c_nfr.value - n.value
+                loss += l.value
+                filled += n.value
+                nfr = c_nfr.value
+            done += 1
+            yield Block(left, right, first, nfr, loss)
+
+
+class Writer:
+    """A port writer (for simulators and test rigs; the broker is the writer in production)."""
+
+    def __init__(self, name, channels=2, sample_rate=44100, frames_per_chunk=2205, chunks_on_port=20,
+                 device="python"):
+        self._h = None
+        h = ctypes.c_void_p()
+        _check("bass_writer_create", lib.bass_writer_create(
+            name.encode(), _bytes(device), channels, sample_rate, frames_per_chunk, chunks_on_port, ctypes.byref(h)))
+        self._h = h
+        self.channels, self.frames_per_chunk = channels, frames_per_chunk
+
+    def publish(self, samples):
+        """Publishes one chunk: int32 samples, shape (frames_per_chunk, channels) or flat interleaved.
+        Returns the new last frame index."""
+        a = np.ascontiguousarray(samples, dtype=np.int32).reshape(-1)
+        lfi = ctypes.c_uint64()
+        _check("bass_writer_publish_interleaved", lib.bass_writer_publish_interleaved(
+            self._h, _i32p(a), a.size, None, ctypes.byref(lfi)))
+        return lfi.value
+
+    def publish_gap(self):
+        lfi = ctypes.c_uint64()
+        _check("bass_writer_publish_gap", lib.bass_writer_publish_gap(self._h, None, ctypes.byref(lfi)))
+        return lfi.value
+
+    def set_state(self, state, error_code=0, message=None):
+        _check("bass_writer_set_state", lib.bass_writer_set_state(self._h, state, error_code, _bytes(message)))
+
+    def close(self):
+        if self._h is not None:
+            lib.bass_writer_close(self._h)
+            self._h = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def _control(name):
+    if not _lib.has(name):
+        raise BassError(name, 19, f"{name} is not in this libbassclient (no control plane)")
+    return getattr(lib, name)
+
+
+def acquire(device, sample_rate=44100, frames_per_chunk=2205, chunks_on_port=20, channels=2, broker=None):
+    """The Acquire service: starts (or restarts) the broker's acquisition. Returns the epoch."""
+    epoch = ctypes.c_uint64()
+    _check("bass_acquire", _control("bass_acquire")(
+        _bytes(broker), device.encode(), sample_rate, frames_per_chunk, chunks_on_port, channels,
+        ctypes.byref(epoch)))
+    return epoch.value
+
+
+def stop(broker=None):
+    """The Stop service."""
+    _check("bass_stop", _control("bass_stop")(_bytes(broker)))
+
+
+def status(broker=None):
+    """The broker's status as a dict."""
+    s = _lib.Status()
+    _check("bass_status", _control("bass_status")(_bytes(broker), ctypes.byref(s)))
+    d = {name: getattr(s, name) for name, _ in _lib.Status._fields_}
+    d["device"] = s.device.decode(errors="replace")
+    d["message"] = s.message.decode(errors="replace")
+    d["state_name"] = STATE_NAMES.get(s.state, str(s.state))
+    return d
+
+
+def list_devices(broker=None):
+    """The ListDevices service: a list of (name, description)."""
+    fn = _control("bass_list_devices")
+    size = 4096
+    while True:
+        buf = ctypes.create_string_buffer(size)
+        out_len = ctypes.c_size_t()
+        r = fn(_bytes(broker), buf, size, ctypes.byref(out_len))
+        if r == 22 and out_len.value >= size:  # BUFFER_TOO_SMALL: out_len says how much is needed
+            size = out_len.value + 1
+            continue
+        _check("bass_list_devices", r)
+        text = buf.raw[: out_len.value].decode(errors="replace")
+        return [tuple((line.split("\t", 1) + [""])[:2]) for line in text.splitlines() if line]

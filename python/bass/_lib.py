@@ -1,0 +1,151 @@
+"""Loads libbassclient and declares the C ABI of include/bass.h for ctypes.
+
+The library is found, in order: $BASS_LIB (a path to libbassclient.so), the workspace's
+build directory ($CARGO_TARGET_DIR or target/, release build) when this package runs from
+the source tree, then the system's library path (an installed libbassclient.so).
+"""
+
+import ctypes
+import ctypes.util
+import os
+
+from ctypes import POINTER, c_char, c_char_p, c_double, c_int, c_size_t, c_uint32, c_uint64, c_void_p
+
+BASS_DEVICE_LEN = 128
+BASS_MESSAGE_LEN = 256
+BASS_WAIT_FOREVER = 0xFFFFFFFF
+
+
+def _candidates():
+    env = os.environ.get("BASS_LIB")
+    if env:
+        yield env
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    target = os.environ.get("CARGO_TARGET_DIR") or os.path.join(root, "target")
+    yield os.path.join(target, "release", "libbassclient.so")
+    yield os.path.join(root, "target", "release", "libbassclient.so")
+    found = ctypes.util.find_library("bassclient")
+    if found:
+        yield found
+    yield "libbassclient.so"
+
+
+def _load():
+    errors = []
+    for path in _candidates():
+        if os.sep in path and not os.path.exists(path):
+            continue
+        try:
+            return ctypes.CDLL(path)
+        except OSError as e:
+            errors.append(f"{path}: {e}")
+    raise OSError("libbassclient.so not found (set BASS_LIB): " + "; ".join(errors))
+
+
+class PortInfo(ctypes.Structure):
+    """bass_port_info."""
+
+    _fields_ = [
+        ("channels", c_uint32),
+        ("sample_rate", c_uint32),
+        ("frames_per_chunk", c_uint32),
+        ("chunks_on_port", c_uint32),
+        ("frames_on_port", c_uint64),
+        ("last_frame_index", c_uint64),
+        ("epoch", c_uint64),
+        ("state", c_uint32),
+        ("error_code", c_uint32),
+        ("xruns", c_uint64),
+        ("gap_frames", c_uint64),
+        ("chunks_published", c_uint64),
+        ("rate_estimate_hz", c_double),
+        ("writer_pid", c_uint32),
+        ("writer_alive", c_uint32),
+        ("started_mono_ns", c_uint64),
+        ("heartbeat_mono_ns", c_uint64),
+        ("device", c_char * BASS_DEVICE_LEN),
+        ("message", c_char * BASS_MESSAGE_LEN),
+    ]
+
+
+class ChunkMeta(ctypes.Structure):
+    """bass_chunk_meta."""
+
+    _fields_ = [("mono_ns", c_uint64), ("realtime_ns", c_uint64), ("flags", c_uint32)]
+
+
+class Status(ctypes.Structure):
+    """bass_status (the broker's answer to Status)."""
+
+    _fields_ = [
+        ("state", c_uint32),
+        ("error_code", c_uint32),
+        ("sample_rate", c_uint32),
+        ("frames_per_chunk", c_uint32),
+        ("chunks_on_port", c_uint32),
+        ("channels", c_uint32),
+        ("epoch", c_uint64),
+        ("last_frame_index", c_uint64),
+        ("xruns", c_uint64),
+        ("gap_frames", c_uint64),
+        ("rate_estimate_hz", c_double),
+        ("device", c_char * BASS_DEVICE_LEN),
+        ("message", c_char * BASS_MESSAGE_LEN),
+    ]
+
+
+lib = _load()
+_P = c_void_p
+_I32P = POINTER(ctypes.c_int32)
+
+_SIGNATURES = {
+    "bass_version": (c_char_p, []),
+    "bass_result_str": (c_char_p, [c_int]),
+    "bass_last_error": (c_char_p, []),
+    "bass_port_open": (c_int, [c_char_p, POINTER(_P)]),
+    "bass_port_close": (c_int, [_P]),
+    "bass_get_audio_data": (
+        c_int,
+        [_P, c_size_t, POINTER(c_uint64), _I32P, _I32P, POINTER(c_size_t), POINTER(c_uint64)],
+    ),
+    "bass_get_audio_data_multi": (
+        c_int,
+        [_P, c_size_t, POINTER(c_uint64), POINTER(_I32P), c_size_t, POINTER(c_size_t), POINTER(c_uint64)],
+    ),
+    "bass_port_get_info": (c_int, [_P, POINTER(PortInfo)]),
+    "bass_port_wait": (c_int, [_P, c_uint64, c_uint32, POINTER(c_uint64)]),
+    "bass_writer_create": (c_int, [c_char_p, c_char_p, c_uint32, c_uint32, c_uint32, c_uint32, POINTER(_P)]),
+    "bass_writer_publish_interleaved": (c_int, [_P, _I32P, c_size_t, POINTER(ChunkMeta), POINTER(c_uint64)]),
+    "bass_writer_publish_planar": (
+        c_int,
+        [_P, POINTER(_I32P), c_size_t, c_size_t, POINTER(ChunkMeta), POINTER(c_uint64)],
+    ),
+    "bass_writer_publish_gap": (c_int, [_P, POINTER(ChunkMeta), POINTER(c_uint64)]),
+    "bass_writer_set_state": (c_int, [_P, c_uint32, c_uint32, c_char_p]),
+    "bass_writer_close": (c_int, [_P]),
+    # The control plane (present once the broker's client side is in the library).
+    "bass_acquire": (c_int, [c_char_p, c_char_p, c_uint32, c_uint32, c_uint32, c_uint32, POINTER(c_uint64)]),
+    "bass_stop": (c_int, [c_char_p]),
+    "bass_status": (c_int, [c_char_p, POINTER(Status)]),
+    "bass_list_devices": (c_int, [c_char_p, POINTER(c_char), c_size_t, POINTER(c_size_t)]),
+}
+
+
+def _declare():
+    missing = []
+    for name, (res, args) in _SIGNATURES.items():
+        fn = getattr(lib, name, None)
+        if fn is None:
+            missing.append(name)
+            continue
+        fn.restype = res
+        fn.argtypes = args
+    return missing
+
+
+MISSING = _declare()
+
+
+def has(name):
+    """Whether the loaded library exports `name`."""
+    return name not in MISSING

@@ -1,0 +1,122 @@
+"""The Python client against real ports made by the writer C ABI (no broker needed)."""
+
+import threading
+
+import numpy as np
+import pytest
+
+import bass
+
+
+def pattern_chunk(first, frames, channels=2):
+    f = np.arange(first, first + frames, dtype=np.uint64)
+    return np.stack([bass.pattern_expected(f, c) for c in range(channels)], axis=1)
+
+
+def publish_chunks(w, lfi, count, fpc):
+    for _ in range(count):
+        lfi = w.publish(pattern_chunk(lfi + 1, fpc))
+    return lfi
+
+
+def test_fresh_port_reads_the_zero_frame_then_nothing():
+    with bass.Writer("p", frames_per_chunk=4, chunks_on_port=3), bass.Port("p") as port:
+        d = port.get_audio_data(5, 0)
+        assert (d.n, d.nfr, d.loss) == (1, 1, 0)
+        assert d.left.tolist() == [0] and d.right.tolist() == [0]
+        assert port.get_audio_data(5, 1).n == 0
+
+
+def test_get_audio_data_returns_int32_columns_of_the_published_frames():
+    with bass.Writer("p", frames_per_chunk=4, chunks_on_port=3) as w, bass.Port("p") as port:
+        publish_chunks(w, 0, 2, 4)
+        d = port.get_audio_data(6, 2)
+        assert d.left.dtype == np.int32 and d.right.dtype == np.int32
+        assert (d.n, d.nfr, d.loss) == (6, 8, 0)
+        np.testing.assert_array_equal(d.left, bass.pattern_expected(np.arange(2, 8), 0))
+        np.testing.assert_array_equal(d.right, bass.pattern_expected(np.arange(2, 8), 1))
+
+
+def test_partial_read_when_the_block_reaches_past_the_newest_frame():
+    with bass.Writer("p", frames_per_chunk=4, chunks_on_port=3) as w, bass.Port("p") as port:
+        publish_chunks(w, 0, 1, 4)
+        d = port.get_audio_data(10, 3)
+        assert (d.n, d.nfr, d.loss) == (2, 5, 0)
+        d = port.get_audio_data(10, 9)
+        assert (d.n, d.nfr, d.loss) == (0, 9, 0)
+
+
+def test_loss_moves_nfr_to_the_oldest_frame_and_counts_the_gap():
+    with bass.Writer("p", frames_per_chunk=4, chunks_on_port=3) as w, bass.Port("p") as port:
+        publish_chunks(w, 0, 5, 4)  # lfi 20, window 9..20
+        d = port.get_audio_data(3, 2)
+        assert (d.n, d.nfr, d.loss) == (3, 12, 7)
+        np.testing.assert_array_equal(d.left, bass.pattern_expected(np.arange(9, 12), 0))
+
+
+def test_blocks_are_consecutive_while_a_writer_publishes():
+    fpc, cop = 64, 8
+    with bass.Writer("p", frames_per_chunk=fpc, chunks_on_port=cop) as w, bass.Port("p") as port:
+        stop = threading.Event()
+
+        def produce():
+            lfi = 0
+            for _ in range(400):
+                if stop.is_set():
+                    break
+                lfi = publish_chunks(w, lfi, 1, fpc)
+                stop.wait(0.002)
+
+        t = threading.Thread(target=produce)
+        t.start()
+        try:
+            expect = None
+            blocks = list(port.blocks(100, nfr=1, count=50, timeout=10))
+        finally:
+            stop.set()
+            t.join()
+        for b in blocks:
+            if expect is not None and b.loss == 0:
+                assert b.first_frame == expect
+            expect = b.next_frame
+            if b.loss == 0:
+                frames = np.arange(b.first_frame, b.first_frame + 100)
+                np.testing.assert_array_equal(b.left, bass.pattern_expected(frames, 0))
+                np.testing.assert_array_equal(b.right, bass.pattern_expected(frames, 1))
+        # Every frame from 1 on was either delivered or counted as lost.
+        assert blocks[0].loss > 0 or blocks[0].first_frame == 1
+        assert sum(100 + b.loss for b in blocks) == blocks[-1].next_frame - 1
+
+
+def test_wait_returns_the_last_frame_index_and_times_out_with_its_code():
+    with bass.Writer("p", frames_per_chunk=4, chunks_on_port=3) as w, bass.Port("p") as port:
+        publish_chunks(w, 0, 1, 4)
+        assert port.wait(3, timeout=1) == 4
+        with pytest.raises(bass.BassError) as e:
+            port.wait(5, timeout=0.05)
+        assert e.value.code == bass.BASS_ERR_TIMEOUT and e.value.name == "TIMEOUT"
+
+
+def test_wait_raises_stopped_when_the_writer_closes():
+    w = bass.Writer("p", frames_per_chunk=4, chunks_on_port=3)
+    with bass.Port("p") as port:
+        w.close()
+        with pytest.raises(bass.BassError) as e:
+            port.wait(1, timeout=1)
+        assert e.value.code == bass.BASS_ERR_STOPPED
+
+
+def test_opening_a_missing_port_raises_not_found_with_the_library_message():
+    with pytest.raises(bass.BassError) as e:
+        bass.Port("nothing-here")
+    assert e.value.code == bass.BASS_ERR_NOT_FOUND
+    assert "nothing-here" in e.value.message
+
+
+def test_multi_channel_read_returns_every_channel():
+    with bass.Writer("p", channels=4, frames_per_chunk=4, chunks_on_port=3) as w, bass.Port("p") as port:
+        w.publish(pattern_chunk(1, 4, channels=4))
+        data, nfr, n, loss = port.get_audio_data_multi(4, 1)
+        assert (nfr, n, loss) == (5, 4, 0) and data.shape == (4, 4)
+        for c in range(4):
+            np.testing.assert_array_equal(data[c], bass.pattern_expected(np.arange(1, 5), c))
