@@ -1,0 +1,108 @@
+//! bass-bench: the benchmark harness of bass (`make bench`).
+//!
+//! Every comparison is measured side by side in one run and printed as a ratio of
+//! medians over several repetitions; the results go to docs/performance.md with PNG plots.
+//!
+//! Usage: `bass-bench [--quick] [--parts 1,2,3,4,5,6] [--docs DIR]`;
+//! `bass-bench child ROLE ARGS...` is this binary's own helper-process mode.
+
+mod machine;
+mod memory;
+mod original;
+mod plot;
+mod procs;
+mod publish;
+mod read;
+mod report;
+mod shm;
+mod stats;
+mod wake;
+
+
+use std::path::PathBuf;
+
+/// Options of a run.
+pub struct Opts {
+    /// Fewer repetitions and shorter runs (for development; not for the published numbers).
+    pub quick: bool,
+    /// Parts to run.
+    pub parts: Vec<u32>,
+    /// Where performance.md and the PNGs go.
+    pub docs: PathBuf,
+}
+
+fn parse_args(args: &[String]) -> Opts {
+    let mut o = Opts { quick: false, parts: vec![1, 2, 3, 4, 5, 6], docs: PathBuf::from("docs") };
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--quick" => o.quick = true,
+            "--parts" => {
+                o.parts = it
+                    .next()
+                    .expect("--parts LIST")
+                    .split(',')
+                    .map(|p| p.trim().parse().expect("part number"))
+                    .collect()
+            }
+            "--docs" => o.docs = PathBuf::from(it.next().expect("--docs DIR")),
+            "-h" | "--help" => {
+                println!("usage: bass-bench [--quick] [--parts 1,2,3,4,5,6] [--docs DIR]");
+                std::process::exit(0);
+            }
+            other => panic!("unknown argument {other:?} (try --help)"),
+        }
+    }
+    o
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.first().map(String::as_str) == Some("child") {
+        let role = args.get(1).expect("child ROLE").clone();
+        child(&role, &args[2..]);
+        return;
+    }
+    let opts = parse_args(&args);
+    let started = std::time::Instant::now();
+    let m = machine::Machine::describe();
+    println!("bass-bench on {}", m.one_line());
+    let _scratch = procs::Scratch::new();
+    let mut results = report::Results { machine: m, quick: opts.quick, ..Default::default() };
+    let reps = |full: usize| if opts.quick { 2.min(full) } else { full };
+    if opts.parts.contains(&1) {
+        println!("part 1: read throughput vs memcpy");
+        results.read = read::run(reps(7));
+        results.copy_loops = Some(read::copy_loops(reps(7)));
+    }
+    if opts.parts.contains(&2) {
+        println!("part 2: publish cost vs window size and readers, vs the original design");
+        results.publish = Some(publish::run(reps(3), opts.quick));
+    }
+    if opts.parts.contains(&3) {
+        println!("part 3: wake latency vs a raw futex and the 250 ms polling client");
+        results.wake = Some(wake::run(reps(3), opts.quick));
+    }
+    if opts.parts.contains(&6) {
+        println!("part 6: memory");
+        results.memory = Some(memory::run());
+    }
+    results.load_end = machine::loadavg();
+    results.elapsed_s = started.elapsed().as_secs_f64();
+    report::write(&results, &opts.docs);
+    println!("wrote {}/performance.md in {:.0} s", opts.docs.display(), results.elapsed_s);
+}
+
+fn child(role: &str, args: &[String]) {
+    match role {
+        "ring-reader" => publish::child_ring_reader(args),
+        "orig-reader" => publish::child_orig_reader(args),
+        "futex-pong" => wake::child_futex_pong(args),
+        "wake-reader" => wake::child_wake_reader(args),
+        "poll-reader" => wake::child_poll_reader(args),
+        "mem-reader" => memory::child_reader(args),
+        "mem-writer" => memory::child_writer(args),
+        "mem-orig-reader" => memory::child_orig_reader(args),
+        other => panic!("unknown child role {other}"),
+    }
+}

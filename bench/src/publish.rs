@@ -1,0 +1,265 @@
+//! Part 2: cost of publishing one chunk, against window size and attached readers, for
+//! the ring and for the model of the original design (see `original.rs`).
+//!
+//! 44.1 kHz stereo, chunks of 2205 frames (the seed's Acquire defaults). Windows of
+//! 0.1, 1, 10 and 60 s; 0, 1, 8 and 64 reader processes blocked in a wait and reading
+//! every chunk. The window is filled (every page touched) before timing; then chunks are
+//! published every few milliseconds and each publish call is timed in the writer.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
+
+use crate::original::{self, OrigPort};
+use crate::procs::{field, finish_all, spawn_ready};
+use crate::stats::{fmt_ns, fmt_ratio, median, quantile, spread};
+
+/// Frames per chunk (the seed's default).
+pub const NFPC: u32 = 2205;
+/// Windows measured: (seconds, chunks on port).
+pub const WINDOWS: &[(f64, u32)] = &[(0.1, 2), (1.0, 20), (10.0, 200), (60.0, 1200)];
+/// Reader process counts.
+pub const READERS: &[usize] = &[0, 1, 8, 64];
+
+/// Which design.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Design {
+    /// bass's ring.
+    Ring,
+    /// The original shifting array with whole-port reads.
+    Original,
+}
+
+/// One configuration's results over the repetitions.
+#[derive(Clone, Debug)]
+pub struct PubCell {
+    /// Design.
+    pub design: Design,
+    /// Window in seconds.
+    pub window_s: f64,
+    /// Readers attached.
+    pub readers: usize,
+    /// Per repetition: median publish time (ns).
+    pub publish_ns: Vec<f64>,
+    /// Per repetition: 90th percentile publish time (ns).
+    pub publish_p90_ns: Vec<f64>,
+    /// Per repetition: median time of one reader's read of a chunk (ns), over readers.
+    pub read_ns: Vec<f64>,
+    /// Chunks published (timed) per repetition.
+    pub chunks: Vec<usize>,
+}
+
+/// Results of part 2.
+#[derive(Clone, Debug, Default)]
+pub struct PublishResults {
+    /// All cells.
+    pub cells: Vec<PubCell>,
+    /// Time between publishes (ms).
+    pub period_ms: f64,
+}
+
+impl PublishResults {
+    /// The cell of a configuration.
+    pub fn cell(&self, design: Design, window_s: f64, readers: usize) -> Option<&PubCell> {
+        self.cells.iter().find(|c| c.design == design && c.window_s == window_s && c.readers == readers)
+    }
+
+    /// Median publish time of a configuration.
+    pub fn publish_median(&self, design: Design, window_s: f64, readers: usize) -> f64 {
+        self.cell(design, window_s, readers).map(|c| median(&c.publish_ns)).unwrap_or(f64::NAN)
+    }
+}
+
+fn chunk() -> Vec<i32> {
+    (0..NFPC as i32 * 2).map(|i| i.wrapping_mul(104729)).collect()
+}
+
+struct Pace {
+    period: Duration,
+    max_chunks: usize,
+    min_chunks: usize,
+    budget: Duration,
+}
+
+fn time_publishes(pace: &Pace, mut publish: impl FnMut()) -> Vec<f64> {
+    let start = Instant::now();
+    let mut times = Vec::with_capacity(pace.max_chunks);
+    let mut next = Instant::now();
+    while times.len() < pace.max_chunks && (times.len() < pace.min_chunks || start.elapsed() < pace.budget) {
+        next += pace.period;
+        let now = Instant::now();
+        if next > now {
+            std::thread::sleep(next - now);
+        } else {
+            next = now;
+        }
+        let t = Instant::now();
+        publish();
+        times.push(t.elapsed().as_nanos() as f64);
+    }
+    times
+}
+
+fn ring_cell(ncop: u32, readers: usize, pace: &Pace) -> (Vec<f64>, Vec<f64>) {
+    let name = "bench-pub";
+    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: NFPC, chunks_on_port: ncop };
+    let params = PortParams { geometry, device: "bench:publish".into(), group: None };
+    let mut w = Writer::create(name, &params).expect("create port");
+    let data = chunk();
+    for _ in 0..ncop {
+        w.publish(Source::Interleaved(&data), ChunkMeta::default()).expect("publish");
+    }
+    let kids = spawn_ready(readers, "ring-reader", &[name.to_owned()]);
+    std::thread::sleep(Duration::from_millis(20));
+    let times = time_publishes(pace, || {
+        w.publish(Source::Interleaved(&data), ChunkMeta::default()).expect("publish");
+    });
+    w.stop();
+    let reads = finish_all(kids).iter().filter_map(|l| field(l, "read_ns")).collect();
+    let _ = w.remove();
+    (times, reads)
+}
+
+fn orig_cell(dir: &std::path::Path, ncop: u32, readers: usize, pace: &Pace) -> (Vec<f64>, Vec<f64>) {
+    let path: PathBuf = dir.join("bench-orig.port");
+    let port = OrigPort::create(&path, NFPC as usize, ncop as usize);
+    let kids = spawn_ready(readers, "orig-reader", &[path.display().to_string()]);
+    std::thread::sleep(Duration::from_millis(20));
+    let data = chunk();
+    let times = time_publishes(pace, || {
+        port.publish(&data);
+    });
+    port.stop();
+    let reads = finish_all(kids).iter().filter_map(|l| field(l, "read_ns")).collect();
+    drop(port);
+    let _ = std::fs::remove_file(&path);
+    (times, reads)
+}
+
+/// Runs part 2.
+pub fn run(reps: usize, quick: bool) -> PublishResults {
+    let dir = bassclient::paths::runtime_dir();
+    let period = Duration::from_millis(4);
+    let ring_pace = Pace { period, max_chunks: if quick { 50 } else { 150 }, min_chunks: 10, budget: Duration::from_secs(2) };
+    let orig_pace = Pace {
+        period,
+        max_chunks: if quick { 50 } else { 150 },
+        min_chunks: 8,
+        budget: Duration::from_millis(if quick { 800 } else { 2000 }),
+    };
+    let mut res = PublishResults { cells: vec![], period_ms: period.as_secs_f64() * 1e3 };
+    for &(window_s, _) in WINDOWS {
+        for &readers in READERS {
+            for design in [Design::Ring, Design::Original] {
+                res.cells.push(PubCell {
+                    design,
+                    window_s,
+                    readers,
+                    publish_ns: vec![],
+                    publish_p90_ns: vec![],
+                    read_ns: vec![],
+                    chunks: vec![],
+                });
+            }
+        }
+    }
+    for rep in 0..reps {
+        for &(window_s, ncop) in WINDOWS {
+            for &readers in READERS {
+                for design in [Design::Ring, Design::Original] {
+                    let (times, reads) = match design {
+                        Design::Ring => ring_cell(ncop, readers, &ring_pace),
+                        Design::Original => orig_cell(&dir, ncop, readers, &orig_pace),
+                    };
+                    let cell = res
+                        .cells
+                        .iter_mut()
+                        .find(|c| c.design == design && c.window_s == window_s && c.readers == readers)
+                        .expect("cell");
+                    cell.publish_ns.push(median(&times));
+                    cell.publish_p90_ns.push(quantile(&times, 0.9));
+                    cell.read_ns.push(median(&reads));
+                    cell.chunks.push(times.len());
+                    println!(
+                        "  rep {} {:?} window {:>5} s readers {:>2}: publish median {} p90 {} ({} chunks), read {}",
+                        rep + 1,
+                        design,
+                        window_s,
+                        readers,
+                        fmt_ns(median(&times)),
+                        fmt_ns(quantile(&times, 0.9)),
+                        times.len(),
+                        fmt_ns(median(&reads))
+                    );
+                }
+            }
+        }
+    }
+    for &(window_s, _) in WINDOWS {
+        for &readers in READERS {
+            let r = res.cell(Design::Ring, window_s, readers).expect("cell");
+            let o = res.cell(Design::Original, window_s, readers).expect("cell");
+            let ratio: Vec<f64> = o.publish_ns.iter().zip(&r.publish_ns).map(|(a, b)| a / b).collect();
+            println!(
+                "  window {:>5} s, {:>2} readers: ring {}  original {}  original/ring {}",
+                window_s,
+                readers,
+                spread(&r.publish_ns, fmt_ns),
+                spread(&o.publish_ns, fmt_ns),
+                spread(&ratio, fmt_ratio)
+            );
+        }
+    }
+    res
+}
+
+/// Child: a bass reader blocked in `wait` that reads every chunk. Prints `read_ns=` (median
+/// time of one `get_audio_data`) when the writer stops.
+pub fn child_ring_reader(args: &[String]) {
+    let port = Port::open(&args[0]).expect("open port");
+    let mut nfr = port.info().expect("info").last_frame_index + 1;
+    let cap = port.geometry().frames_per_chunk as usize * 4;
+    let (mut l, mut r) = (vec![0i32; cap], vec![0i32; cap]);
+    let mut times = Vec::new();
+    crate::procs::say_ready();
+    loop {
+        match port.wait(nfr, Duration::from_secs(30)) {
+            Ok(_) => {
+                let t = Instant::now();
+                let mut out = [&mut l[..], &mut r[..]];
+                port.get_audio_data(cap, &mut nfr, &mut out).expect("read");
+                times.push(t.elapsed().as_nanos() as f64);
+            }
+            Err(Error::Stopped { .. }) => break,
+            Err(e) => panic!("reader: {e}"),
+        }
+    }
+    println!("read_ns={} reads={}", median(&times), times.len());
+}
+
+/// Child: an original-design reader, woken per chunk, copying the whole port, then running
+/// `getAudioData` on its copy. Prints `read_ns=` when told to stop.
+pub fn child_orig_reader(args: &[String]) {
+    let port = OrigPort::open(std::path::Path::new(&args[0]));
+    let nfop = port.nfop();
+    let mut copy = vec![1i32; 2 * nfop];
+    let cap = NFPC as usize * 4;
+    let (mut l, mut r) = (vec![0i32; cap], vec![0i32; cap]);
+    let mut times = Vec::new();
+    let mut seq = port.futex().load(std::sync::atomic::Ordering::Acquire);
+    let mut nfr = port.read_whole(&mut copy) + 1;
+    crate::procs::say_ready();
+    loop {
+        crate::shm::futex_wait(port.futex(), seq, 30_000_000_000);
+        seq = port.futex().load(std::sync::atomic::Ordering::Acquire);
+        if port.stopped() {
+            break;
+        }
+        let t = Instant::now();
+        let lfi = port.read_whole(&mut copy);
+        original::get_audio_data(&copy, nfop, lfi, cap, &mut nfr, &mut l, &mut r);
+        times.push(t.elapsed().as_nanos() as f64);
+    }
+    println!("read_ns={} reads={}", median(&times), times.len());
+}

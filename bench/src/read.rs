@@ -1,0 +1,268 @@
+//! Part 1: `bass_get_audio_data` throughput against memcpy of the same bytes.
+//!
+//! One port of 44.1 kHz stereo holding a little more than 10 s, filled once. For each
+//! block size the newest N frames are read again and again, alternating, in the same run:
+//! (a) the C ABI `bass_get_audio_data`, (b) the Rust `Port::get_audio_data`,
+//! (c) `memcpy` of exactly the same ring segments into the same buffers.
+//! No writer runs during the measurement, so the plain memcpy of (c) is race-free here;
+//! (a) and (b) take the race-free path they always take (Relaxed atomic loads + intent re-check).
+
+use std::sync::atomic::{AtomicI32, AtomicU64, Ordering};
+use std::time::Instant;
+
+use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+
+use crate::stats::{median, spread};
+
+/// Block sizes measured (frames at 44.1 kHz) and their labels.
+pub const BLOCKS: &[(usize, &str)] = &[
+    (44, "1 ms"),
+    (441, "10 ms"),
+    (4410, "100 ms"),
+    (8192, "186 ms (64 KiB)"),
+    (44100, "1 s"),
+    (441000, "10 s"),
+];
+
+/// One block size's results.
+#[derive(Clone, Debug)]
+pub struct ReadRow {
+    /// Frames per block.
+    pub frames: usize,
+    /// Label.
+    pub label: &'static str,
+    /// Bytes per block (both channels).
+    pub bytes: usize,
+    /// Per repetition, hot (the same block read again and again, source in L1/L2):
+    /// GB/s of the C ABI call.
+    pub ffi_gbs: Vec<f64>,
+    /// Per repetition, hot: GB/s of the Rust call.
+    pub rust_gbs: Vec<f64>,
+    /// Per repetition, hot: GB/s of memcpy.
+    pub memcpy_gbs: Vec<f64>,
+    /// Per repetition, hot: memcpy time / C ABI time.
+    pub ratio: Vec<f64>,
+    /// Per repetition, hot: time of one C ABI call (ns).
+    pub ffi_call_ns: Vec<f64>,
+    /// Per repetition, streaming (successive blocks across the 10 s window): C ABI GB/s.
+    pub stream_ffi_gbs: Vec<f64>,
+    /// Per repetition, streaming: memcpy GB/s.
+    pub stream_memcpy_gbs: Vec<f64>,
+    /// Per repetition, streaming: memcpy time / C ABI time.
+    pub stream_ratio: Vec<f64>,
+}
+
+impl ReadRow {
+    /// Median ratio C ABI / memcpy (hot).
+    pub fn ratio_median(&self) -> f64 {
+        median(&self.ratio)
+    }
+
+    /// Median ratio C ABI / memcpy (streaming).
+    pub fn stream_ratio_median(&self) -> f64 {
+        median(&self.stream_ratio)
+    }
+}
+
+/// Copy-loop experiment: the same 64 KiB copied by memcpy, by Relaxed `AtomicI32` loads
+/// (what the reader does) and by Relaxed `AtomicU64` loads (a possible wider protocol).
+#[derive(Clone, Debug, Default)]
+pub struct CopyLoops {
+    /// Per repetition GB/s: memcpy.
+    pub memcpy: Vec<f64>,
+    /// Per repetition GB/s: AtomicI32 loop.
+    pub atomic32: Vec<f64>,
+    /// Per repetition GB/s: AtomicU64 loop.
+    pub atomic64: Vec<f64>,
+}
+
+fn time_per_iter(iters: usize, mut f: impl FnMut(usize)) -> f64 {
+    let t = Instant::now();
+    for k in 0..iters {
+        f(k);
+    }
+    t.elapsed().as_nanos() as f64 / iters as f64
+}
+
+/// Ring segments (start slot, length) of `n` frames from `first` in a ring of `nfop`.
+fn segments(first: u64, n: usize, nfop: u64) -> [(usize, usize); 2] {
+    let start = ((first - 1) % nfop) as usize;
+    let len0 = n.min(nfop as usize - start);
+    [(start, len0), (0, n - len0)]
+}
+
+/// Runs the copy-loop experiment.
+pub fn copy_loops(reps: usize) -> CopyLoops {
+    let n = 16384; // 64 KiB of i32
+    let src32: Vec<AtomicI32> = (0..n as i32).map(AtomicI32::new).collect();
+    let src64: Vec<AtomicU64> = (0..n as u64 / 2).map(AtomicU64::new).collect();
+    let mut dst = vec![0i32; n];
+    let mut dst64 = vec![0u64; n / 2];
+    let iters = 4000;
+    let mut out = CopyLoops::default();
+    let gbs = |ns: f64| (n * 4) as f64 / ns;
+    for _ in 0..reps {
+        let m = time_per_iter(iters, |_| {
+            // SAFETY: both buffers hold n i32; the source is only read here (no writer).
+            unsafe { std::ptr::copy_nonoverlapping(src32.as_ptr() as *const i32, dst.as_mut_ptr(), n) };
+            std::hint::black_box(&dst);
+        });
+        let a = time_per_iter(iters, |_| {
+            for (d, s) in dst.iter_mut().zip(&src32) {
+                *d = s.load(Ordering::Relaxed);
+            }
+            std::hint::black_box(&dst);
+        });
+        let b = time_per_iter(iters, |_| {
+            for (d, s) in dst64.iter_mut().zip(&src64) {
+                *d = s.load(Ordering::Relaxed);
+            }
+            std::hint::black_box(&dst64);
+        });
+        out.memcpy.push(gbs(m));
+        out.atomic32.push(gbs(a));
+        out.atomic64.push(gbs(b));
+    }
+    println!(
+        "  copy loops, 64 KiB hot: memcpy {} GB/s, Relaxed AtomicI32 loads {} GB/s, Relaxed AtomicU64 loads {} GB/s",
+        spread(&out.memcpy, |v| format!("{v:.1}")),
+        spread(&out.atomic32, |v| format!("{v:.1}")),
+        spread(&out.atomic64, |v| format!("{v:.1}")),
+    );
+    out
+}
+
+/// Runs part 1 with `reps` repetitions.
+pub fn run(reps: usize) -> Vec<ReadRow> {
+    let nfpc = 441u32;
+    let ncop = 1001u32;
+    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: nfpc, chunks_on_port: ncop };
+    let params = PortParams { geometry, device: "bench:read".into(), group: None };
+    let mut w = Writer::create("bench-read", &params).expect("create port");
+    let chunk: Vec<i32> = (0..nfpc as i32 * 2).map(|i| i.wrapping_mul(7919)).collect();
+    // Fill the window, and go once more around so that the ring wraps.
+    for _ in 0..ncop + ncop / 3 {
+        w.publish(Source::Interleaved(&chunk), ChunkMeta::default()).expect("publish");
+    }
+    let lfi = w.last_frame_index();
+    let nfop = u64::from(nfpc * ncop);
+    let port = Port::open("bench-read").expect("open port");
+    let cname = std::ffi::CString::new("bench-read").expect("name");
+    let mut handle: *mut bassclient::ffi::bass_port = std::ptr::null_mut();
+    // SAFETY: a valid C string and a valid out-pointer.
+    let rc = unsafe { bassclient::ffi::bass_port_open(cname.as_ptr(), &mut handle) };
+    assert_eq!(rc as i32, 0, "bass_port_open");
+    let rings: Vec<*const i32> =
+        (0..2).map(|c| port.channel_ring(c).expect("channel").as_ptr() as *const i32).collect();
+
+    let max = BLOCKS.iter().map(|b| b.0).max().unwrap_or(1);
+    let mut left = vec![0i32; max];
+    let mut right = vec![0i32; max];
+    let mut rows: Vec<ReadRow> = BLOCKS
+        .iter()
+        .map(|&(frames, label)| ReadRow {
+            frames,
+            label,
+            bytes: frames * 8,
+            ffi_gbs: vec![],
+            rust_gbs: vec![],
+            memcpy_gbs: vec![],
+            ratio: vec![],
+            ffi_call_ns: vec![],
+            stream_ffi_gbs: vec![],
+            stream_memcpy_gbs: vec![],
+            stream_ratio: vec![],
+        })
+        .collect();
+    for _ in 0..reps {
+        for row in rows.iter_mut() {
+            let n = row.frames;
+            // ~32 MB copied per timing sample, at least 5 calls.
+            let iters = (32_000_000 / row.bytes).clamp(5, 200_000);
+            // Hot: always the newest n frames. Streaming: successive blocks through the
+            // newest 10 s, as a reader consuming a stream (source mostly not in L1/L2).
+            let oldest = lfi - 441_000 + 1;
+            let span = 441_000 - n as u64 + 1;
+            let starts: Vec<u64> = (0..iters as u64).map(|k| oldest + (k * n as u64) % span).collect();
+            let hot: Vec<u64> = vec![lfi - n as u64 + 1; iters];
+            for (stream, firsts) in [(false, &hot), (true, &starts)] {
+                let segs: Vec<[(usize, usize); 2]> = firsts.iter().map(|&f| segments(f, n, nfop)).collect();
+                let mut ffi = |k: usize| {
+                    let mut nfr = firsts[k];
+                    let (mut got, mut loss) = (0usize, 0u64);
+                    // SAFETY: `handle` is open; both buffers hold `max >= n` samples; the
+                    // out-pointers are valid locals.
+                    let rc = unsafe {
+                        bassclient::ffi::bass_get_audio_data(
+                            handle,
+                            n,
+                            &mut nfr,
+                            left.as_mut_ptr(),
+                            right.as_mut_ptr(),
+                            &mut got,
+                            &mut loss,
+                        )
+                    };
+                    assert!(rc as i32 == 0 && got == n && loss == 0);
+                };
+                ffi(0);
+                let ffi_ns = time_per_iter(iters, &mut ffi);
+                let mut memcpy = |k: usize| {
+                    for (c, dst) in [left.as_mut_ptr(), right.as_mut_ptr()].into_iter().enumerate() {
+                        let mut done = 0;
+                        for &(s, len) in &segs[k] {
+                            // SAFETY: the segments lie inside channel c's ring of nFOP samples;
+                            // `dst` holds `max >= n` samples and does not overlap the mapping. No
+                            // process writes the port during this measurement (its only writer is
+                            // `w`, idle in this thread), so this plain copy races with nothing.
+                            unsafe { std::ptr::copy_nonoverlapping(rings[c].add(s), dst.add(done), len) };
+                            done += len;
+                        }
+                    }
+                    std::hint::black_box(&left);
+                };
+                memcpy(0);
+                let memcpy_ns = time_per_iter(iters, &mut memcpy);
+                let gbs = |ns: f64| row.bytes as f64 / ns;
+                if stream {
+                    row.stream_ffi_gbs.push(gbs(ffi_ns));
+                    row.stream_memcpy_gbs.push(gbs(memcpy_ns));
+                    row.stream_ratio.push(memcpy_ns / ffi_ns);
+                    continue;
+                }
+                let mut rust = |k: usize| {
+                    let mut nfr = firsts[k];
+                    let mut out = [&mut left[..n], &mut right[..n]];
+                    let r = port.get_audio_data(n, &mut nfr, &mut out).expect("read");
+                    assert_eq!(r.frames, n);
+                };
+                rust(0);
+                let rust_ns = time_per_iter(iters, &mut rust);
+                row.ffi_gbs.push(gbs(ffi_ns));
+                row.rust_gbs.push(gbs(rust_ns));
+                row.memcpy_gbs.push(gbs(memcpy_ns));
+                row.ratio.push(memcpy_ns / ffi_ns);
+                row.ffi_call_ns.push(ffi_ns);
+            }
+        }
+    }
+    // SAFETY: `handle` came from bass_port_open and is closed once.
+    unsafe { bassclient::ffi::bass_port_close(handle) };
+    drop(port);
+    let _ = w.remove();
+    for r in &rows {
+        println!(
+            "  read {:>16} {:>8} B: hot: bass_get_audio_data {} GB/s, Port::get_audio_data {} GB/s, memcpy {} GB/s, ratio {}; streaming: {} vs {} GB/s, ratio {}",
+            r.label,
+            r.bytes,
+            spread(&r.ffi_gbs, |v| format!("{v:.2}")),
+            spread(&r.rust_gbs, |v| format!("{v:.2}")),
+            spread(&r.memcpy_gbs, |v| format!("{v:.2}")),
+            spread(&r.ratio, |v| format!("{v:.2}")),
+            spread(&r.stream_ffi_gbs, |v| format!("{v:.2}")),
+            spread(&r.stream_memcpy_gbs, |v| format!("{v:.2}")),
+            spread(&r.stream_ratio, |v| format!("{v:.2}")),
+        );
+    }
+    rows
+}

@@ -1,0 +1,310 @@
+//! Part 3: wake latency, from a publish to a blocked reader process running.
+//!
+//! - raw futex: two processes and a shared word; the parent stamps CLOCK_MONOTONIC, bumps
+//!   the word and FUTEX_WAKEs; the child, blocked in FUTEX_WAIT, takes the time when it runs
+//!   and answers the same way (ping-pong), so the parent knows it is blocked again.
+//! - bass: the parent publishes a chunk stamped with CLOCK_MONOTONIC (the chunk table's
+//!   `mono_ns`) just before `Writer::publish`; 1, 8 or 64 reader processes blocked in
+//!   `Port::wait` take the time when `wait` returns, then read the chunk.
+//! - the seed's BASC client: `GetBlocks` runs every 250 ms and calls getAudioData; the
+//!   latency of a chunk is from its publication to the poll that obtains it.
+//!
+//! All publishes are spaced by a random 3–6 ms so that every waiter is really asleep.
+
+use std::collections::BTreeMap;
+use std::sync::atomic::Ordering::{Acquire, Relaxed, Release};
+use std::time::{Duration, Instant};
+
+use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, State, Writer};
+
+use crate::procs::{finish_all, spawn_ready, Child};
+use crate::shm::{futex_wait, futex_wake, now_ns, Region};
+use crate::stats::{fmt_ns, fmt_ratio, median, quantile, spread};
+
+/// Reader process counts.
+pub const READERS: &[usize] = &[1, 8, 64];
+
+/// A latency distribution (ns), pooled over repetitions, with per-repetition medians.
+#[derive(Clone, Debug, Default)]
+pub struct Dist {
+    /// All samples.
+    pub all: Vec<f64>,
+    /// Median of each repetition.
+    pub rep_medians: Vec<f64>,
+}
+
+impl Dist {
+    fn add_rep(&mut self, v: Vec<f64>) {
+        self.rep_medians.push(median(&v));
+        self.all.extend(v);
+    }
+
+    /// Median of all samples.
+    pub fn median(&self) -> f64 {
+        median(&self.all)
+    }
+
+    /// 99th percentile.
+    pub fn p99(&self) -> f64 {
+        quantile(&self.all, 0.99)
+    }
+
+    /// Largest sample.
+    pub fn max(&self) -> f64 {
+        self.all.iter().cloned().fold(f64::NAN, f64::max)
+    }
+}
+
+/// Results of part 3.
+#[derive(Clone, Debug, Default)]
+pub struct WakeResults {
+    /// Raw futex, one waiter (ping direction).
+    pub raw: Dist,
+    /// bass, per reader count: every reader's wake latency.
+    pub bass: BTreeMap<usize, Dist>,
+    /// bass, per reader count: per publish, the latency of the last reader to run.
+    pub bass_last: BTreeMap<usize, Dist>,
+    /// bass, per reader count: wake + `get_audio_data` of the chunk (data in hand).
+    pub bass_data: BTreeMap<usize, Dist>,
+    /// Per repetition: bass (1 reader) median / raw futex median.
+    pub ratio_1: Vec<f64>,
+    /// The 250 ms polling client.
+    pub poll: Dist,
+    /// Publishes per configuration and repetition.
+    pub publishes: usize,
+}
+
+/// A small xorshift generator for the random spacing.
+struct Rng(u64);
+
+impl Rng {
+    fn new() -> Rng {
+        Rng(now_ns() | 1)
+    }
+
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+
+    /// A random duration in [lo, hi) microseconds.
+    fn gap(&mut self, lo_us: u64, hi_us: u64) -> Duration {
+        Duration::from_micros(lo_us + self.next() % (hi_us - lo_us))
+    }
+}
+
+const PING: usize = 0;
+const PING_T: usize = 8;
+const PONG: usize = 16;
+const STOP: usize = 20;
+
+fn raw_futex(n: usize) -> Vec<f64> {
+    let path = bassclient::paths::runtime_dir().join("bench-futex");
+    let r = Region::create(&path, 4096);
+    let mut kid = Child::spawn("futex-pong", &[path.display().to_string()]);
+    kid.ready();
+    let mut rng = Rng::new();
+    for _ in 0..n {
+        std::thread::sleep(rng.gap(3000, 6000));
+        let pong = r.u32_at(PONG).load(Acquire);
+        r.u64_at(PING_T).store(now_ns(), Relaxed);
+        r.u32_at(PING).fetch_add(1, Release);
+        futex_wake(r.u32_at(PING));
+        while r.u32_at(PONG).load(Acquire) == pong {
+            futex_wait(r.u32_at(PONG), pong, 1_000_000_000);
+        }
+    }
+    r.u32_at(STOP).store(1, Release);
+    r.u32_at(PING).fetch_add(1, Release);
+    futex_wake(r.u32_at(PING));
+    let lines = kid.finish();
+    let _ = std::fs::remove_file(&path);
+    lines.iter().filter_map(|l| l.strip_prefix("lat ")).filter_map(|v| v.parse().ok()).collect()
+}
+
+/// Child: the other side of the raw futex ping-pong.
+pub fn child_futex_pong(args: &[String]) {
+    let r = Region::open(std::path::Path::new(&args[0]), 4096);
+    let mut lats = Vec::new();
+    let mut seq = r.u32_at(PING).load(Acquire);
+    crate::procs::say_ready();
+    loop {
+        while r.u32_at(PING).load(Acquire) == seq {
+            futex_wait(r.u32_at(PING), seq, 0);
+        }
+        let t = now_ns();
+        seq = r.u32_at(PING).load(Acquire);
+        if r.u32_at(STOP).load(Acquire) != 0 {
+            break;
+        }
+        lats.push(t.saturating_sub(r.u64_at(PING_T).load(Relaxed)));
+        r.u32_at(PONG).fetch_add(1, Release);
+        futex_wake(r.u32_at(PONG));
+    }
+    let out: String = lats.iter().map(|l| format!("lat {l}\n")).collect();
+    print!("{out}");
+}
+
+/// Frames per chunk of the wake-latency port (small: the copy is not what is measured).
+const WAKE_NFPC: u32 = 64;
+
+fn bass_wake(readers: usize, n: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let name = "bench-wake";
+    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: WAKE_NFPC, chunks_on_port: 64 };
+    let params = PortParams { geometry, device: "bench:wake".into(), group: None };
+    let mut w = Writer::create(name, &params).expect("create port");
+    let data = vec![7i32; WAKE_NFPC as usize * 2];
+    for _ in 0..64 {
+        w.publish(Source::Interleaved(&data), ChunkMeta::default()).expect("publish");
+    }
+    let kids = spawn_ready(readers, "wake-reader", &[name.to_owned()]);
+    std::thread::sleep(Duration::from_millis(50));
+    let mut rng = Rng::new();
+    for _ in 0..n {
+        std::thread::sleep(rng.gap(3000, 6000));
+        let meta = ChunkMeta { mono_ns: now_ns(), ..ChunkMeta::default() };
+        w.publish(Source::Interleaved(&data), meta).expect("publish");
+    }
+    w.stop();
+    let lines = finish_all(kids);
+    let _ = w.remove();
+    let (mut each, mut data_in_hand) = (Vec::new(), Vec::new());
+    let mut last: BTreeMap<u64, f64> = BTreeMap::new();
+    for l in &lines {
+        let v: Vec<u64> = l.split_whitespace().filter_map(|x| x.parse().ok()).collect();
+        if let [lfi, lat, dat] = v[..] {
+            each.push(lat as f64);
+            data_in_hand.push(dat as f64);
+            let e = last.entry(lfi).or_insert(0.0);
+            *e = e.max(lat as f64);
+        }
+    }
+    (each, last.into_values().collect(), data_in_hand)
+}
+
+/// Child: a reader blocked in `Port::wait`; prints `lfi wake_ns data_ns` per chunk.
+pub fn child_wake_reader(args: &[String]) {
+    let port = Port::open(&args[0]).expect("open port");
+    let mut nfr = port.info().expect("info").last_frame_index + 1;
+    let cap = port.geometry().frames_per_chunk as usize * 8;
+    let (mut l, mut r) = (vec![0i32; cap], vec![0i32; cap]);
+    let mut out = String::new();
+    crate::procs::say_ready();
+    loop {
+        match port.wait(nfr, Duration::from_secs(30)) {
+            Ok(lfi) => {
+                let woke = now_ns();
+                let mut bufs = [&mut l[..], &mut r[..]];
+                port.get_audio_data(cap, &mut nfr, &mut bufs).expect("read");
+                let read = now_ns();
+                let published = port.chunk_info(lfi).map(|c| c.mono_ns).unwrap_or(0);
+                if published > 0 {
+                    out.push_str(&format!("{lfi} {} {}\n", woke.saturating_sub(published), read.saturating_sub(published)));
+                }
+            }
+            Err(Error::Stopped { .. }) => break,
+            Err(e) => panic!("wake reader: {e}"),
+        }
+    }
+    print!("{out}");
+}
+
+fn polling(readers: usize, duration: Duration) -> Vec<f64> {
+    let name = "bench-poll";
+    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: 2205, chunks_on_port: 20 };
+    let params = PortParams { geometry, device: "bench:poll".into(), group: None };
+    let mut w = Writer::create(name, &params).expect("create port");
+    let data = vec![7i32; 2205 * 2];
+    let kids = spawn_ready(readers, "poll-reader", &[name.to_owned()]);
+    let start = Instant::now();
+    let mut next = start;
+    while start.elapsed() < duration {
+        next += Duration::from_millis(50);
+        if let Some(d) = next.checked_duration_since(Instant::now()) {
+            std::thread::sleep(d);
+        }
+        let meta = ChunkMeta { mono_ns: now_ns(), ..ChunkMeta::default() };
+        w.publish(Source::Interleaved(&data), meta).expect("publish");
+    }
+    w.stop();
+    let lines = finish_all(kids);
+    let _ = w.remove();
+    lines.iter().filter_map(|l| l.strip_prefix("lat ")).filter_map(|v| v.parse().ok()).collect()
+}
+
+/// Child: the seed's BASC `GetBlocks` loop, a periodic 250 ms task calling getAudioData.
+/// Prints `lat NS` for every chunk obtained (from the chunk's publication to the poll).
+pub fn child_poll_reader(args: &[String]) {
+    let port = Port::open(&args[0]).expect("open port");
+    let nfpc = u64::from(port.geometry().frames_per_chunk);
+    let mut nfr = port.info().expect("info").last_frame_index + 1;
+    let cap = 44100;
+    let (mut l, mut r) = (vec![0i32; cap], vec![0i32; cap]);
+    let mut out = String::new();
+    crate::procs::say_ready();
+    // Random phase, as a client started at any moment.
+    std::thread::sleep(Duration::from_micros(now_ns() % 250_000));
+    let mut next = Instant::now();
+    loop {
+        next += Duration::from_millis(250);
+        if let Some(d) = next.checked_duration_since(Instant::now()) {
+            std::thread::sleep(d);
+        }
+        let first = nfr;
+        let mut bufs = [&mut l[..], &mut r[..]];
+        let got = port.get_audio_data(cap, &mut nfr, &mut bufs).expect("read");
+        let t = now_ns();
+        // The first chunk that starts at or after `first` (chunks start at k * nFPC + 1).
+        let mut f = (first - 1).div_ceil(nfpc) * nfpc + 1;
+        while got.frames > 0 && f + nfpc - 1 < nfr {
+            if let Ok(ci) = port.chunk_info(f) {
+                out.push_str(&format!("lat {}\n", t.saturating_sub(ci.mono_ns)));
+            }
+            f += nfpc;
+        }
+        if port.info().map(|i| i.state != Some(State::Capturing) && i.state != Some(State::Idle)).unwrap_or(true) {
+            break;
+        }
+    }
+    print!("{out}");
+}
+
+/// Runs part 3.
+pub fn run(reps: usize, quick: bool) -> WakeResults {
+    let n = if quick { 80 } else { 250 };
+    let mut res = WakeResults { publishes: n, ..WakeResults::default() };
+    for rep in 0..reps {
+        let raw = raw_futex(n);
+        let raw_med = median(&raw);
+        println!("  rep {} raw futex: median {} p99 {}", rep + 1, fmt_ns(raw_med), fmt_ns(quantile(&raw, 0.99)));
+        res.raw.add_rep(raw);
+        for &k in READERS {
+            let (each, last, data) = bass_wake(k, n);
+            println!(
+                "  rep {} bass {k:>2} readers: median {} p99 {} max {}; last reader median {}; data in hand median {}",
+                rep + 1,
+                fmt_ns(median(&each)),
+                fmt_ns(quantile(&each, 0.99)),
+                fmt_ns(each.iter().cloned().fold(0.0, f64::max)),
+                fmt_ns(median(&last)),
+                fmt_ns(median(&data))
+            );
+            if k == 1 {
+                res.ratio_1.push(median(&each) / raw_med);
+            }
+            res.bass.entry(k).or_default().add_rep(each);
+            res.bass_last.entry(k).or_default().add_rep(last);
+            res.bass_data.entry(k).or_default().add_rep(data);
+        }
+    }
+    let poll = polling(4, Duration::from_secs(if quick { 2 } else { 6 }));
+    println!("  250 ms polling client: median {} p99 {}", fmt_ns(median(&poll)), fmt_ns(quantile(&poll, 0.99)));
+    res.poll.add_rep(poll);
+    println!(
+        "  bass (1 reader) / raw futex, median per repetition: {}",
+        spread(&res.ratio_1, fmt_ratio)
+    );
+    res
+}
