@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Builds the C ABI test against include/bass.h and the cdylib with strict warnings, then runs
+# it plain and under AddressSanitizer + UndefinedBehaviorSanitizer.
+set -euo pipefail
+top=$(cd "$(dirname "$0")/../.." && pwd)
+lib="${CARGO_TARGET_DIR:-$top/target}/release"
+[[ -f "$lib/libbassclient.so" ]] || { echo "build first: cargo build --release" >&2; exit 1; }
+out=$(mktemp -d)
+trap 'rm -rf "$out"' EXIT
+cc=${CC:-cc}
+flags=(-std=c11 -Wall -Wextra -Wpedantic -Werror -I "$top/include")
+link=(-L "$lib" -lbassclient -Wl,-rpath,"$lib" -lpthread)
+
+"$cc" "${flags[@]}" -O2 "$top/tests/c/abi_test.c" -o "$out/abi_test" "${link[@]}"
+"$cc" "${flags[@]}" -O1 -g -fsanitize=address,undefined -fno-sanitize-recover=all \
+  "$top/tests/c/abi_test.c" -o "$out/abi_test_asan" "${link[@]}"
+# The header must also compile as C++.
+printf '#include "bass.h"\nint main() { return bass_version() == nullptr; }\n' > "$out/hpp.cpp"
+"${CXX:-c++}" -std=c++17 -Wall -Wextra -Wpedantic -Werror -I "$top/include" "$out/hpp.cpp" -o "$out/hpp" "${link[@]}"
+
+for t in abi_test abi_test_asan; do
+  mkdir -p "$out/rt-$t"
+  echo "== $t"
+  BASS_RUNTIME_DIR="$out/rt-$t" ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 "$out/$t"
+done
+"$out/hpp"
+echo "tests/c: ok"
