@@ -11,7 +11,8 @@ use std::time::Duration;
 fn valid_port_bytes() -> Vec<u8> {
     let path = common::temp_port_path("fuzz-src");
     let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: 16, chunks_on_port: 4 };
-    let mut w = Writer::create_at(&path, &PortParams { geometry, device: "fuzz".into(), group: None }).unwrap();
+    let mut w =
+        Writer::create_at(&path, &PortParams { geometry, device: "fuzz".into(), group: None }).unwrap();
     for _ in 0..6 {
         w.publish(Source::Zeros, ChunkMeta::default()).unwrap();
     }

@@ -30,7 +30,12 @@ struct Shared {
 
 impl Shared {
     fn ring(&self) -> Ring<'_> {
-        Ring { last_frame_index: &self.lfi, write_intent: &self.intent, samples: &self.samples, frames_on_port: NFOP }
+        Ring {
+            last_frame_index: &self.lfi,
+            write_intent: &self.intent,
+            samples: &self.samples,
+            frames_on_port: NFOP,
+        }
     }
 }
 
@@ -89,4 +94,3 @@ fn reader_never_delivers_a_torn_frame_and_accounts_exactly() {
 fn model_rejects_a_reader_without_the_recheck() {
     model(|ring, lfi, max, nfr, out| ring.read_without_recheck(lfi, max, nfr, out));
 }
-

@@ -100,8 +100,8 @@ fn run(nfpc: u32, ncop: u32, channels: u32, ops: &[Op]) -> Result<(), TestCaseEr
                 prop_assert_eq!(r.frames as i128, expected.n, "n for N={} nfr={} lfi={}", n, start, lfi);
                 prop_assert_eq!(got_nfr as i128, expected.nfr, "nfr");
                 prop_assert_eq!(r.loss as i128, expected.loss, "loss");
-                for c in 0..channels as usize {
-                    prop_assert_eq!(&bufs[c][..r.frames], &expected.channels[c][..], "channel {} samples", c);
+                for (c, (got, want)) in bufs.iter().zip(&expected.channels).enumerate() {
+                    prop_assert_eq!(&got[..r.frames], &want[..], "channel {} samples", c);
                 }
                 cont = got_nfr;
             }

@@ -21,7 +21,8 @@ const NCOP: u32 = 8;
 const CHUNKS: u64 = 40_000;
 
 /// Reader kinds: (block size N, pause between reads in µs, use the blocking wait).
-const READERS: [(usize, u64, bool); 5] = [(64, 0, false), (300, 20, false), (2000, 500, false), (256, 0, true), (128, 0, false)];
+const READERS: [(usize, u64, bool); 5] =
+    [(64, 0, false), (300, 20, false), (2000, 500, false), (256, 0, true), (128, 0, false)];
 /// Index of the reader that gets SIGSTOP / SIGCONT.
 const STOPPED_READER: usize = 4;
 
@@ -115,7 +116,8 @@ fn stress_child_entry() {
 }
 
 fn run_writer(path: &std::path::Path) {
-    let geometry = Geometry { channels: CHANNELS, sample_rate: 48000, frames_per_chunk: NFPC, chunks_on_port: NCOP };
+    let geometry =
+        Geometry { channels: CHANNELS, sample_rate: 48000, frames_per_chunk: NFPC, chunks_on_port: NCOP };
     let mut w =
         Writer::create_at(path, &PortParams { geometry, device: "stress".into(), group: None }).unwrap();
     println!("ready");
@@ -180,8 +182,5 @@ fn run_reader(path: &std::path::Path, kind: usize) {
             std::thread::sleep(Duration::from_micros(pause_us));
         }
     }
-    println!(
-        "RESULT delivered={delivered} lost={lost} corrupted={corrupted} requested={}",
-        nfr - start
-    );
+    println!("RESULT delivered={delivered} lost={lost} corrupted={corrupted} requested={}", nfr - start);
 }

@@ -8,7 +8,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 pub fn temp_port_path(tag: &str) -> PathBuf {
     static N: AtomicU64 = AtomicU64::new(0);
     let n = N.fetch_add(1, Ordering::Relaxed);
-    let dir = if std::path::Path::new("/dev/shm").is_dir() { "/dev/shm".into() } else { std::env::temp_dir() };
+    let dir =
+        if std::path::Path::new("/dev/shm").is_dir() { "/dev/shm".into() } else { std::env::temp_dir() };
     dir.join(format!("bass-test-{tag}-{}-{n}.port", std::process::id()))
 }
 
