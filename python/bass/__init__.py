@@ -52,7 +52,7 @@ class BassError(Exception):
         self.call, self.code, self.message = call, code, message
         self.name = RESULT_NAMES.get(code, f"UNKNOWN_{code}")
         text = lib.bass_result_str(code).decode()
-        super().__init__(f"{call}: {text}" + (f" ({message})" if message else ""))
+        super().__init__(f"{message or call} [{text}]")
 
 
 def _check(call, code):

@@ -1,0 +1,222 @@
+// bass.hpp: header-only C++17 RAII wrapper over the bass C ABI (include/bass.h).
+//
+//   bass::port p("default");                       // bass_port_open; closed by the destructor
+//   std::uint64_t nfr = p.last_frame_index() + 1;  // the next frame to be published
+//   bass::audio_data d = p.get_audio_data(12000, nfr);   // formal getAudioData, never blocks
+//   for (auto& b : bass::blocks(p, 4410, nfr)) ...        // consecutive blocks (blocking)
+//
+// Every failing call throws bass::error, which carries the bass_result code, the name of the
+// call and the library's detailed message (bass_last_error()). Handles are move-only.
+// Link with -lbassclient (pkg-config --cflags --libs bassclient).
+#ifndef BASS_HPP
+#define BASS_HPP
+
+#include <algorithm>
+#include <chrono>
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "bass.h"
+
+namespace bass {
+
+// A failed bass call: code() is the bass_result; what() is the library's detailed message
+// (which names the call) followed by the code's description in brackets.
+class error : public std::runtime_error {
+  public:
+    error(const char *call, bass_result code)
+        : std::runtime_error(compose(call, code, bass_last_error())), code_(code), call_(call),
+          detail_(bass_last_error()) {}
+    bass_result code() const noexcept { return code_; }
+    const std::string &call() const noexcept { return call_; }
+    const std::string &detail() const noexcept { return detail_; }
+
+  private:
+    static std::string compose(const char *call, bass_result code, const char *detail) {
+        std::string head = (detail && *detail) ? std::string(detail) : std::string(call);
+        return head + " [" + bass_result_str(code) + "]";
+    }
+    bass_result code_;
+    std::string call_;
+    std::string detail_;
+};
+
+inline void check(const char *call, bass_result r) {
+    if (r != BASS_OK) throw error(call, r);
+}
+
+// The result of one getAudioData: n frames of each channel, the new nfr, the frames lost.
+struct audio_data {
+    std::vector<std::int32_t> left, right;
+    std::uint64_t nfr = 0;
+    std::size_t n = 0;
+    std::uint64_t loss = 0;
+};
+
+// A port opened read-only.
+class port {
+  public:
+    explicit port(const std::string &name = "default") { check("bass_port_open", bass_port_open(name.c_str(), &h_)); }
+    ~port() { bass_port_close(h_); }
+    port(port &&o) noexcept : h_(std::exchange(o.h_, nullptr)) {}
+    port &operator=(port &&o) noexcept {
+        if (this != &o) {
+            bass_port_close(h_);
+            h_ = std::exchange(o.h_, nullptr);
+        }
+        return *this;
+    }
+    port(const port &) = delete;
+    port &operator=(const port &) = delete;
+
+    const bass_port *handle() const noexcept { return h_; }
+
+    bass_port_info info() const {
+        bass_port_info i;
+        check("bass_port_get_info", bass_port_get_info(h_, &i));
+        return i;
+    }
+    std::uint64_t last_frame_index() const { return info().last_frame_index; }
+
+    // getAudioData into caller buffers of at least n_frames samples; returns n, sets loss.
+    std::size_t get_audio_data(std::size_t n_frames, std::uint64_t &nfr, std::int32_t *left, std::int32_t *right,
+                               std::uint64_t &loss) const {
+        std::size_t n = 0;
+        check("bass_get_audio_data", bass_get_audio_data(h_, n_frames, &nfr, left, right, &n, &loss));
+        return n;
+    }
+
+    // getAudioData returning vectors of n frames and the new nfr.
+    audio_data get_audio_data(std::size_t n_frames, std::uint64_t nfr) const {
+        audio_data d;
+        std::size_t cap = std::max<std::size_t>(1, std::min<std::uint64_t>(n_frames, info().frames_on_port));
+        d.left.resize(cap);
+        d.right.resize(cap);
+        d.nfr = nfr;
+        d.n = get_audio_data(std::min(n_frames, cap), d.nfr, d.left.data(), d.right.data(), d.loss);
+        d.left.resize(d.n);
+        d.right.resize(d.n);
+        return d;
+    }
+
+    // Blocks until `frame` is published; returns the last frame index. Throws bass::error with
+    // BASS_ERR_TIMEOUT, _STOPPED, _DEVICE, _RESTARTED, _WRITER_GONE or _INTERRUPTED.
+    std::uint64_t wait(std::uint64_t frame, std::chrono::milliseconds timeout) const {
+        std::uint64_t lfi = 0;
+        auto ms = timeout.count() < 0 ? 0 : timeout.count();
+        auto t = ms >= static_cast<long long>(BASS_WAIT_FOREVER) ? BASS_WAIT_FOREVER : static_cast<std::uint32_t>(ms);
+        check("bass_port_wait", bass_port_wait(h_, frame, t, &lfi));
+        return lfi;
+    }
+
+    bass_chunk_info chunk_info(std::uint64_t frame) const {
+        bass_chunk_info c;
+        check("bass_port_chunk_info", bass_port_chunk_info(h_, frame, &c));
+        return c;
+    }
+
+  private:
+    bass_port *h_ = nullptr;
+};
+
+// A port writer (simulators and test rigs; the broker is the writer in production).
+class writer {
+  public:
+    writer(const std::string &name, std::uint32_t channels, std::uint32_t sample_rate, std::uint32_t frames_per_chunk,
+           std::uint32_t chunks_on_port, const std::string &device = "c++") {
+        check("bass_writer_create", bass_writer_create(name.c_str(), device.c_str(), channels, sample_rate,
+                                                       frames_per_chunk, chunks_on_port, &h_));
+    }
+    ~writer() { bass_writer_close(h_); }
+    writer(writer &&o) noexcept : h_(std::exchange(o.h_, nullptr)) {}
+    writer &operator=(writer &&o) noexcept {
+        if (this != &o) {
+            bass_writer_close(h_);
+            h_ = std::exchange(o.h_, nullptr);
+        }
+        return *this;
+    }
+    writer(const writer &) = delete;
+    writer &operator=(const writer &) = delete;
+
+    // Publishes one chunk of interleaved samples; returns the new last frame index.
+    std::uint64_t publish(const std::vector<std::int32_t> &interleaved) {
+        std::uint64_t lfi = 0;
+        check("bass_writer_publish_interleaved",
+              bass_writer_publish_interleaved(h_, interleaved.data(), interleaved.size(), nullptr, &lfi));
+        return lfi;
+    }
+    std::uint64_t publish_gap() {
+        std::uint64_t lfi = 0;
+        check("bass_writer_publish_gap", bass_writer_publish_gap(h_, nullptr, &lfi));
+        return lfi;
+    }
+    void set_state(std::uint32_t state, std::uint32_t error_code = BASS_DEVERR_NONE, const char *message = nullptr) {
+        check("bass_writer_set_state", bass_writer_set_state(h_, state, error_code, message));
+    }
+
+  private:
+    bass_writer *h_ = nullptr;
+};
+
+// One complete block from bass::block_reader.
+struct block {
+    std::vector<std::int32_t> left, right;
+    std::uint64_t first_frame = 0;  // index of left[0]
+    std::uint64_t next_frame = 0;   // the frame after the block
+    std::uint64_t loss = 0;         // frames lost while the block was assembled (0: contiguous)
+};
+
+// Reads consecutive blocks of n_frames, blocking on the port (reads at least every half
+// window, so nothing is lost while the caller keeps up).
+class block_reader {
+  public:
+    block_reader(const port &p, std::size_t n_frames, std::uint64_t nfr,
+                 std::chrono::milliseconds timeout = std::chrono::milliseconds(BASS_WAIT_FOREVER))
+        : p_(p), n_(n_frames), nfr_(nfr), timeout_(timeout) {
+        if (n_frames == 0) throw std::invalid_argument("bass::block_reader: n_frames must be > 0");
+        auto i = p.info();
+        fop_ = i.frames_on_port;
+    }
+
+    block next() {
+        block b;
+        b.left.resize(n_);
+        b.right.resize(n_);
+        std::size_t filled = 0;
+        bool first = true;
+        const std::uint64_t half = std::max<std::uint64_t>(1, fop_ / 2);
+        while (filled < n_) {
+            std::uint64_t rem = n_ - filled;
+            p_.wait(nfr_ + std::min(rem, half) - 1, timeout_);
+            std::uint64_t loss = 0;
+            std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(rem, fop_));
+            std::size_t n = p_.get_audio_data(want, nfr_, b.left.data() + filled, b.right.data() + filled, loss);
+            if (first && n) {
+                b.first_frame = nfr_ - n;
+                first = false;
+            }
+            b.loss += loss;
+            filled += n;
+        }
+        b.next_frame = nfr_;
+        return b;
+    }
+    std::uint64_t nfr() const noexcept { return nfr_; }
+
+  private:
+    const port &p_;
+    std::size_t n_;
+    std::uint64_t nfr_;
+    std::chrono::milliseconds timeout_;
+    std::uint64_t fop_ = 0;
+};
+
+inline const char *version() noexcept { return bass_version(); }
+
+}  // namespace bass
+
+#endif  // BASS_HPP
