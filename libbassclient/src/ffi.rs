@@ -389,6 +389,23 @@ impl<T> Registry<T> {
 static PORTS: Registry<Port> = Registry::new();
 static WRITERS: Registry<Mutex<Writer>> = Registry::new();
 
+/// Refuses output buffers that overlap (they become `&mut` slices, which must not alias).
+fn check_disjoint(ptrs: &[*mut i32], len: usize) -> Result<(), Failure> {
+    let bytes = len * std::mem::size_of::<i32>();
+    for (i, &a) in ptrs.iter().enumerate() {
+        for (j, &b) in ptrs.iter().enumerate().skip(i + 1) {
+            let (a, b) = (a as usize, b as usize);
+            if len > 0 && a < b + bytes && b < a + bytes {
+                return Err(Error::InvalidArgument(format!(
+                    "output buffers for channels {i} and {j} overlap"
+                ))
+                .into());
+            }
+        }
+    }
+    Ok(())
+}
+
 fn port(p: *const bass_port) -> Result<Arc<Port>, Failure> {
     PORTS.get(nonnull(p, "port")? as usize)
 }
@@ -504,7 +521,7 @@ pub unsafe extern "C" fn bass_port_close(port: *mut bass_port) -> bass_result {
 ///
 /// # Safety
 /// `left` and `right` must be valid for `n_frames` writes of `int32_t` (only `*out_n` are
-/// written); the other pointers valid for one read/write each.
+/// written; overlapping buffers are refused); the other pointers valid for one read/write each.
 #[no_mangle]
 pub unsafe extern "C" fn bass_get_audio_data(
     port: *const bass_port,
@@ -530,6 +547,7 @@ pub unsafe extern "C" fn bass_get_audio_data(
         }
         // Only min(N, nFOP) frames can ever be written: view no more than that.
         let len = (n_frames as u64).min(p.frames_on_port()) as usize;
+        check_disjoint(&[left, right], len)?;
         // SAFETY: the caller guarantees `n_frames` writable samples behind each pointer and
         // len <= n_frames; the two buffers must not overlap (documented).
         let mut out = unsafe {
@@ -579,6 +597,7 @@ pub unsafe extern "C" fn bass_get_audio_data_multi(
         let len = (n_frames as u64).min(p.frames_on_port()) as usize;
         // SAFETY: the caller guarantees `n_channels` readable pointers.
         let ptrs = unsafe { std::slice::from_raw_parts(channels, n_channels) };
+        check_disjoint(ptrs, len)?;
         let mut out = Vec::with_capacity(n_channels);
         for (c, &ptr) in ptrs.iter().enumerate() {
             if ptr.is_null() {

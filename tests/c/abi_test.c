@@ -183,6 +183,11 @@ static void test_reads(bass_port *port, bass_writer *w) {
     for (size_t i = 0; i < 8; i++) CHECK(l[i] == pattern(9 + i, 0) && r[i] == pattern(9 + i, 1));
     for (size_t i = 8; i < 12; i++) CHECK(l[i] == 0 && r[i] == 0);
 
+    /* Overlapping output buffers are refused before anything is written. */
+    nfr = 10;
+    EXPECT(bass_get_audio_data(port, 4, &nfr, l, l + 2, &n, &loss), BASS_ERR_INVALID_ARGUMENT);
+    CHECK(nfr == 10);
+
     /* A huge N only ever writes what is available. */
     nfr = 15;
     EXPECT(bass_get_audio_data(port, (size_t)-1, &nfr, l, r, &n, &loss), BASS_OK);
