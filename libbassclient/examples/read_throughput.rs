@@ -14,7 +14,8 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn main() {
     let path = std::env::temp_dir().join(format!("bass-throughput-{}.port", std::process::id()));
     let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: 2205, chunks_on_port: 40 };
-    let mut w = Writer::create_at(&path, &PortParams { geometry, device: "bench".into(), group: None }).unwrap();
+    let mut w =
+        Writer::create_at(&path, &PortParams { geometry, device: "bench".into(), group: None }).unwrap();
     let chunk: Vec<i32> = (0..2205 * 2).collect();
     for _ in 0..40 {
         w.publish(Source::Interleaved(&chunk), ChunkMeta::default()).unwrap();
