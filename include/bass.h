@@ -204,6 +204,38 @@ typedef struct {
   uint32_t flags;
 } bass_chunk_meta;
 
+// The state of a broker and of its current port, as returned by `bass_status()`.
+// (Named `bass_broker_status` because C cannot have a type and a function both named
+// `bass_status`.)
+typedef struct {
+  // `BASS_STATE_*` (`BASS_STATE_IDLE` before the first Acquire).
+  uint32_t state;
+  // `BASS_DEVERR_*` when `state` is `BASS_STATE_ERROR`.
+  uint32_t error_code;
+  // Sample rate in Hz.
+  uint32_t sample_rate;
+  // nFramesPerChunk.
+  uint32_t frames_per_chunk;
+  // nChunksOnPort.
+  uint32_t chunks_on_port;
+  // Channels.
+  uint32_t channels;
+  // Acquisition epoch (0 before the first Acquire).
+  uint64_t epoch;
+  // Index of the newest published frame.
+  uint64_t last_frame_index;
+  // Recovered device overruns.
+  uint64_t xruns;
+  // Zero-filled frames published for device gaps.
+  uint64_t gap_frames;
+  // Estimated device sample rate in Hz (0 = no estimate yet).
+  double rate_estimate_hz;
+  // Device name, NUL terminated.
+  char device[BASS_DEVICE_LEN];
+  // Error message, NUL terminated.
+  char message[BASS_MESSAGE_LEN];
+} bass_broker_status;
+
 #ifdef __cplusplus
 extern "C" {
 #endif // __cplusplus
@@ -245,7 +277,7 @@ bass_result bass_port_close(bass_port *port);
 //
 // # Safety
 // `left` and `right` must be valid for `n_frames` writes of `int32_t` (only `*out_n` are
-// written); the other pointers valid for one read/write each.
+// written; overlapping buffers are refused); the other pointers valid for one read/write each.
 bass_result bass_get_audio_data(const bass_port *port,
                                 size_t n_frames,
                                 uint64_t *nfr,
@@ -390,6 +422,44 @@ bass_result bass_writer_set_state(bass_writer *writer,
 // # Safety
 // None beyond passing a value returned by `bass_writer_create` (anything else is reported).
 bass_result bass_writer_close(bass_writer *writer);
+
+// Starts an acquisition on broker `broker` (NULL = "default"), interrupting a running one.
+// `channels` 0 means 2. `*out_epoch` (if not NULL) receives the new acquisition's epoch.
+//
+// # Safety
+// `broker` must be NULL or NUL-terminated; `device` NUL-terminated; `out_epoch` NULL or
+// valid for a write.
+bass_result bass_acquire(const char *broker,
+                         const char *device,
+                         uint32_t sample_rate,
+                         uint32_t frames_per_chunk,
+                         uint32_t chunks_on_port,
+                         uint32_t channels,
+                         uint64_t *out_epoch);
+
+// Stops the acquisition of broker `broker` (NULL = "default"); the port keeps its frames
+// and shows `BASS_STATE_STOPPED`. Stopping a stopped broker is not an error.
+//
+// # Safety
+// `broker` must be NULL or NUL-terminated.
+bass_result bass_stop(const char *broker);
+
+// The state of broker `broker` (NULL = "default") and of its current port.
+//
+// # Safety
+// `broker` must be NULL or NUL-terminated; `out_status` valid for a write.
+bass_result bass_status(const char *broker, bass_broker_status *out_status);
+
+// The capture devices of broker `broker` (NULL = "default"), as lines
+// `"name\tdescription\n"`, NUL terminated, in `buf` (`buf_len` bytes). `*out_len` receives
+// the bytes written including the NUL. If `buf_len` is too small (or `buf` is NULL), nothing
+// is written to `buf`, `*out_len` receives the bytes needed including the NUL, and the
+// result is `BASS_ERR_BUFFER_TOO_SMALL`.
+//
+// # Safety
+// `broker` must be NULL or NUL-terminated; `buf` NULL or valid for `buf_len` writes;
+// `out_len` valid for a write.
+bass_result bass_list_devices(const char *broker, char *buf, size_t buf_len, size_t *out_len);
 
 #ifdef __cplusplus
 }  // extern "C"

@@ -7,8 +7,10 @@
 //!   `getAudioData` algorithm of the BASS documentation;
 //! - [`ffi`]: the C ABI (`include/bass.h`).
 
+pub mod control;
 pub mod error;
 pub mod ffi;
+mod ffi_control;
 pub mod format;
 pub mod paths;
 pub mod reader;

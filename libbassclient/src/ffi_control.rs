@@ -1,0 +1,210 @@
+//! The C ABI of the control plane: Acquire, Stop, Status and ListDevices on a broker.
+//!
+//! Each call opens a connection to the broker's control socket, sends one request, waits
+//! for the reply and closes the connection (the broker keeps no per-client state). The
+//! conventions of [`crate::ffi`] apply: `bass_result` codes, `bass_last_error()` for the
+//! detail, no panic crosses the boundary. A broker that is not running gives
+//! `BASS_ERR_NO_BROKER`; a request the broker refuses gives `BASS_ERR_BROKER` with the
+//! broker's message in `bass_last_error()`.
+
+#![allow(non_camel_case_types)]
+
+use std::ffi::c_char;
+
+use crate::control::{AcquireRequest, Client, Status, DEFAULT_CHANNELS};
+use crate::ffi::{bass_result, boundary, c_str, nonnull_mut, Failure, BASS_DEVICE_LEN, BASS_MESSAGE_LEN};
+use crate::paths::DEFAULT_NAME;
+
+/// The state of a broker and of its current port, as returned by `bass_status()`.
+/// (Named `bass_broker_status` because C cannot have a type and a function both named
+/// `bass_status`.)
+#[repr(C)]
+pub struct bass_broker_status {
+    /// `BASS_STATE_*` (`BASS_STATE_IDLE` before the first Acquire).
+    pub state: u32,
+    /// `BASS_DEVERR_*` when `state` is `BASS_STATE_ERROR`.
+    pub error_code: u32,
+    /// Sample rate in Hz.
+    pub sample_rate: u32,
+    /// nFramesPerChunk.
+    pub frames_per_chunk: u32,
+    /// nChunksOnPort.
+    pub chunks_on_port: u32,
+    /// Channels.
+    pub channels: u32,
+    /// Acquisition epoch (0 before the first Acquire).
+    pub epoch: u64,
+    /// Index of the newest published frame.
+    pub last_frame_index: u64,
+    /// Recovered device overruns.
+    pub xruns: u64,
+    /// Zero-filled frames published for device gaps.
+    pub gap_frames: u64,
+    /// Estimated device sample rate in Hz (0 = no estimate yet).
+    pub rate_estimate_hz: f64,
+    /// Device name, NUL terminated.
+    pub device: [c_char; BASS_DEVICE_LEN],
+    /// Error message, NUL terminated.
+    pub message: [c_char; BASS_MESSAGE_LEN],
+}
+
+/// # Safety
+/// `broker` must be NULL or NUL-terminated.
+unsafe fn connect(broker: *const c_char) -> Result<Client, Failure> {
+    let name = if broker.is_null() {
+        DEFAULT_NAME
+    } else {
+        // SAFETY: forwarded caller guarantee.
+        unsafe { c_str(broker, "broker") }?
+    };
+    Ok(Client::connect(name)?)
+}
+
+fn copy_text(dst: &mut [c_char], s: &str) {
+    let n = s.len().min(dst.len() - 1);
+    for (d, b) in dst.iter_mut().zip(&s.as_bytes()[..n]) {
+        *d = *b as c_char;
+    }
+    dst[n..].fill(0);
+}
+
+/// Starts an acquisition on broker `broker` (NULL = "default"), interrupting a running one.
+/// `channels` 0 means 2. `*out_epoch` (if not NULL) receives the new acquisition's epoch.
+///
+/// # Safety
+/// `broker` must be NULL or NUL-terminated; `device` NUL-terminated; `out_epoch` NULL or
+/// valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn bass_acquire(
+    broker: *const c_char,
+    device: *const c_char,
+    sample_rate: u32,
+    frames_per_chunk: u32,
+    chunks_on_port: u32,
+    channels: u32,
+    out_epoch: *mut u64,
+) -> bass_result {
+    boundary("bass_acquire", || {
+        // SAFETY: forwarded caller guarantee.
+        let device = unsafe { c_str(device, "device") }?;
+        // SAFETY: forwarded caller guarantee.
+        let mut client = unsafe { connect(broker) }?;
+        let req = AcquireRequest {
+            device: device.to_owned(),
+            sample_rate,
+            frames_per_chunk,
+            chunks_on_port,
+            channels: if channels == 0 { DEFAULT_CHANNELS } else { channels },
+            format: None,
+        };
+        let acquired = client.acquire(&req)?;
+        if !out_epoch.is_null() {
+            // SAFETY: non-null; the caller guarantees validity.
+            unsafe { out_epoch.write(acquired.epoch) };
+        }
+        Ok(())
+    })
+}
+
+/// Stops the acquisition of broker `broker` (NULL = "default"); the port keeps its frames
+/// and shows `BASS_STATE_STOPPED`. Stopping a stopped broker is not an error.
+///
+/// # Safety
+/// `broker` must be NULL or NUL-terminated.
+#[no_mangle]
+pub unsafe extern "C" fn bass_stop(broker: *const c_char) -> bass_result {
+    boundary("bass_stop", || {
+        // SAFETY: forwarded caller guarantee.
+        let mut client = unsafe { connect(broker) }?;
+        Ok(client.stop()?)
+    })
+}
+
+fn status_to_c(s: &Status) -> bass_broker_status {
+    let mut out = bass_broker_status {
+        state: s.state,
+        error_code: s.error_code,
+        sample_rate: s.sample_rate,
+        frames_per_chunk: s.frames_per_chunk,
+        chunks_on_port: s.chunks_on_port,
+        channels: s.channels,
+        epoch: s.epoch,
+        last_frame_index: s.last_frame_index,
+        xruns: s.xruns,
+        gap_frames: s.gap_frames,
+        rate_estimate_hz: s.rate_estimate_hz,
+        device: [0; BASS_DEVICE_LEN],
+        message: [0; BASS_MESSAGE_LEN],
+    };
+    copy_text(&mut out.device, &s.device);
+    copy_text(&mut out.message, &s.message);
+    out
+}
+
+/// The state of broker `broker` (NULL = "default") and of its current port.
+///
+/// # Safety
+/// `broker` must be NULL or NUL-terminated; `out_status` valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn bass_status(
+    broker: *const c_char,
+    out_status: *mut bass_broker_status,
+) -> bass_result {
+    boundary("bass_status", || {
+        let out = nonnull_mut(out_status, "out_status")?;
+        // SAFETY: forwarded caller guarantee.
+        let mut client = unsafe { connect(broker) }?;
+        let s = status_to_c(&client.status()?);
+        // SAFETY: checked non-null; the caller guarantees validity.
+        unsafe { out.write(s) };
+        Ok(())
+    })
+}
+
+/// The capture devices of broker `broker` (NULL = "default"), as lines
+/// `"name\tdescription\n"`, NUL terminated, in `buf` (`buf_len` bytes). `*out_len` receives
+/// the bytes written including the NUL. If `buf_len` is too small (or `buf` is NULL), nothing
+/// is written to `buf`, `*out_len` receives the bytes needed including the NUL, and the
+/// result is `BASS_ERR_BUFFER_TOO_SMALL`.
+///
+/// # Safety
+/// `broker` must be NULL or NUL-terminated; `buf` NULL or valid for `buf_len` writes;
+/// `out_len` valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn bass_list_devices(
+    broker: *const c_char,
+    buf: *mut c_char,
+    buf_len: usize,
+    out_len: *mut usize,
+) -> bass_result {
+    boundary("bass_list_devices", || {
+        let out_len = nonnull_mut(out_len, "out_len")?;
+        // SAFETY: forwarded caller guarantee.
+        let mut client = unsafe { connect(broker) }?;
+        let mut text = String::new();
+        for d in client.list_devices()? {
+            let clean = |s: &str| s.replace(['\t', '\n', '\r', '\0'], " ");
+            text.push_str(&clean(&d.name));
+            text.push('\t');
+            text.push_str(&clean(&d.description));
+            text.push('\n');
+        }
+        let needed = text.len() + 1;
+        if buf.is_null() || buf_len < needed {
+            // SAFETY: checked non-null; the caller guarantees validity.
+            unsafe { out_len.write(needed) };
+            return Err(Failure::Small(format!("the device list needs {needed} bytes; buf_len = {buf_len}")));
+        }
+        // SAFETY: `buf` is non-null and valid for `buf_len >= needed` bytes (caller guarantee);
+        // the source is a distinct Rust allocation.
+        unsafe {
+            std::ptr::copy_nonoverlapping(text.as_ptr().cast::<c_char>(), buf, text.len());
+            buf.add(text.len()).write(0);
+            out_len.write(needed);
+        }
+        Ok(())
+    })
+}
+
+const _: () =
+    assert!(std::mem::size_of::<bass_broker_status>() == 24 + 40 + BASS_DEVICE_LEN + BASS_MESSAGE_LEN);
