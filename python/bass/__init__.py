@@ -301,9 +301,9 @@ def list_devices(broker=None):
         buf = ctypes.create_string_buffer(size)
         out_len = ctypes.c_size_t()
         r = fn(_bytes(broker), buf, size, ctypes.byref(out_len))
-        if r == 22 and out_len.value >= size:  # BUFFER_TOO_SMALL: out_len says how much is needed
-            size = out_len.value + 1
+        if r == 22 and out_len.value > size:  # BUFFER_TOO_SMALL: out_len is the size needed
+            size = out_len.value
             continue
         _check("bass_list_devices", r)
-        text = buf.raw[: out_len.value].decode(errors="replace")
+        text = buf.value.decode(errors="replace")
         return [tuple((line.split("\t", 1) + [""])[:2]) for line in text.splitlines() if line]

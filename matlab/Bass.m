@@ -1,0 +1,147 @@
+% Bass: a bass broker and its port, in the vocabulary of the BASS documentation.
+%
+%   bass = Bass();                              % broker "default" (Bass('name') for another)
+%   bass.ListDevices()                          % prints name and description of each device
+%   bass.Acquire('sim:pattern', 44100, 2205, 20)   % or bass.Acquire('-a', 'hw:1,0', 44100, 2205, 20)
+%   bass.GetBlocks(1, 88200, 0)                 % the BASC client: prints the seed's lines
+%   [l, r, nfr, n, loss] = bass.getAudioData(12000, nfr)   % the formal getAudioData
+%   lfi = bass.Wait(frame, timeoutSeconds)      % blocks until frame is published (Ctrl-C safe)
+%   s = bass.Status()
+%   bass.Stop()
+%
+% Samples are int32 columns; frame indices (nfr, lastFrameIndex) are uint64 and frames are
+% numbered from 1 (frame 0 is the zero frame before the acquisition). Errors have the
+% identifiers of bass_mex (bass:noPort, bass:noBroker, bass:timeout, bass:lost, ...).
+classdef Bass < handle
+  properties (SetAccess = private)
+    broker = 'default';   % broker (and port) name
+  end
+  properties (Access = private)
+    h = [];               % port handle from bass_mex('Open'), opened on first use
+  end
+
+  methods
+    function obj = Bass(broker)
+      if nargin > 0
+        obj.broker = broker;
+      end
+    end
+
+    function delete(obj)
+      obj.closePort();
+    end
+
+    function epoch = Acquire(obj, varargin)
+      % Acquire(device = 'hw:1,0', sampleRate = 44100, nFramesPerChunk = 2205, nChunksOnPort = 20)
+      % starts (or restarts) the acquisition. A leading '-a' (genomix's asynchronous flag) is
+      % accepted and ignored: the broker always acquires in the background.
+      if ~isempty(varargin) && ischar(varargin{1}) && strcmp(varargin{1}, '-a')
+        varargin(1) = [];
+      end
+      defaults = {'hw:1,0', 44100, 2205, 20};
+      defaults(1:numel(varargin)) = varargin;
+      epoch = bass_mex('Acquire', defaults{:}, 2, obj.broker);
+      obj.closePort();   % the new acquisition has a new port
+    end
+
+    function Stop(obj)
+      bass_mex('Stop', obj.broker);
+    end
+
+    function devices = ListDevices(obj)
+      % Prints the devices (name, description); returns them as an n x 2 cell if asked.
+      if nargout > 0
+        devices = bass_mex('ListDevices', obj.broker);
+      else
+        bass_mex('ListDevices', obj.broker);
+      end
+    end
+
+    function s = Status(obj)
+      s = bass_mex('Status', obj.broker);
+    end
+
+    function info = PortInfo(obj)
+      info = bass_mex('Info', obj.port());
+    end
+
+    function [l, r, nfr, n, loss] = getAudioData(obj, N, nfr)
+      % The formal getAudioData: up to N frames from nfr; never blocks.
+      [l, r, nfr, n, loss] = bass_mex('GetAudioData', obj.port(), N, nfr);
+    end
+
+    function lfi = Wait(obj, frame, timeout)
+      % Blocks until frame is published (timeout in seconds, default Inf); returns the last
+      % frame index. Ctrl-C returns to the prompt (error bass:interrupted).
+      if nargin < 3
+        timeout = Inf;
+      end
+      lfi = bass_mex('Wait', obj.port(), frame, timeout);
+    end
+
+    function block = GetBlocks(obj, nBlocks, nFramesPerBlock, startOffs, period)
+      % GetBlocks(nBlocks = 1, nFramesPerBlock = 12000, startOffs = -12000, period = 0.25):
+      % the BASC service. Calls getAudioData once per period, to request a new block or
+      % complete the current one, printing the seed's lines. nBlocks = 0 runs until Ctrl-C.
+      % startOffs counts from the next frame to be published (0: fresh frames only, -N: the
+      % last N frames on the port). Returns the last complete block as [left right].
+      if nargin < 2, nBlocks = 1; end
+      if nargin < 3, nFramesPerBlock = 12000; end
+      if nargin < 4, startOffs = -12000; end
+      if nargin < 5, period = 0.25; end
+      info = obj.PortInfo();
+      if strcmp(info.state, 'capturing')
+        % Start the period clock half a chunk after a publish (see examples-c/basc.c).
+        obj.Wait(info.lastFrameIndex + 1, 10);
+        pause(info.nFramesPerChunk / info.sampleRate / 2);
+        info = obj.PortInfo();
+      end
+      nfr = uint64(max(0, double(info.lastFrameIndex) + 1 + startOffs));
+      block = zeros(0, 2, 'int32');
+      L = zeros(nFramesPerBlock, 1, 'int32');
+      R = L;
+      got = 0;
+      blocks = 0;
+      t0 = tic;
+      k = 0;
+      while nBlocks == 0 || blocks < nBlocks
+        k = k + 1;
+        pause(max(0, k * period - toc(t0)));
+        requested = nFramesPerBlock - got;
+        [l, r, nfr, n, loss] = obj.getAudioData(requested, nfr);
+        fprintf('Requested %6d frames, got %6d.\n', requested, n);
+        if loss > 0
+          fprintf('!!Lost %d frames!!\n', loss);
+        end
+        L(got + 1:got + n) = l;
+        R(got + 1:got + n) = r;
+        got = got + n;
+        if got == nFramesPerBlock
+          fprintf('A new block is ready to be processed.\n');
+          block = [L R];
+          blocks = blocks + 1;
+          got = 0;
+        end
+      end
+    end
+  end
+
+  methods (Access = private)
+    function h = port(obj)
+      if isempty(obj.h)
+        obj.h = bass_mex('Open', obj.broker);
+      end
+      h = obj.h;
+    end
+
+    function closePort(obj)
+      if ~isempty(obj.h)
+        try
+          bass_mex('Close', obj.h);
+        catch
+        end
+        obj.h = [];
+      end
+    end
+  end
+end
