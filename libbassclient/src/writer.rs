@@ -208,6 +208,12 @@ impl Writer {
         self.header().xruns.fetch_add(n, Relaxed);
     }
 
+    /// Counts `n` zero-filled frames published inside data chunks (a gap that did not span a
+    /// whole chunk); whole zero chunks (`Source::Zeros`) are counted by `publish`.
+    pub fn add_gap_frames(&self, n: u64) {
+        self.header().gap_frames.fetch_add(n, Relaxed);
+    }
+
     /// Publishes the device-clock rate estimate (Hz).
     pub fn set_rate_estimate(&self, hz: f64) {
         let mhz = if hz.is_finite() && hz > 0.0 { (hz * 1000.0).round() as u64 } else { 0 };

@@ -1,0 +1,378 @@
+//! One acquisition: the capture thread that reads a device, assembles chunks of
+//! nFramesPerChunk frames and publishes them with timestamps; overrun gap filling; the rate
+//! estimate; and the handle the control loop keeps (stop, stall watchdog, status).
+//!
+//! ```text
+//!  device reads (any size) ──► chunk assembly ──► Writer::publish (one chunk at a time)
+//!        │ Xrun                    ▲ zeros for the frames the overrun lost,
+//!        └──► gap = (t_next - t_expected) * rate ┘ so frame index stays proportional to time
+//! ```
+//!
+//! The stall watchdog runs on the control thread, not here: a device read may block inside
+//! a plugin (a FIFO, a dead sound server), and the watchdog must fire anyway.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{mpsc, Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use bassclient::format::{chunk_flags, error_code, State};
+use bassclient::reader::Port;
+use bassclient::sys::{monotonic_ns, realtime_ns};
+use bassclient::{ChunkMeta, Geometry, Source, Writer};
+
+use crate::device::{Capture, ReadEvent, StopSignal};
+use crate::dll::RateDll;
+
+/// State shared by the capture thread and the control thread.
+pub struct Shared {
+    writer: Mutex<Writer>,
+    stop: StopSignal,
+    /// CLOCK_MONOTONIC (ns) of the last data from the device (or of the start).
+    progress_ns: AtomicU64,
+    /// Set once by whoever ends the acquisition on an error (first one wins).
+    ended: AtomicBool,
+    /// Whether the device delivered anything yet (the watchdog gives a longer grace before).
+    got_data: AtomicBool,
+}
+
+impl Shared {
+    fn writer(&self) -> MutexGuard<'_, Writer> {
+        self.writer.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Ends the acquisition on an error, once; later calls do nothing.
+    fn fail(&self, code: u32, message: &str) -> bool {
+        if self.ended.swap(true, Ordering::AcqRel) {
+            return false;
+        }
+        tracing::error!(code, "{message}");
+        self.writer().set_state(State::Error, code, message);
+        self.stop.signal();
+        true
+    }
+}
+
+/// Parameters of the capture thread.
+pub struct CaptureParams {
+    /// Port geometry.
+    pub geometry: Geometry,
+    /// SCHED_FIFO priority (0 = do not ask for real-time scheduling).
+    pub rt_priority: i32,
+    /// CLOCK_MONOTONIC (ns) at which the Acquire request arrived (for the latency log).
+    pub requested_ns: u64,
+}
+
+/// A running (or finished) acquisition, as the control thread holds it.
+pub struct Acquisition {
+    shared: Arc<Shared>,
+    thread: Option<JoinHandle<()>>,
+    done: mpsc::Receiver<()>,
+    /// Read-only view of the port, for Status.
+    pub port: Port,
+    /// Device name.
+    pub device: String,
+    /// Device sample format.
+    pub format: String,
+    stall_ns: u64,
+    grace_ns: u64,
+}
+
+/// Warns once per process when real-time scheduling is refused.
+static RT_WARNED: AtomicBool = AtomicBool::new(false);
+
+impl Acquisition {
+    /// An acquisition that failed before capturing (the port shows the error).
+    pub fn failed(writer: Writer, device: &str, code: u32, message: &str) -> std::io::Result<Acquisition> {
+        writer.set_state(State::Error, code, message);
+        let port = Port::open_path(writer.path()).map_err(std::io::Error::other)?;
+        let shared = Arc::new(Shared {
+            writer: Mutex::new(writer),
+            stop: StopSignal::new()?,
+            progress_ns: AtomicU64::new(monotonic_ns()),
+            ended: AtomicBool::new(true),
+            got_data: AtomicBool::new(false),
+        });
+        let (_tx, done) = mpsc::channel();
+        Ok(Acquisition {
+            shared,
+            thread: None,
+            done,
+            port,
+            device: device.into(),
+            format: String::new(),
+            stall_ns: 0,
+            grace_ns: 0,
+        })
+    }
+
+    /// Starts the capture thread on `dev`, publishing into `writer`.
+    pub fn start(
+        writer: Writer,
+        dev: Box<dyn Capture>,
+        device: &str,
+        p: CaptureParams,
+    ) -> std::io::Result<Acquisition> {
+        let port = Port::open_path(writer.path()).map_err(std::io::Error::other)?;
+        let g = &p.geometry;
+        let period_ns = u64::from(g.frames_per_chunk) * 1_000_000_000 / u64::from(g.sample_rate);
+        // A few periods, but never less than 250 ms (scheduling noise on a loaded machine).
+        let stall_ns = (4 * period_ns).max(250_000_000);
+        let grace_ns = stall_ns.max(2_000_000_000);
+        let shared = Arc::new(Shared {
+            writer: Mutex::new(writer),
+            stop: StopSignal::new()?,
+            progress_ns: AtomicU64::new(monotonic_ns()),
+            ended: AtomicBool::new(false),
+            got_data: AtomicBool::new(false),
+        });
+        let format = dev.format_name().to_owned();
+        let (tx, done) = mpsc::channel();
+        let sh = shared.clone();
+        let thread = std::thread::Builder::new().name("bassd-capture".into()).spawn(move || {
+            let mut dev = dev;
+            run(&sh, dev.as_mut(), &p);
+            drop(dev);
+            let _ = tx.send(());
+        })?;
+        Ok(Acquisition {
+            shared,
+            thread: Some(thread),
+            done,
+            port,
+            device: device.into(),
+            format,
+            stall_ns,
+            grace_ns,
+        })
+    }
+
+    /// The stall watchdog: ends the acquisition with DEVICE_STALLED when the device has
+    /// delivered nothing for too long. Called periodically by the control loop.
+    pub fn check_stall(&self, now_ns: u64) {
+        if self.thread.is_none() || self.shared.ended.load(Ordering::Acquire) || self.shared.stop.is_set() {
+            return;
+        }
+        let limit = if self.shared.got_data.load(Ordering::Acquire) { self.stall_ns } else { self.grace_ns };
+        let idle = now_ns.saturating_sub(self.shared.progress_ns.load(Ordering::Acquire));
+        if idle > limit {
+            let msg =
+                format!("device stalled: no data for {} ms (device {:?})", idle / 1_000_000, self.device);
+            self.shared.fail(error_code::DEVICE_STALLED, &msg);
+        }
+    }
+
+    /// Stops the capture: signals the thread, waits up to `timeout` for it, and marks the port
+    /// Stopped (unless it already ended on an error). A thread blocked inside the device is
+    /// left behind; it exits when the device returns and never publishes again.
+    pub fn stop(&mut self, timeout: Duration) {
+        self.shared.stop.signal();
+        if let Some(t) = self.thread.take() {
+            match self.done.recv_timeout(timeout) {
+                Ok(()) | Err(mpsc::RecvTimeoutError::Disconnected) => {
+                    let _ = t.join();
+                }
+                Err(mpsc::RecvTimeoutError::Timeout) => {
+                    tracing::warn!(device = %self.device, "capture thread still blocked in the device after {timeout:?}; leaving it behind");
+                }
+            }
+        }
+        self.shared.writer().stop();
+    }
+
+    /// Whether the capture thread is still running.
+    pub fn running(&self) -> bool {
+        self.thread.as_ref().is_some_and(|t| !t.is_finished())
+    }
+
+    /// The epoch of the acquisition's port.
+    pub fn epoch(&self) -> u64 {
+        self.port.epoch()
+    }
+}
+
+/// Chunk assembly state of the capture thread.
+struct Assembler<'a> {
+    shared: &'a Shared,
+    channels: usize,
+    nfpc: usize,
+    rate: u64,
+    chunk: Vec<i32>,
+    filled: usize,
+    zeros: usize,
+    /// Timestamp and "estimated" flag of the chunk's first frame.
+    first: Option<(u64, bool)>,
+    /// Observed time of the chunk's first frame, when it came from the device.
+    observed: Option<u64>,
+    discontinuity: bool,
+    dll: RateDll,
+    published: u64,
+    requested_ns: u64,
+}
+
+impl Assembler<'_> {
+    fn frames_ns(&self, frames: u64) -> u64 {
+        frames.saturating_mul(1_000_000_000) / self.rate
+    }
+
+    /// Appends `n` zero frames whose first one is due at `t_ns`.
+    fn push_zeros(&mut self, mut n: u64, mut t_ns: u64) {
+        while n > 0 {
+            let k = (n as usize).min(self.nfpc - self.filled);
+            if self.filled == 0 {
+                self.first = Some((t_ns, true));
+                self.observed = None;
+            }
+            self.chunk[self.filled * self.channels..(self.filled + k) * self.channels].fill(0);
+            self.filled += k;
+            self.zeros += k;
+            n -= k as u64;
+            t_ns += self.frames_ns(k as u64);
+            self.flush_if_full();
+        }
+    }
+
+    /// Appends frames read from the device (`data` interleaved), the first captured at `t_ns`.
+    fn push_frames(&mut self, data: &[i32], t_ns: u64, estimated: bool, observed_ns: u64) {
+        let mut done = 0;
+        let total = data.len() / self.channels;
+        while done < total {
+            let k = (total - done).min(self.nfpc - self.filled);
+            if self.filled == 0 {
+                let off = self.frames_ns(done as u64);
+                self.first = Some((t_ns + off, estimated));
+                self.observed = Some(observed_ns + off);
+            }
+            let dst = &mut self.chunk[self.filled * self.channels..(self.filled + k) * self.channels];
+            dst.copy_from_slice(&data[done * self.channels..(done + k) * self.channels]);
+            self.filled += k;
+            done += k;
+            self.flush_if_full();
+        }
+    }
+
+    fn flush_if_full(&mut self) {
+        if self.filled < self.nfpc {
+            return;
+        }
+        let (mono, estimated) = self.first.unwrap_or((monotonic_ns(), true));
+        let realtime = realtime_ns().wrapping_add(mono).wrapping_sub(monotonic_ns());
+        let mut flags = if estimated { chunk_flags::TIME_ESTIMATED } else { 0 };
+        let all_zero = self.zeros == self.nfpc;
+        if all_zero {
+            flags |= chunk_flags::GAP;
+        } else if self.discontinuity || self.zeros > 0 {
+            flags |= chunk_flags::DISCONTINUITY;
+            self.discontinuity = false;
+        }
+        let meta = ChunkMeta { mono_ns: mono.max(1), realtime_ns: realtime.max(1), flags };
+        let src = if all_zero { Source::Zeros } else { Source::Interleaved(&self.chunk) };
+        {
+            let mut w = self.shared.writer();
+            if self.shared.ended.load(Ordering::Acquire) || self.shared.stop.is_set() {
+                // Ended by the watchdog or a stop while we were reading: publish nothing more.
+                self.filled = 0;
+                return;
+            }
+            if let Err(e) = w.publish(src, meta) {
+                drop(w);
+                self.shared.fail(error_code::INTERNAL, &format!("publishing a chunk failed: {e}"));
+                return;
+            }
+            if !all_zero && self.zeros > 0 {
+                w.add_gap_frames(self.zeros as u64);
+            }
+            match self.observed {
+                Some(t) if !all_zero && self.zeros == 0 => w.set_rate_estimate(self.dll.update(t)),
+                _ => self.dll.reset(),
+            }
+        }
+        self.published += 1;
+        if self.published == 1 {
+            let ms = monotonic_ns().saturating_sub(self.requested_ns) as f64 / 1e6;
+            tracing::info!("first chunk published {ms:.2} ms after the Acquire request");
+        }
+        self.filled = 0;
+        self.zeros = 0;
+    }
+}
+
+fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
+    if p.rt_priority > 0 {
+        if let Err(e) = crate::os::set_realtime(p.rt_priority) {
+            if !RT_WARNED.swap(true, Ordering::Relaxed) {
+                tracing::warn!(
+                    "real-time scheduling (SCHED_FIFO {}) not permitted: {e}; capturing at normal priority \
+                     (grant CAP_SYS_NICE or an rtprio limit to enable it)",
+                    p.rt_priority
+                );
+            }
+        }
+    }
+    if let Err(msg) = dev.start() {
+        shared.fail(error_code::DEVICE_LOST, &format!("starting the capture failed: {msg}"));
+        return;
+    }
+    shared.progress_ns.store(monotonic_ns(), Ordering::Release);
+    let g = &p.geometry;
+    let channels = g.channels as usize;
+    let nfpc = g.frames_per_chunk as usize;
+    let mut asm = Assembler {
+        shared,
+        channels,
+        nfpc,
+        rate: u64::from(g.sample_rate),
+        chunk: vec![0; nfpc * channels],
+        filled: 0,
+        zeros: 0,
+        first: None,
+        observed: None,
+        discontinuity: false,
+        dll: RateDll::new(f64::from(g.sample_rate), g.frames_per_chunk),
+        published: 0,
+        requested_ns: p.requested_ns,
+    };
+    let mut scratch = vec![0i32; nfpc * channels];
+    // Time of the frame after the last one read, for estimating overrun gaps.
+    let mut expected_ns: Option<u64> = None;
+    let mut after_xrun = false;
+    while !shared.stop.is_set() {
+        let want = nfpc - asm.filled;
+        match dev.read(&mut scratch, want, &shared.stop) {
+            ReadEvent::Frames { frames, first_mono_ns, time_estimated, observed_mono_ns } => {
+                shared.progress_ns.store(monotonic_ns(), Ordering::Release);
+                shared.got_data.store(true, Ordering::Release);
+                if after_xrun {
+                    after_xrun = false;
+                    asm.discontinuity = true;
+                    if let Some(exp) = expected_ns {
+                        let gap_ns = first_mono_ns.saturating_sub(exp);
+                        let gap = ((gap_ns as f64) * asm.rate as f64 / 1e9).round() as u64;
+                        tracing::warn!(gap_frames = gap, "overrun recovered; zero-filling the lost frames");
+                        asm.push_zeros(gap, exp);
+                    }
+                }
+                expected_ns = Some(first_mono_ns + asm.frames_ns(frames as u64));
+                asm.push_frames(
+                    &scratch[..frames * channels],
+                    first_mono_ns,
+                    time_estimated,
+                    observed_mono_ns,
+                );
+            }
+            ReadEvent::Xrun => {
+                shared.writer().add_xruns(1);
+                after_xrun = true;
+            }
+            ReadEvent::Idle => {}
+            ReadEvent::Stopped => break,
+            ReadEvent::Failed { code, message } => {
+                shared.fail(code, &message);
+                break;
+            }
+        }
+        if shared.ended.load(Ordering::Acquire) {
+            break;
+        }
+    }
+}

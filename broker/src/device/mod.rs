@@ -1,0 +1,92 @@
+//! Capture devices: real ALSA PCMs ([`alsa`]) and simulated ones ([`sim`]), behind one
+//! small interface the capture thread drives.
+
+pub mod alsa;
+pub mod sim;
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use bassclient::control::DeviceInfo;
+
+use crate::os::EventFd;
+
+/// Asks a capture thread to stop: a flag for loops that sleep, an eventfd for loops that poll.
+pub struct StopSignal {
+    flag: AtomicBool,
+    efd: EventFd,
+}
+
+impl StopSignal {
+    /// A fresh, unsignalled stop signal.
+    pub fn new() -> std::io::Result<StopSignal> {
+        Ok(StopSignal { flag: AtomicBool::new(false), efd: EventFd::new()? })
+    }
+
+    /// Signals the stop (idempotent).
+    pub fn signal(&self) {
+        self.flag.store(true, Ordering::Release);
+        self.efd.signal();
+    }
+
+    /// Whether the stop was signalled.
+    pub fn is_set(&self) -> bool {
+        self.flag.load(Ordering::Acquire)
+    }
+
+    /// The eventfd, readable once the stop is signalled.
+    pub fn fd(&self) -> std::os::fd::RawFd {
+        self.efd.raw()
+    }
+}
+
+/// Outcome of one device read.
+#[derive(Debug, PartialEq)]
+pub enum ReadEvent {
+    /// `frames` frames were written at the start of the buffer (interleaved S32).
+    Frames {
+        /// Frames read.
+        frames: usize,
+        /// CLOCK_MONOTONIC (ns) at which the first of them was captured.
+        first_mono_ns: u64,
+        /// Whether `first_mono_ns` is estimated from the sample clock rather than read from
+        /// the device.
+        time_estimated: bool,
+        /// When the first of them was observed to be captured, for the rate estimator
+        /// (for a real device the same as `first_mono_ns`).
+        observed_mono_ns: u64,
+    },
+    /// An overrun happened and was recovered: frames were lost before the next read.
+    Xrun,
+    /// No data arrived within the poll slice; the caller decides whether that is a stall.
+    Idle,
+    /// The stop signal fired.
+    Stopped,
+    /// The device failed for good (`code` is a `format::error_code`).
+    Failed {
+        /// `bassclient::format::error_code`.
+        code: u32,
+        /// What happened.
+        message: String,
+    },
+}
+
+/// A configured capture device, owned by the capture thread.
+pub trait Capture: Send {
+    /// Starts the stream (called on the capture thread, right before the first read).
+    fn start(&mut self) -> Result<(), String>;
+    /// Reads up to `max_frames` frames into `out` (interleaved S32, `channels` per frame),
+    /// waiting at most one poll slice for data.
+    fn read(&mut self, out: &mut [i32], max_frames: usize, stop: &StopSignal) -> ReadEvent;
+    /// The device sample format in use (`S32_LE` for simulated devices).
+    fn format_name(&self) -> &'static str;
+}
+
+/// Every capture device the broker can open: the simulated ones, then ALSA's hints.
+pub fn list() -> Vec<DeviceInfo> {
+    let mut v: Vec<DeviceInfo> = sim::DEVICES
+        .iter()
+        .map(|(k, d)| DeviceInfo { name: format!("sim:{}", k.name()), description: (*d).to_owned() })
+        .collect();
+    v.extend(alsa::list());
+    v
+}

@@ -1,0 +1,240 @@
+//! Simulated capture devices (`sim:NAME`), paced in real time with absolute-deadline sleeps
+//! (`clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME)`), any rate, chunk size and channel
+//! count. Their content is deterministic:
+//!
+//! - `sim:pattern` — `bassclient::testsignal::pattern_sample(frame, channel)`: every sample
+//!   names its device frame and channel;
+//! - `sim:sine` — a 440 Hz tone on channel 0, 660 Hz on channel 1 (then 880, 1100, ... Hz),
+//!   at half full scale;
+//! - `sim:silence` — zeros;
+//! - `sim:xrun` — the pattern, but after every `rate/2` frames the device loses
+//!   `rate/20 + 7` frames and reports an overrun (tests the gap filling);
+//! - `sim:stall` — the pattern for `rate/2` frames, then nothing, without an error (tests
+//!   the stall watchdog);
+//! - `sim:unplug` — the pattern for `rate/2` frames, then a fatal ENODEV-like error.
+//!
+//! Device frame `k` (from 1) is due at `start + k / rate`; a read of `n` frames sleeps until
+//! the last of them is due. Chunk timestamps are the exact due times; the rate estimator
+//! gets the observed wake-up times instead, so it measures what it would on a real device.
+
+use bassclient::format::error_code;
+use bassclient::sys::monotonic_ns;
+use bassclient::testsignal::pattern_sample;
+
+use super::{Capture, ReadEvent, StopSignal};
+use std::time::Duration;
+
+use crate::os::{self, sleep_until_mono};
+
+/// The simulated devices.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SimKind {
+    /// The test pattern.
+    Pattern,
+    /// Distinct sine tones per channel.
+    Sine,
+    /// Zeros.
+    Silence,
+    /// The pattern with periodic overruns.
+    Xrun,
+    /// The pattern, then silence without error.
+    Stall,
+    /// The pattern, then a fatal error.
+    Unplug,
+}
+
+/// Names and descriptions, as listed by ListDevices.
+pub const DEVICES: [(SimKind, &str); 6] = [
+    (SimKind::Pattern, "Simulated: test pattern (each sample encodes its frame index and channel)"),
+    (SimKind::Sine, "Simulated: sine tones, 440 Hz left, 660 Hz right"),
+    (SimKind::Silence, "Simulated: silence"),
+    (SimKind::Xrun, "Simulated: test pattern with an overrun every half second"),
+    (SimKind::Stall, "Simulated: test pattern for half a second, then stops delivering (stall)"),
+    (SimKind::Unplug, "Simulated: test pattern for half a second, then unplugged (ENODEV)"),
+];
+
+impl SimKind {
+    /// The name after `sim:`.
+    pub fn name(self) -> &'static str {
+        match self {
+            SimKind::Pattern => "pattern",
+            SimKind::Sine => "sine",
+            SimKind::Silence => "silence",
+            SimKind::Xrun => "xrun",
+            SimKind::Stall => "stall",
+            SimKind::Unplug => "unplug",
+        }
+    }
+
+    /// Parses the name after `sim:`.
+    pub fn from_name(name: &str) -> Option<SimKind> {
+        DEVICES.iter().map(|(k, _)| *k).find(|k| k.name() == name)
+    }
+}
+
+const NS_PER_MS: u64 = 1_000_000;
+/// How long a stalled `sim:stall` waits per read before reporting "no data".
+const STALL_SLICE_NS: u64 = 100 * NS_PER_MS;
+
+/// A running simulated device.
+pub struct SimDevice {
+    kind: SimKind,
+    rate: u64,
+    channels: usize,
+    period: usize,
+    start_ns: u64,
+    /// Device frames produced or lost so far (the next frame is `pos + 1`).
+    pos: u64,
+    /// Device frames delivered since the last event (for the periodic events).
+    since_event: u64,
+    pending_xrun: bool,
+}
+
+impl SimDevice {
+    /// A device of `kind` at `rate` Hz with `channels` channels, reading `period` frames at most.
+    pub fn new(kind: SimKind, rate: u32, channels: u32, period: u32) -> SimDevice {
+        SimDevice {
+            kind,
+            rate: u64::from(rate.max(1)),
+            channels: channels as usize,
+            period: period.max(1) as usize,
+            start_ns: 0,
+            pos: 0,
+            since_event: 0,
+            pending_xrun: false,
+        }
+    }
+
+    /// CLOCK_MONOTONIC (ns) at which device frame `k` (from 1; 0 = start) is due.
+    fn due_ns(&self, k: u64) -> u64 {
+        self.start_ns + (u128::from(k) * 1_000_000_000 / u128::from(self.rate)) as u64
+    }
+
+    fn event_every(&self) -> u64 {
+        (self.rate / 2).max(1)
+    }
+
+    /// Sleeps until `deadline` (CLOCK_MONOTONIC ns), returning false if the stop fired.
+    /// Long waits poll the stop eventfd until about 1 ms before the deadline; the last
+    /// stretch is an absolute `clock_nanosleep`, so the wake-up is on the deadline.
+    fn sleep_until(&self, deadline: u64, stop: &StopSignal) -> bool {
+        loop {
+            if stop.is_set() {
+                return false;
+            }
+            let now = monotonic_ns();
+            if now >= deadline {
+                return true;
+            }
+            let remaining = deadline - now;
+            if remaining > 2 * NS_PER_MS {
+                let mut fds = [os::pollin(stop.fd())];
+                let _ = os::poll(&mut fds, Some(Duration::from_nanos(remaining - NS_PER_MS)));
+            } else {
+                sleep_until_mono(deadline);
+            }
+        }
+    }
+
+    fn fill(&self, out: &mut [i32], first: u64, frames: usize) {
+        let ch = self.channels;
+        for (i, frame) in out[..frames * ch].chunks_exact_mut(ch).enumerate() {
+            let k = first + i as u64;
+            for (c, s) in frame.iter_mut().enumerate() {
+                *s = match self.kind {
+                    SimKind::Silence => 0,
+                    SimKind::Sine => sine_sample(k, c as u32, self.rate),
+                    _ => pattern_sample(k, c as u32),
+                };
+            }
+        }
+    }
+}
+
+/// Sample of `sim:sine`: (440 + 220 c) Hz at half full scale, phase 0 at frame 0.
+pub fn sine_sample(frame: u64, channel: u32, rate: u64) -> i32 {
+    let f = 440.0 + 220.0 * f64::from(channel);
+    // Reduce the phase in integers first so that it stays exact for long runs.
+    let cycles = (frame as u128 * (f as u128)) % u128::from(rate);
+    let phase = 2.0 * std::f64::consts::PI * cycles as f64 / rate as f64;
+    (phase.sin() * f64::from(1u32 << 30)).round() as i32
+}
+
+impl Capture for SimDevice {
+    fn start(&mut self) -> Result<(), String> {
+        self.start_ns = monotonic_ns();
+        Ok(())
+    }
+
+    fn read(&mut self, out: &mut [i32], max_frames: usize, stop: &StopSignal) -> ReadEvent {
+        if self.pending_xrun {
+            self.pending_xrun = false;
+            self.pos += self.rate / 20 + 7;
+            return ReadEvent::Xrun;
+        }
+        let every = self.event_every();
+        let ends = matches!(self.kind, SimKind::Stall | SimKind::Unplug);
+        if ends && self.since_event >= every {
+            if self.kind == SimKind::Unplug {
+                return ReadEvent::Failed {
+                    code: error_code::DEVICE_LOST,
+                    message: "sim:unplug: device unplugged (simulated ENODEV)".into(),
+                };
+            }
+            // Stalled: deliver nothing until stopped.
+            let _ = self.sleep_until(monotonic_ns() + STALL_SLICE_NS, stop);
+            return if stop.is_set() { ReadEvent::Stopped } else { ReadEvent::Idle };
+        }
+        let mut n = max_frames.min(self.period).min(out.len() / self.channels.max(1));
+        if matches!(self.kind, SimKind::Xrun | SimKind::Stall | SimKind::Unplug) {
+            n = n.min((every - self.since_event) as usize);
+        }
+        let first = self.pos + 1;
+        if !self.sleep_until(self.due_ns(self.pos + n as u64), stop) {
+            return ReadEvent::Stopped;
+        }
+        let woke = monotonic_ns();
+        self.fill(out, first, n);
+        let span = self.due_ns(self.pos + n as u64) - self.due_ns(self.pos);
+        self.pos += n as u64;
+        self.since_event += n as u64;
+        if self.kind == SimKind::Xrun && self.since_event >= every {
+            self.since_event = 0;
+            self.pending_xrun = true;
+        }
+        ReadEvent::Frames {
+            frames: n,
+            first_mono_ns: self.due_ns(first - 1),
+            time_estimated: false,
+            observed_mono_ns: woke.saturating_sub(span),
+        }
+    }
+
+    fn format_name(&self) -> &'static str {
+        "S32_LE"
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sine_channels_have_distinct_tones_at_half_scale() {
+        let rate = 48_000;
+        let peak = |c| (0..rate).map(|k| sine_sample(k, c, rate).unsigned_abs()).max().unwrap();
+        assert!((peak(0) as i64 - (1 << 30)).abs() < 1 << 16);
+        // 440 Hz repeats every rate/gcd(rate, 440) frames = 1200; 660 Hz every 800.
+        assert_eq!(sine_sample(1200, 0, rate), sine_sample(0, 0, rate));
+        assert_eq!(sine_sample(800, 1, rate), sine_sample(0, 1, rate));
+        assert_ne!(sine_sample(100, 0, rate), sine_sample(100, 1, rate));
+    }
+
+    #[test]
+    fn names_round_trip() {
+        for (k, _) in DEVICES {
+            assert_eq!(SimKind::from_name(k.name()), Some(k));
+        }
+        assert_eq!(SimKind::from_name("nope"), None);
+    }
+}

@@ -1,0 +1,31 @@
+//! bassd, the bass capture broker, as a library: the two binaries (`bassd`, `bass`) and the
+//! integration tests are thin layers over these modules.
+//!
+//! - [`server`]: the control loop (socket, peer checks, requests, watchdog, signals);
+//! - [`capture`]: one acquisition — the capture thread, chunk assembly, gap filling;
+//! - [`device`]: ALSA PCMs and simulated devices;
+//! - [`request`]: checks an Acquire before anything running is touched;
+//! - [`convert`]: device sample formats to left-justified S32;
+//! - [`dll`]: the device-clock rate estimator;
+//! - [`os`]: the Linux edge (eventfd, signalfd, sleeps, scheduling, credentials, lock);
+//! - [`cli`]: the small argument parser both binaries use.
+
+pub mod capture;
+pub mod cli;
+pub mod convert;
+pub mod device;
+pub mod dll;
+pub mod os;
+pub mod request;
+pub mod server;
+
+/// Sets up logging to stderr: `BASS_LOG` (or `RUST_LOG`) filters, `info` by default.
+pub fn init_logging() {
+    let filter =
+        std::env::var("BASS_LOG").or_else(|_| std::env::var("RUST_LOG")).unwrap_or_else(|_| "info".into());
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::new(filter))
+        .with_writer(std::io::stderr)
+        .with_ansi(false)
+        .try_init();
+}

@@ -1,0 +1,132 @@
+//! Checks an Acquire request before anything running is touched.
+//!
+//! A request that fails here (zero or overflowing sizes, a window above the memory cap, a
+//! malformed device name, an unknown simulated device or sample format) is refused and the
+//! running acquisition keeps running: nothing is lost. Whether an ALSA device exists and
+//! supports the rate, format and channels is only known by opening it, which needs the
+//! running acquisition stopped first (a device can usually be opened once); that failure
+//! leaves the port in the Error state with the message.
+
+use bassclient::control::AcquireRequest;
+use bassclient::format::{Geometry, DEVICE_LEN};
+
+use crate::convert::SampleFormat;
+use crate::device::sim::{SimKind, DEVICES};
+
+/// Highest sample rate accepted (Hz).
+pub const MAX_SAMPLE_RATE: u32 = 768_000;
+
+/// Which device a request names.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum DeviceKind {
+    /// A simulated device.
+    Sim(SimKind),
+    /// An ALSA PCM name.
+    Alsa(String),
+}
+
+/// A request that passed the checks.
+#[derive(Clone, Debug)]
+pub struct Checked {
+    /// Port geometry.
+    pub geometry: Geometry,
+    /// The device.
+    pub device: DeviceKind,
+    /// Forced sample format.
+    pub format: Option<SampleFormat>,
+    /// Size of the port file (bytes).
+    pub port_bytes: u64,
+}
+
+/// Checks `r` against the format's limits and the broker's memory cap.
+pub fn check(r: &AcquireRequest, max_port_bytes: u64) -> Result<Checked, String> {
+    let name = r.device.as_str();
+    if name.is_empty() {
+        return Err("device name is empty".into());
+    }
+    if name.len() >= DEVICE_LEN {
+        return Err(format!("device name of {} bytes is too long (at most {})", name.len(), DEVICE_LEN - 1));
+    }
+    if name.chars().any(char::is_control) {
+        return Err(format!("device name {name:?} contains control characters"));
+    }
+    let device = match name.strip_prefix("sim:") {
+        Some(s) => DeviceKind::Sim(SimKind::from_name(s).ok_or_else(|| {
+            let known: Vec<String> = DEVICES.iter().map(|(k, _)| format!("sim:{}", k.name())).collect();
+            format!("unknown simulated device {name:?} (available: {})", known.join(", "))
+        })?),
+        None => DeviceKind::Alsa(name.to_owned()),
+    };
+    let format = match &r.format {
+        None => None,
+        Some(f) => Some(SampleFormat::from_name(f).ok_or_else(|| {
+            let known: Vec<&str> = SampleFormat::PREFERENCE.iter().map(|f| f.name()).collect();
+            format!("unknown sample format {f:?} (use one of {})", known.join(", "))
+        })?),
+    };
+    if r.sample_rate > MAX_SAMPLE_RATE {
+        return Err(format!("sampleRate = {} Hz (must be 1..={MAX_SAMPLE_RATE})", r.sample_rate));
+    }
+    let geometry = Geometry {
+        channels: r.channels,
+        sample_rate: r.sample_rate,
+        frames_per_chunk: r.frames_per_chunk,
+        chunks_on_port: r.chunks_on_port,
+    };
+    let layout =
+        geometry.layout().map_err(|e| e.to_string().trim_start_matches("invalid argument: ").to_owned())?;
+    if layout.total_size > max_port_bytes {
+        return Err(format!(
+            "a window of {} x {} frames x {} channels needs a port of {} bytes, above this broker's memory cap of {} bytes (bassd --max-port-bytes)",
+            r.frames_per_chunk, r.chunks_on_port, r.channels, layout.total_size, max_port_bytes
+        ));
+    }
+    Ok(Checked { geometry, device, format, port_bytes: layout.total_size })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn req(device: &str, rate: u32, nfpc: u32, ncop: u32, ch: u32) -> AcquireRequest {
+        AcquireRequest {
+            device: device.into(),
+            sample_rate: rate,
+            frames_per_chunk: nfpc,
+            chunks_on_port: ncop,
+            channels: ch,
+            format: None,
+        }
+    }
+
+    #[test]
+    fn the_seed_defaults_pass() {
+        let c = check(&AcquireRequest::default(), 1 << 30).unwrap();
+        assert_eq!(c.device, DeviceKind::Alsa("hw:1,0".into()));
+        assert_eq!(c.geometry.frames_per_chunk, 2205);
+    }
+
+    #[test]
+    fn bad_requests_name_the_bad_value() {
+        let cases = [
+            (req("sim:sine", 48000, 0, 20, 2), "nFramesPerChunk = 0"),
+            (req("sim:sine", 48000, 64, 0, 2), "nChunksOnPort = 0"),
+            (req("sim:sine", 0, 64, 20, 2), "sampleRate = 0"),
+            (req("sim:sine", 48000, 64, 20, 0), "channels = 0"),
+            (req("sim:sine", 48000, 64, 20, 65), "channels = 65"),
+            (req("sim:sine", 48000, u32::MAX, u32::MAX, 64), "exceeds"),
+            (req("sim:sine", 48000, 1 << 20, 64, 2), "memory cap"),
+            (req("sim:nope", 48000, 64, 20, 2), "unknown simulated device"),
+            (req("", 48000, 64, 20, 2), "empty"),
+            (req("hw:0\n", 48000, 64, 20, 2), "control characters"),
+            (req("sim:sine", 10_000_000, 64, 20, 2), "sampleRate = 10000000"),
+        ];
+        for (r, want) in cases {
+            let e = check(&r, 64 << 20).unwrap_err();
+            assert!(e.contains(want), "{r:?}: {e:?} does not mention {want:?}");
+        }
+        let mut forced = req("sim:sine", 48000, 64, 20, 2);
+        forced.format = Some("U8".into());
+        assert!(check(&forced, 1 << 30).unwrap_err().contains("unknown sample format"));
+    }
+}
