@@ -1,0 +1,430 @@
+//! Item 5 — corrupted port files: random bytes; truncation at every header boundary; each
+//! header field set to extreme values one at a time; the magic or major version of another
+//! format; the file shrunk while a reader has it mapped (sequentially, and concurrently
+//! with a reader process hammering every library call).
+//!
+//! Pass: never a panic, never a crash (SIGBUS/SIGSEGV would kill the test process or the
+//! victim process), and every failure is one of the named errors that describe a bad port
+//! (`NotReady`, `BadMagic`, `Incompatible`, `Corrupt`) or a normal read outcome. A port
+//! that opens must answer every read call without touching memory outside its mapping.
+//! run.sh runs this file twice: in release and in a debug build (overflow checks on).
+
+use std::fs::OpenOptions;
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use bass_faults::{figure, Agent, Rng, TempDir};
+use bassclient::format::HEADER_SIZE;
+use bassclient::testsignal::fill_pattern_interleaved;
+use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
+
+const NFPC: u32 = 16;
+const NCOP: u32 = 4;
+
+/// Every header field: (name, offset, width in bytes).
+const FIELDS: [(&str, usize, usize); 27] = [
+    ("magic", 0, 8),
+    ("version_major", 8, 4),
+    ("version_minor", 12, 4),
+    ("header_size", 16, 4),
+    ("channels", 20, 4),
+    ("sample_format", 24, 4),
+    ("sample_rate", 28, 4),
+    ("frames_per_chunk", 32, 4),
+    ("chunks_on_port", 36, 4),
+    ("chunk_table_offset", 40, 8),
+    ("samples_offset", 48, 8),
+    ("total_size", 56, 8),
+    ("epoch", 64, 8),
+    ("writer_pid", 72, 4),
+    ("state", 76, 4),
+    ("writer_start_time", 80, 8),
+    ("created_realtime_ns", 88, 8),
+    ("error_code", 96, 4),
+    ("futex", 100, 4),
+    ("last_frame_index", 128, 8),
+    ("write_intent", 136, 8),
+    ("heartbeat_mono_ns", 144, 8),
+    ("xruns", 152, 8),
+    ("gap_frames", 160, 8),
+    ("chunks_published", 168, 8),
+    ("rate_estimate_mhz", 176, 8),
+    ("started_mono_ns", 184, 8),
+];
+
+fn valid_port(dir: &TempDir) -> Vec<u8> {
+    let path = dir.join("bass-src.port");
+    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: NFPC, chunks_on_port: NCOP };
+    let mut w = Writer::create_at(&path, &PortParams { geometry, device: "corrupt".into(), group: None }).unwrap();
+    let mut chunk = vec![0; (NFPC * 2) as usize];
+    for _ in 0..6 {
+        fill_pattern_interleaved(&mut chunk, 2, w.last_frame_index() + 1);
+        w.publish(Source::Interleaved(&chunk), ChunkMeta::default()).unwrap();
+    }
+    let bytes = std::fs::read(&path).unwrap();
+    w.remove().unwrap();
+    bytes
+}
+
+/// Named errors a bad port may give on open.
+fn open_error_ok(e: &Error) -> bool {
+    matches!(e, Error::NotReady | Error::BadMagic { .. } | Error::Incompatible { .. } | Error::Corrupt(_))
+}
+
+/// Outcomes a read call on an opened (possibly hostile) port may give.
+fn call_error_ok(e: &Error) -> bool {
+    matches!(
+        e,
+        Error::Corrupt(_)
+            | Error::Timeout { .. }
+            | Error::Stopped { .. }
+            | Error::Device { .. }
+            | Error::Restarted
+            | Error::WriterGone { .. }
+            | Error::FrameLost { .. }
+            | Error::FrameNotYet { .. }
+    )
+}
+
+#[derive(Default, Debug)]
+struct Tally {
+    cases: u64,
+    opened: u64,
+    refused: std::collections::BTreeMap<&'static str, u64>,
+    calls: u64,
+    call_errors: u64,
+}
+
+fn kind(e: &Error) -> &'static str {
+    match e {
+        Error::NotReady => "NotReady",
+        Error::BadMagic { .. } => "BadMagic",
+        Error::Incompatible { .. } => "Incompatible",
+        Error::Corrupt(_) => "Corrupt",
+        Error::NotFound { .. } => "NotFound",
+        Error::Io { .. } => "Io",
+        _ => "other",
+    }
+}
+
+/// Opens `path` and runs every read path; returns the open error if refused.
+/// Panics (with the case name) on a disallowed outcome.
+fn exercise_path(path: &Path, case: &str, t: &mut Tally) -> Option<Error> {
+    t.cases += 1;
+    let port = match catch_unwind(|| Port::open_path(path)) {
+        Err(_) => panic!("{case}: open panicked"),
+        Ok(Err(e)) => {
+            assert!(open_error_ok(&e), "{case}: open gave {e:?}, not a named port error");
+            assert!(!e.to_string().is_empty());
+            *t.refused.entry(kind(&e)).or_default() += 1;
+            return Some(e);
+        }
+        Ok(Ok(p)) => p,
+    };
+    t.opened += 1;
+    let channels = port.geometry().channels as usize;
+    let mut bufs = vec![vec![0i32; 512]; channels];
+    let mut check = |what: &str, r: Result<(), Error>| {
+        t.calls += 1;
+        if let Err(e) = r {
+            t.call_errors += 1;
+            assert!(call_error_ok(&e), "{case}: {what} gave {e:?}");
+        }
+    };
+    let run = catch_unwind(AssertUnwindSafe(|| {
+        for start in [0u64, 1, 5, 50, 95, 96, 97, 1 << 40, u64::MAX / 2, u64::MAX - 1, u64::MAX] {
+            for n in [0usize, 1, 64, 512] {
+                let mut nfr = start;
+                let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| b.as_mut_slice()).collect();
+                check("get_audio_data", port.get_audio_data(n, &mut nfr, &mut outs).map(drop));
+                let mut nfr = start;
+                check(
+                    "view",
+                    port.view(n, &mut nfr).map(|v| {
+                        // Read the view in place, as a zero-copy client would.
+                        for c in 0..channels {
+                            let ring = port.channel_ring(c).unwrap();
+                            for (s, l) in v.segments {
+                                for x in &ring[s..s + l] {
+                                    std::hint::black_box(x.load(std::sync::atomic::Ordering::Relaxed));
+                                }
+                            }
+                        }
+                        port.view_overwritten(&v);
+                    }),
+                );
+            }
+            check("chunk_info", port.chunk_info(start).map(drop));
+            check("wait", port.wait(start, Duration::ZERO).map(drop));
+        }
+        check("info", port.info().map(drop));
+    }));
+    assert!(run.is_ok(), "{case}: a read call panicked");
+    None
+}
+
+fn exercise(dir: &TempDir, bytes: &[u8], case: &str, t: &mut Tally) -> Option<Error> {
+    let path = dir.join("bass-case.port");
+    std::fs::write(&path, bytes).unwrap();
+    let r = exercise_path(&path, case, t);
+    let _ = std::fs::remove_file(&path);
+    r
+}
+
+fn put(bytes: &mut [u8], off: usize, width: usize, v: u64) {
+    bytes[off..off + width].copy_from_slice(&v.to_le_bytes()[..width]);
+}
+
+#[test]
+#[ignore = "fault suite: run by tests/faults/run.sh"]
+fn random_bytes_never_crash_and_give_named_errors() {
+    let dir = TempDir::new("corrupt-random");
+    let good = valid_port(&dir);
+    let seed = bass_faults::seed();
+    let mut rng = Rng::new(seed);
+    let mut t = Tally::default();
+    for i in 0..400 {
+        // Whole files of random bytes and random length.
+        let len = rng.below(3 * good.len() as u64) as usize;
+        let bytes: Vec<u8> = (0..len).map(|_| rng.next_u64() as u8).collect();
+        exercise(&dir, &bytes, &format!("random file {i} (seed {seed})"), &mut t);
+        // A valid magic and version followed by random bytes, so validation goes deeper.
+        let mut bytes = good.clone();
+        for b in bytes[12..HEADER_SIZE].iter_mut() {
+            *b = rng.next_u64() as u8;
+        }
+        exercise(&dir, &bytes, &format!("random header {i} (seed {seed})"), &mut t);
+        // The valid port with a few random bytes changed anywhere in the header.
+        let mut bytes = good.clone();
+        for _ in 0..1 + rng.below(8) {
+            let off = rng.below(640) as usize;
+            bytes[off] = rng.next_u64() as u8;
+        }
+        exercise(&dir, &bytes, &format!("mutated header {i} (seed {seed})"), &mut t);
+    }
+    figure!(5, "random: {} cases (seed {seed}): {} opened (every read call answered, {} of {} calls refused with a named error), refused on open {:?}", t.cases, t.opened, t.call_errors, t.calls, t.refused);
+}
+
+#[test]
+#[ignore = "fault suite: run by tests/faults/run.sh"]
+fn truncation_at_every_boundary_is_corrupt() {
+    let dir = TempDir::new("corrupt-trunc");
+    let good = valid_port(&dir);
+    let total = good.len();
+    let samples = 8192usize; // 4096 + 32 * 4, rounded up to 4096
+    let mut cuts: Vec<usize> = (0..=64).collect();
+    for (_, off, width) in FIELDS {
+        cuts.extend([off, off + 1, off + width - 1, off + width]);
+    }
+    cuts.extend([255, 256, 511, 512, 639, 640, 4095, 4096, 4097, 4096 + 32, 4096 + 32 * NCOP as usize, samples - 1, samples]);
+    let nfop = (NFPC * NCOP) as usize;
+    for c in 0..=2 {
+        let ring = samples + c * nfop * 4;
+        cuts.extend([ring.saturating_sub(1), ring, ring + 1, ring + 4]);
+    }
+    cuts.extend([total - 4, total - 1]);
+    cuts.retain(|&c| c < total);
+    cuts.sort();
+    cuts.dedup();
+    let mut t = Tally::default();
+    for &cut in &cuts {
+        let e = exercise(&dir, &good[..cut], &format!("truncated at {cut}"), &mut t);
+        match e {
+            Some(Error::Corrupt(_)) => {}
+            // A cut inside the first 12 bytes leaves a magic or version that reads as 0 / not ours.
+            Some(Error::BadMagic { .. } | Error::NotReady) if cut < 12 => {}
+            other => panic!("truncated at {cut}: expected Corrupt, got {other:?}"),
+        }
+    }
+    figure!(5, "truncation: {} cut points from 0 to {} bytes: all refused on open {:?}", cuts.len(), total - 1, t.refused);
+    assert_eq!(t.opened, 0);
+}
+
+#[test]
+#[ignore = "fault suite: run by tests/faults/run.sh"]
+fn every_header_field_at_extreme_values_is_handled() {
+    let dir = TempDir::new("corrupt-fields");
+    let good = valid_port(&dir);
+    let mut t = Tally::default();
+    let mut summary = Vec::new();
+    for (name, off, width) in FIELDS {
+        let max = if width == 8 { u64::MAX } else { u64::from(u32::MAX) };
+        let high = 1u64 << (width * 8 - 1);
+        let mut values = vec![0, 1, 2, 3, 4, 64, 65, max, max - 1, high, high - 1];
+        if width == 8 {
+            values.extend([1 << 62, (1 << 62) + 1, 1 << 32]);
+        }
+        let mut outcomes = std::collections::BTreeSet::new();
+        for v in values {
+            let mut bytes = good.clone();
+            put(&mut bytes, off, width, v);
+            let e = exercise(&dir, &bytes, &format!("{name} = {v:#x}"), &mut t);
+            outcomes.insert(e.as_ref().map_or("opens", kind));
+        }
+        summary.push(format!("{name}:{}", outcomes.into_iter().collect::<Vec<_>>().join("/")));
+    }
+    figure!(5, "extreme field values: {} cases, {} opened and answered {} read calls ({} named errors); per field: {}", t.cases, t.opened, t.calls, t.call_errors, summary.join(" "));
+}
+
+#[test]
+#[ignore = "fault suite: run by tests/faults/run.sh"]
+fn a_hostile_write_intent_never_delivers_frames_it_cannot_vouch_for() {
+    // write_intent beyond the format's frame limit (e.g. u64::MAX) is a corrupt header:
+    // the reader must not overflow (a panic in a debug build) nor trust any frame.
+    let dir = TempDir::new("corrupt-intent");
+    let good = valid_port(&dir);
+    for intent in [u64::MAX, u64::MAX - 1, (1 << 62) + 1] {
+        let mut bytes = good.clone();
+        put(&mut bytes, 136, 8, intent);
+        let path = dir.join("bass-intent.port");
+        std::fs::write(&path, &bytes).unwrap();
+        let port = Port::open_path(&path).unwrap();
+        let (mut l, mut r) = (vec![0; 64], vec![0; 64]);
+        let mut nfr = 50;
+        let got = catch_unwind(AssertUnwindSafe(|| port.get_audio_data(64, &mut nfr, &mut [&mut l, &mut r])));
+        match got {
+            Err(_) => panic!("write_intent = {intent:#x}: get_audio_data panicked"),
+            Ok(Ok(read)) => assert_eq!(read.frames, 0, "write_intent = {intent:#x}: {read:?} delivered frames the intent cannot vouch for"),
+            Ok(Err(e)) => assert!(matches!(e, Error::Corrupt(_)), "write_intent = {intent:#x}: {e:?}"),
+        }
+        let mut nfr = 50;
+        let got = catch_unwind(AssertUnwindSafe(|| port.view(64, &mut nfr).map(|v| (v, port.view_overwritten(&v)))));
+        match got {
+            Err(_) => panic!("write_intent = {intent:#x}: view/view_overwritten panicked"),
+            Ok(Ok((v, over))) => assert_eq!(over, v.frames as u64, "write_intent = {intent:#x}: view says intact"),
+            Ok(Err(e)) => assert!(matches!(e, Error::Corrupt(_)), "{e:?}"),
+        }
+        let got = catch_unwind(AssertUnwindSafe(|| port.chunk_info(90)));
+        assert!(got.is_ok(), "write_intent = {intent:#x}: chunk_info panicked");
+    }
+    figure!(5, "hostile write_intent (2^64-1, 2^64-2, 2^62+1): no panic, no frame delivered as intact");
+}
+
+#[test]
+#[ignore = "fault suite: run by tests/faults/run.sh"]
+fn foreign_magic_and_major_versions_are_refused_by_name() {
+    let dir = TempDir::new("corrupt-magic");
+    let good = valid_port(&dir);
+    let mut t = Tally::default();
+    let magics: [(&str, [u8; 8]); 5] = [
+        ("ELF", *b"\x7fELF\x02\x01\x01\x00"),
+        ("byte-swapped BASSPORT", *b"TROPSSAB"),
+        ("BASSPORX", *b"BASSPORX"),
+        ("PNG", *b"\x89PNG\r\n\x1a\n"),
+        ("all ones", [0xff; 8]),
+    ];
+    for (name, m) in magics {
+        let mut bytes = good.clone();
+        bytes[..8].copy_from_slice(&m);
+        let e = exercise(&dir, &bytes, name, &mut t);
+        assert!(matches!(e, Some(Error::BadMagic { .. })), "{name}: {e:?}");
+    }
+    for major in [2u32, 3, 0x100, u32::MAX] {
+        let mut bytes = good.clone();
+        put(&mut bytes, 8, 4, u64::from(major));
+        let e = exercise(&dir, &bytes, &format!("major {major}"), &mut t);
+        assert!(
+            matches!(e, Some(Error::Incompatible { found, expected: 1 }) if found == major),
+            "major {major}: {e:?}"
+        );
+    }
+    let mut bytes = good.clone();
+    put(&mut bytes, 8, 4, 0);
+    assert!(matches!(exercise(&dir, &bytes, "major 0", &mut t), Some(Error::NotReady)));
+    figure!(5, "foreign formats: 5 magics -> BadMagic, majors 2/3/256/2^32-1 -> Incompatible, major 0 -> NotReady");
+}
+
+#[test]
+#[ignore = "fault suite: run by tests/faults/run.sh"]
+fn a_port_shrunk_under_a_reader_gives_corrupt_not_sigbus() {
+    let dir = TempDir::new("corrupt-shrink");
+    let path = dir.join("bass-shrink.port");
+    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: NFPC, chunks_on_port: NCOP };
+    let mut w = Writer::create_at(&path, &PortParams { geometry, device: "shrink".into(), group: None }).unwrap();
+    for _ in 0..6 {
+        w.publish(Source::Zeros, ChunkMeta::default()).unwrap();
+    }
+    let total = w.layout().total_size;
+    let port = Port::open_path(&path).unwrap();
+    let file = OpenOptions::new().write(true).open(&path).unwrap();
+    let mut t = Tally::default();
+    for size in [total - 1, total - 4096, 8192, 4096 + 1, 4096, 100, 0] {
+        file.set_len(size).unwrap();
+        let (mut l, mut r) = (vec![0; 64], vec![0; 64]);
+        let mut nfr = 1;
+        let results = [
+            ("get_audio_data", port.get_audio_data(64, &mut nfr, &mut [&mut l, &mut r]).map(drop)),
+            ("view", port.view(64, &mut nfr).map(drop)),
+            ("chunk_info", port.chunk_info(90).map(drop)),
+            ("info", port.info().map(drop)),
+            ("wait", port.wait(1, Duration::ZERO).map(drop)),
+        ];
+        for (what, r) in results {
+            t.calls += 1;
+            assert!(matches!(r, Err(Error::Corrupt(_))), "file shrunk to {size}: {what} gave {r:?}, expected Corrupt");
+        }
+        file.set_len(total).unwrap();
+        let mut nfr = 1;
+        assert!(port.get_audio_data(64, &mut nfr, &mut [&mut l, &mut r]).is_ok(), "restored size reads again");
+    }
+    figure!(5, "shrunk while mapped (7 sizes from total-1 down to 0): {} calls, all BASS_ERR_CORRUPT, no SIGBUS", t.calls);
+    drop(w);
+}
+
+#[test]
+#[ignore = "fault suite: run by tests/faults/run.sh"]
+fn a_port_shrinking_while_a_reader_process_hammers_it_is_measured() {
+    // KNOWN LIMITATION (see docs/reliability.md): the reader checks the size with fstat
+    // before each access, but a shrink landing between that check and the access still
+    // raises SIGBUS. Only the port's owner (the broker's uid) or root can shrink a port
+    // (mode 0640, readers open it O_RDONLY). This test measures how quickly a reader process
+    // that calls every size-dependent function in a loop is hit while the file is cut to one
+    // page and restored. It fails on any other kind of crash; with
+    // BASS_FAULTS_STRICT_SHRINK=1 a SIGBUS fails it too.
+    let dir = TempDir::new("corrupt-shrink-live");
+    let path = dir.join("bass-shrink-live.port");
+    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: 1024, chunks_on_port: 64 };
+    let mut w = Writer::create_at(&path, &PortParams { geometry, device: "shrink".into(), group: None }).unwrap();
+    for _ in 0..64 {
+        w.publish(Source::Zeros, ChunkMeta::default()).unwrap();
+    }
+    let total = w.layout().total_size;
+    let file = OpenOptions::new().write(true).open(&path).unwrap();
+    let (mut runs, mut sigbus, mut cycles_to_sigbus) = (0, 0, Vec::new());
+    let started = Instant::now();
+    for _ in 0..5 {
+        let mut v = Agent::spawn(&["shrink-victim", "--port", path.to_str().unwrap()]);
+        v.expect_line("ready");
+        let mut cycles = 0;
+        while cycles < 2000 && v.child.try_wait().unwrap().is_none() {
+            file.set_len(4096).unwrap();
+            std::thread::sleep(Duration::from_micros(50));
+            file.set_len(total).unwrap();
+            std::thread::sleep(Duration::from_micros(50));
+            cycles += 1;
+        }
+        v.close_stdin();
+        let (status, lines) = v.finish();
+        use std::os::unix::process::ExitStatusExt;
+        runs += 1;
+        match status.signal() {
+            Some(libc::SIGBUS) => {
+                sigbus += 1;
+                cycles_to_sigbus.push(cycles);
+            }
+            None => assert!(status.success(), "reader process failed: {status}: {lines:?}"),
+            Some(sig) => panic!("reader process killed by signal {sig}"),
+        }
+    }
+    figure!(
+        5,
+        "KNOWN LIMITATION shrink race: {runs} reader processes x up to 2000 shrink/restore cycles ({:.2} s): {sigbus} died of SIGBUS (after {cycles_to_sigbus:?} cycles), {} survived",
+        started.elapsed().as_secs_f64(),
+        runs - sigbus
+    );
+    if std::env::var_os("BASS_FAULTS_STRICT_SHRINK").is_some() {
+        assert_eq!(sigbus, 0, "a SIGBUS reached a reader process while the port shrank");
+    }
+    drop(w);
+}
