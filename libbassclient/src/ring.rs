@@ -136,9 +136,12 @@ impl<'a> Ring<'a> {
     }
 
     /// First frame that cannot have been overwritten when the writer's intent is `intent`.
+    ///
+    /// Saturating: a hostile header's intent of 2^64 - 1 must neither overflow (a panic in
+    /// debug builds) nor wrap to 0 (which would vouch for every frame).
     #[inline]
     pub fn first_intact(&self, intent: u64) -> u64 {
-        (intent + 1).saturating_sub(self.frames_on_port)
+        intent.saturating_add(1).saturating_sub(self.frames_on_port)
     }
 
     /// Copies `frames` frames from `first` for channel `c` into `dst` (Relaxed loads).
