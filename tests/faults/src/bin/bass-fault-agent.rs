@@ -11,6 +11,7 @@
 //! bass-fault-agent victim  --port P --mode read|wait
 //! bass-fault-agent poke    --port P                (writes through its read-only mapping)
 //! bass-fault-agent shrink-victim --port P          (library calls until stdin closes)
+//! bass-fault-agent try-open --port P               (reports whether it may open / write)
 //! ```
 
 use std::collections::HashMap;
@@ -67,6 +68,7 @@ fn main() {
         "victim" => victim(&args),
         "poke" => poke(&args),
         "shrink-victim" => shrink_victim(&args),
+        "try-open" => try_open(&args),
         _ => {
             eprintln!("usage: bass-fault-agent writer|reader|stepped|victim|poke|shrink-victim --port PATH ...");
             std::process::exit(2);
@@ -381,4 +383,20 @@ fn shrink_victim(a: &Args) {
         calls += 5;
     }
     println!("RESULT calls={calls} ok={ok} corrupt={corrupt} other={other}");
+}
+
+/// Reports whether this process (typically run under setpriv as another uid) can open the
+/// port for reading through the library, and whether it could open the file for writing.
+fn try_open(a: &Args) {
+    let read = match Port::open_path(&a.port()) {
+        Ok(p) => format!("ok lfi={}", p.info().map(|i| i.last_frame_index).unwrap_or(0)),
+        Err(Error::Io { source, .. }) => format!("io:{}", source.raw_os_error().unwrap_or(0)),
+        Err(e) => format!("error:{e}").replace(' ', "_"),
+    };
+    let write = match std::fs::OpenOptions::new().write(true).open(a.port()) {
+        Ok(_) => "ok".to_owned(),
+        Err(e) => format!("io:{}", e.raw_os_error().unwrap_or(0)),
+    };
+    println!("RESULT uid={} read={read} write={write}", // SAFETY: getuid cannot fail.
+        unsafe { libc::getuid() });
 }
