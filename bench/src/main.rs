@@ -100,6 +100,7 @@ fn child(role: &str, args: &[String]) {
         "futex-pong" => wake::child_futex_pong(args),
         "wake-reader" => wake::child_wake_reader(args),
         "poll-reader" => wake::child_poll_reader(args),
+        "wake-raw-waiter" => wake::child_raw_waiter(args),
         "mem-reader" => memory::child_reader(args),
         "mem-writer" => memory::child_writer(args),
         "mem-orig-reader" => memory::child_orig_reader(args),

@@ -167,3 +167,11 @@ impl Rss {
         Rss { rss: g("rss"), anon: g("anon"), file: g("file"), shmem: g("shmem"), pss: g("pss") }
     }
 }
+
+/// CPU time (user + system) of this process so far, in ns.
+pub fn process_cpu_ns() -> u64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: `ts` is a valid out-pointer; the clock always exists on Linux.
+    unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}

@@ -40,8 +40,10 @@ pub struct PubCell {
     pub window_s: f64,
     /// Readers attached.
     pub readers: usize,
-    /// Per repetition: median publish time (ns).
+    /// Per repetition: median CPU time of the writer thread per publish (ns).
     pub publish_ns: Vec<f64>,
+    /// Per repetition: median wall time of a publish call (ns), preemption included.
+    pub wall_ns: Vec<f64>,
     /// Per repetition: 90th percentile publish time (ns).
     pub publish_p90_ns: Vec<f64>,
     /// Per repetition: median time of one reader's read of a chunk (ns), over readers.
@@ -57,6 +59,8 @@ pub struct PublishResults {
     pub cells: Vec<PubCell>,
     /// Time between publishes (ms).
     pub period_ms: f64,
+    /// Where the time of one publish goes.
+    pub breakdown: Breakdown,
 }
 
 impl PublishResults {
@@ -82,9 +86,19 @@ struct Pace {
     budget: Duration,
 }
 
-fn time_publishes(pace: &Pace, mut publish: impl FnMut()) -> Vec<f64> {
+/// CPU time of the calling thread (ns).
+pub fn thread_cpu_ns() -> u64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: `ts` is a valid out-pointer; CLOCK_THREAD_CPUTIME_ID always exists on Linux.
+    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+/// Times each publish: (CPU time of the writer thread, wall time), in ns.
+fn time_publishes(pace: &Pace, mut publish: impl FnMut()) -> (Vec<f64>, Vec<f64>) {
     let start = Instant::now();
     let mut times = Vec::with_capacity(pace.max_chunks);
+    let mut walls = Vec::with_capacity(pace.max_chunks);
     let mut next = Instant::now();
     while times.len() < pace.max_chunks && (times.len() < pace.min_chunks || start.elapsed() < pace.budget) {
         next += pace.period;
@@ -94,14 +108,16 @@ fn time_publishes(pace: &Pace, mut publish: impl FnMut()) -> Vec<f64> {
         } else {
             next = now;
         }
+        let c = thread_cpu_ns();
         let t = Instant::now();
         publish();
-        times.push(t.elapsed().as_nanos() as f64);
+        walls.push(t.elapsed().as_nanos() as f64);
+        times.push((thread_cpu_ns() - c) as f64);
     }
-    times
+    (times, walls)
 }
 
-fn ring_cell(ncop: u32, readers: usize, pace: &Pace) -> (Vec<f64>, Vec<f64>) {
+fn ring_cell(ncop: u32, readers: usize, pace: &Pace) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let name = "bench-pub";
     let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: NFPC, chunks_on_port: ncop };
     let params = PortParams { geometry, device: "bench:publish".into(), group: None };
@@ -112,29 +128,29 @@ fn ring_cell(ncop: u32, readers: usize, pace: &Pace) -> (Vec<f64>, Vec<f64>) {
     }
     let kids = spawn_ready(readers, "ring-reader", &[name.to_owned()]);
     std::thread::sleep(Duration::from_millis(20));
-    let times = time_publishes(pace, || {
+    let (times, walls) = time_publishes(pace, || {
         w.publish(Source::Interleaved(&data), ChunkMeta::default()).expect("publish");
     });
     w.stop();
     let reads = finish_all(kids).iter().filter_map(|l| field(l, "read_ns")).collect();
     let _ = w.remove();
-    (times, reads)
+    (times, walls, reads)
 }
 
-fn orig_cell(dir: &std::path::Path, ncop: u32, readers: usize, pace: &Pace) -> (Vec<f64>, Vec<f64>) {
+fn orig_cell(dir: &std::path::Path, ncop: u32, readers: usize, pace: &Pace) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let path: PathBuf = dir.join("bench-orig.port");
     let port = OrigPort::create(&path, NFPC as usize, ncop as usize);
     let kids = spawn_ready(readers, "orig-reader", &[path.display().to_string()]);
     std::thread::sleep(Duration::from_millis(20));
     let data = chunk();
-    let times = time_publishes(pace, || {
+    let (times, walls) = time_publishes(pace, || {
         port.publish(&data);
     });
     port.stop();
     let reads = finish_all(kids).iter().filter_map(|l| field(l, "read_ns")).collect();
     drop(port);
     let _ = std::fs::remove_file(&path);
-    (times, reads)
+    (times, walls, reads)
 }
 
 /// Runs part 2.
@@ -148,7 +164,7 @@ pub fn run(reps: usize, quick: bool) -> PublishResults {
         min_chunks: 8,
         budget: Duration::from_millis(if quick { 800 } else { 2000 }),
     };
-    let mut res = PublishResults { cells: vec![], period_ms: period.as_secs_f64() * 1e3 };
+    let mut res = PublishResults { cells: vec![], period_ms: period.as_secs_f64() * 1e3, breakdown: breakdown(reps.max(3)) };
     for &(window_s, _) in WINDOWS {
         for &readers in READERS {
             for design in [Design::Ring, Design::Original] {
@@ -158,6 +174,7 @@ pub fn run(reps: usize, quick: bool) -> PublishResults {
                     readers,
                     publish_ns: vec![],
                     publish_p90_ns: vec![],
+                    wall_ns: vec![],
                     read_ns: vec![],
                     chunks: vec![],
                 });
@@ -168,7 +185,7 @@ pub fn run(reps: usize, quick: bool) -> PublishResults {
         for &(window_s, ncop) in WINDOWS {
             for &readers in READERS {
                 for design in [Design::Ring, Design::Original] {
-                    let (times, reads) = match design {
+                    let (times, walls, reads) = match design {
                         Design::Ring => ring_cell(ncop, readers, &ring_pace),
                         Design::Original => orig_cell(&dir, ncop, readers, &orig_pace),
                     };
@@ -179,16 +196,18 @@ pub fn run(reps: usize, quick: bool) -> PublishResults {
                         .expect("cell");
                     cell.publish_ns.push(median(&times));
                     cell.publish_p90_ns.push(quantile(&times, 0.9));
+                    cell.wall_ns.push(median(&walls));
                     cell.read_ns.push(median(&reads));
                     cell.chunks.push(times.len());
                     println!(
-                        "  rep {} {:?} window {:>5} s readers {:>2}: publish median {} p90 {} ({} chunks), read {}",
+                        "  rep {} {:?} window {:>5} s readers {:>2}: publish CPU median {} p90 {}, wall {} ({} chunks), read {}",
                         rep + 1,
                         design,
                         window_s,
                         readers,
                         fmt_ns(median(&times)),
                         fmt_ns(quantile(&times, 0.9)),
+                        fmt_ns(median(&walls)),
                         times.len(),
                         fmt_ns(median(&reads))
                     );
@@ -262,4 +281,84 @@ pub fn child_orig_reader(args: &[String]) {
         times.push(t.elapsed().as_nanos() as f64);
     }
     println!("read_ns={} reads={}", median(&times), times.len());
+}
+
+/// Where a publish's time goes (no readers, 10 s window, 2205-frame chunks), in ns per chunk.
+#[derive(Clone, Debug, Default)]
+pub struct Breakdown {
+    /// `Writer::publish` (everything).
+    pub writer_publish: f64,
+    /// `Ring::publish` alone on a heap window of the same size (samples + protocol words).
+    pub ring_publish: f64,
+    /// One FUTEX_WAKE with no waiter.
+    pub futex_wake: f64,
+    /// The two clock reads for the chunk's timestamps.
+    pub clocks: f64,
+    /// memcpy of the chunk's bytes into the window (lower bound for the data copy).
+    pub memcpy_chunk: f64,
+}
+
+/// Measures the parts of a publish, interleaved, `reps` times; medians.
+pub fn breakdown(reps: usize) -> Breakdown {
+    use std::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
+    let ncop = 200u32;
+    let nfop = (NFPC * ncop) as usize;
+    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: NFPC, chunks_on_port: ncop };
+    let params = PortParams { geometry, device: "bench:breakdown".into(), group: None };
+    let mut w = Writer::create("bench-breakdown", &params).expect("create port");
+    let data = chunk();
+    let heap: Vec<AtomicI32> = (0..2 * nfop).map(|_| AtomicI32::new(0)).collect();
+    let (lfi, intent) = (AtomicU64::new(0), AtomicU64::new(0));
+    let ring = bassclient::ring::Ring { last_frame_index: &lfi, write_intent: &intent, samples: &heap, frames_on_port: nfop as u64 };
+    let mut plain = vec![0i32; 2 * nfop];
+    let word = AtomicU32::new(0);
+    let mut heap_lfi = 0u64;
+    for _ in 0..ncop {
+        w.publish(Source::Interleaved(&data), ChunkMeta::default()).expect("publish");
+        heap_lfi = ring.publish(heap_lfi, NFPC as usize, 2, &Source::Interleaved(&data), || {});
+    }
+    let n = 2000usize;
+    let (mut a, mut b, mut c, mut d, mut e) = (vec![], vec![], vec![], vec![], vec![]);
+    let per = |f: &mut dyn FnMut(usize)| {
+        let t = thread_cpu_ns();
+        for k in 0..n {
+            f(k);
+        }
+        (thread_cpu_ns() - t) as f64 / n as f64
+    };
+    for _ in 0..reps {
+        a.push(per(&mut |_| {
+            w.publish(Source::Interleaved(&data), ChunkMeta::default()).expect("publish");
+        }));
+        b.push(per(&mut |_| {
+            heap_lfi = ring.publish(heap_lfi, NFPC as usize, 2, &Source::Interleaved(&data), || {});
+        }));
+        c.push(per(&mut |_| crate::shm::futex_wake(&word)));
+        d.push(per(&mut |_| {
+            std::hint::black_box(bassclient::sys::monotonic_ns() + bassclient::sys::realtime_ns());
+        }));
+        e.push(per(&mut |k| {
+            let at = (k % ncop as usize) * NFPC as usize;
+            plain[at..at + NFPC as usize].copy_from_slice(&data[..NFPC as usize]);
+            plain[nfop + at..nfop + at + NFPC as usize].copy_from_slice(&data[NFPC as usize..]);
+            std::hint::black_box(&plain);
+        }));
+    }
+    let _ = w.remove();
+    let r = Breakdown {
+        writer_publish: median(&a),
+        ring_publish: median(&b),
+        futex_wake: median(&c),
+        clocks: median(&d),
+        memcpy_chunk: median(&e),
+    };
+    println!(
+        "  breakdown (10 s window, no reader, CPU per chunk): Writer::publish {}, Ring::publish on heap {}, FUTEX_WAKE without waiter {}, 2 clock reads {}, memcpy of the chunk {}",
+        fmt_ns(r.writer_publish),
+        fmt_ns(r.ring_publish),
+        fmt_ns(r.futex_wake),
+        fmt_ns(r.clocks),
+        fmt_ns(r.memcpy_chunk)
+    );
+    r
 }

@@ -1,7 +1,12 @@
-//! Writes docs/performance.md.
+//! Writes docs/performance.md and the docs/perf-*.png plots from one run's results.
+
+use std::fmt::Write as _;
 use std::path::Path;
 
 use crate::machine::Machine;
+use crate::plot::{self, Chart, Series, COLORS};
+use crate::publish::Design;
+use crate::stats::{fmt_bytes, fmt_ns, fmt_ratio, median, min_max, spread};
 
 /// Everything a run measured.
 #[derive(Default)]
@@ -26,5 +31,473 @@ pub struct Results {
     pub elapsed_s: f64,
 }
 
-/// Writes the report.
-pub fn write(_r: &Results, _docs: &Path) {}
+/// One line of the goal table.
+struct Goal {
+    part: &'static str,
+    goal: String,
+    measured: String,
+    met: Option<bool>,
+}
+
+fn verdict(m: Option<bool>) -> &'static str {
+    match m {
+        Some(true) => "**met**",
+        Some(false) => "**missed**",
+        None => "not measured",
+    }
+}
+
+fn goals(r: &Results) -> Vec<Goal> {
+    let mut g = Vec::new();
+    let big: Vec<&crate::read::ReadRow> = r.read.iter().filter(|x| x.bytes >= 65536).collect();
+    if !big.is_empty() {
+        let worst = big.iter().map(|x| x.ratio_median()).fold(f64::INFINITY, f64::min);
+        let worst_stream = big.iter().map(|x| x.stream_ratio_median()).fold(f64::INFINITY, f64::min);
+        g.push(Goal {
+            part: "1 read",
+            goal: "`bass_get_audio_data` ≥ 0.5× memcpy for blocks ≥ 64 KiB".into(),
+            measured: format!(
+                "worst block ≥ 64 KiB: {} with the source hot in L1/L2 (the same block re-read); {} streaming through the window",
+                fmt_ratio(worst),
+                fmt_ratio(worst_stream)
+            ),
+            met: Some(worst >= 0.5),
+        });
+    }
+    if let Some(p) = &r.publish {
+        let ring = |w: f64, k: usize| p.publish_median(Design::Ring, w, k);
+        let flat_w = ring(60.0, 1) / ring(0.1, 1);
+        g.push(Goal {
+            part: "2 publish",
+            goal: "flat in window size (60 s vs 0.1 s, 1 reader)".into(),
+            measured: format!("{} ({} vs {} CPU per chunk)", fmt_ratio(flat_w), fmt_ns(ring(60.0, 1)), fmt_ns(ring(0.1, 1))),
+            met: Some(flat_w <= 1.1),
+        });
+        let flat_r = ring(10.0, 64) / ring(10.0, 1);
+        g.push(Goal {
+            part: "2 publish",
+            goal: "flat in readers: 64 readers ≤ 1.1× one reader (10 s window)".into(),
+            measured: format!("{} ({} vs {})", fmt_ratio(flat_r), fmt_ns(ring(10.0, 64)), fmt_ns(ring(10.0, 1))),
+            met: Some(flat_r <= 1.1),
+        });
+        let vs = |k: usize| p.publish_median(Design::Original, 10.0, k) / ring(10.0, k);
+        g.push(Goal {
+            part: "2 publish",
+            goal: "≥ 100× cheaper than the original design at a 10 s window (2205-frame chunks)".into(),
+            measured: format!(
+                "{} with 1 reader, {} with none, {} with 64 (writer CPU per chunk); {} at 60 s, 1 reader",
+                fmt_ratio(vs(1)),
+                fmt_ratio(vs(0)),
+                fmt_ratio(vs(64)),
+                fmt_ratio(p.publish_median(Design::Original, 60.0, 1) / ring(60.0, 1))
+            ),
+            met: Some(vs(1) >= 100.0),
+        });
+    }
+    if let Some(w) = &r.wake {
+        let ratio = median(&w.ratio_1);
+        g.push(Goal {
+            part: "3 wake",
+            goal: "median wake latency (1 reader) ≤ 1.5× a raw futex".into(),
+            measured: format!(
+                "{} (median of per-repetition ratios {}; {} vs {})",
+                fmt_ratio(ratio),
+                spread(&w.ratio_1, fmt_ratio),
+                fmt_ns(w.bass.get(&1).map(|d| d.median()).unwrap_or(f64::NAN)),
+                fmt_ns(w.raw.median())
+            ),
+            met: Some(ratio <= 1.5),
+        });
+    }
+    g.push(Goal {
+        part: "4 end to end",
+        goal: "jackd → ALSA jack PCM → bassd → reader, vs a direct JACK client".into(),
+        measured: "not measured yet: needs the broker (bassd), which is not in the tree yet".into(),
+        met: None,
+    });
+    g.push(Goal {
+        part: "5 CPU",
+        goal: "bassd's share of a core at 48 kHz stereo, 32/64/256/2205-frame chunks; a waiting reader ~0".into(),
+        measured: match r.wake.as_ref().and_then(|w| w.reader_cpu.get(&1)) {
+            Some(c) => format!(
+                "bassd not measured yet (no broker in the tree). A blocked reader uses no CPU between chunks; per chunk it spends {} (wake, read, wait again)",
+                fmt_ns(median(c))
+            ),
+            None => "not measured yet (no broker in the tree)".into(),
+        },
+        met: None,
+    });
+    if let Some(m) = &r.memory {
+        let exact = m.iter().all(|x| x.file_bytes == x.window_bytes + x.overhead_bytes && x.overhead_bytes <= 4096 + (x.window_s as u64 * 20 * 32).div_ceil(4096) * 4096);
+        let worst = m.iter().map(|x| x.overhead_bytes).max().unwrap_or(0);
+        g.push(Goal {
+            part: "6 memory",
+            goal: "shared memory = header + window exactly".into(),
+            measured: format!(
+                "file = window + 4 KiB header + chunk table (32 B per chunk, page-rounded): at most {} over the window",
+                fmt_bytes(worst as f64)
+            ),
+            met: Some(exact),
+        });
+    }
+    g
+}
+
+fn gbs(v: &[f64]) -> String {
+    spread(v, |x| format!("{x:.1}"))
+}
+
+fn read_section(r: &Results, md: &mut String) {
+    if r.read.is_empty() {
+        return;
+    }
+    let _ = writeln!(md, "## 1. Read throughput: `bass_get_audio_data` vs memcpy\n");
+    let _ = writeln!(
+        md,
+        "44.1 kHz stereo, a port holding 10.01 s, filled (the ring has wrapped). Each timing sample copies ~32 MB; \
+         the C ABI call, the Rust call and a plain `memcpy` of exactly the same ring segments into the same buffers \
+         alternate in the same run. *Hot*: the newest block is read again and again (source in L1/L2). \
+         *Streaming*: successive blocks through the 10 s window, as a reader consuming the stream. GB/s = 10⁹ bytes/s; \
+         median [min–max] of {} repetitions; ratio = memcpy time / `bass_get_audio_data` time.\n",
+        r.read[0].ratio.len()
+    );
+    let _ = writeln!(md, "| block | bytes | per call | `bass_get_audio_data` GB/s | `Port::get_audio_data` GB/s | memcpy GB/s | **ratio (hot)** | streaming bass / memcpy GB/s | **ratio (streaming)** |");
+    let _ = writeln!(md, "|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for x in &r.read {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} | **{}** | {} / {} | **{}** |",
+            x.label,
+            x.bytes,
+            fmt_ns(median(&x.ffi_call_ns)),
+            gbs(&x.ffi_gbs),
+            gbs(&x.rust_gbs),
+            gbs(&x.memcpy_gbs),
+            spread(&x.ratio, fmt_ratio),
+            format_args!("{:.1}", median(&x.stream_ffi_gbs)),
+            format_args!("{:.1}", median(&x.stream_memcpy_gbs)),
+            spread(&x.stream_ratio, fmt_ratio),
+        );
+    }
+    if let Some(c) = &r.copy_loops {
+        let _ = writeln!(
+            md,
+            "\nCopy loops alone, 64 KiB hot, same run: memcpy {} GB/s; Relaxed `AtomicI32` loads (what the reader does) {} GB/s \
+             = {} of memcpy; Relaxed `AtomicU64` loads {} GB/s = {} of memcpy.\n",
+            gbs(&c.memcpy),
+            gbs(&c.atomic32),
+            fmt_ratio(median(&c.atomic32) / median(&c.memcpy)),
+            gbs(&c.atomic64),
+            fmt_ratio(median(&c.atomic64) / median(&c.memcpy)),
+        );
+    }
+    let _ = writeln!(md, "![read throughput](perf-read.png)\n");
+}
+
+fn publish_section(r: &Results, md: &mut String) {
+    let Some(p) = &r.publish else { return };
+    let _ = writeln!(md, "## 2. Publish cost vs window size and readers, vs the original design\n");
+    let _ = writeln!(
+        md,
+        "44.1 kHz stereo, 2205-frame chunks (the seed's Acquire defaults); the window is filled first. A chunk is \
+         published every {:.0} ms; reader *processes* are blocked in a wait and read every chunk. **CPU** = CPU time of \
+         the writer thread inside the publish call (`CLOCK_THREAD_CPUTIME_ID`); **wall** = elapsed time of the call \
+         (includes being preempted by the readers it woke, and, for the original design, waiting for the port lock). \
+         *Original*: the model of the seed's port (`bench/src/original.rs`): both arrays memmoved by one chunk for every \
+         chunk, readers copy the whole port under a process-shared rwlock, then run getAudioData on their copy. \
+         Median [min–max] of {} repetitions (each the median of up to 150 chunks); *read* = one reader's time for one read.\n",
+        p.period_ms,
+        p.cells.first().map(|c| c.publish_ns.len()).unwrap_or(0)
+    );
+    let _ = writeln!(md, "| window | readers | ring CPU | ring wall | ring read | original CPU | original wall | original read | **original / ring (CPU)** | original / ring (wall) |");
+    let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for &(w, _) in crate::publish::WINDOWS {
+        for &k in crate::publish::READERS {
+            let (Some(a), Some(b)) = (p.cell(Design::Ring, w, k), p.cell(Design::Original, w, k)) else { continue };
+            let ratio: Vec<f64> = b.publish_ns.iter().zip(&a.publish_ns).map(|(x, y)| x / y).collect();
+            let _ = writeln!(
+                md,
+                "| {w} s | {k} | {} | {} | {} | {} | {} | {} | **{}** | {} |",
+                spread(&a.publish_ns, fmt_ns),
+                fmt_ns(median(&a.wall_ns)),
+                if k == 0 { "–".into() } else { fmt_ns(median(&a.read_ns)) },
+                spread(&b.publish_ns, fmt_ns),
+                fmt_ns(median(&b.wall_ns)),
+                if k == 0 { "–".into() } else { fmt_ns(median(&b.read_ns)) },
+                spread(&ratio, fmt_ratio),
+                fmt_ratio(median(&b.wall_ns) / median(&a.wall_ns)),
+            );
+        }
+    }
+    let b = &p.breakdown;
+    let _ = writeln!(
+        md,
+        "\nWhere a ring publish goes (10 s window, no reader, back to back, caches warm; CPU per chunk): \
+         `Writer::publish` {}; `Ring::publish` alone on a heap window {}; one `FUTEX_WAKE` with no waiter {}; \
+         the two clock reads {}; a plain memcpy of the chunk's bytes {}.\n",
+        fmt_ns(b.writer_publish),
+        fmt_ns(b.ring_publish),
+        fmt_ns(b.futex_wake),
+        fmt_ns(b.clocks),
+        fmt_ns(b.memcpy_chunk)
+    );
+    let _ = writeln!(md, "![publish cost](perf-publish.png)\n");
+}
+
+fn dist_row(md: &mut String, name: &str, d: &crate::wake::Dist, raw: f64) {
+    let (lo, hi) = min_max(&d.rep_medians);
+    let _ = writeln!(
+        md,
+        "| {name} | {} | {} | {} | {} | {}–{} | {} |",
+        d.all.len(),
+        fmt_ns(d.median()),
+        fmt_ns(d.p99()),
+        fmt_ns(d.max()),
+        fmt_ns(lo),
+        fmt_ns(hi),
+        fmt_ratio(d.median() / raw)
+    );
+}
+
+fn wake_section(r: &Results, md: &mut String) {
+    let Some(w) = &r.wake else { return };
+    let _ = writeln!(md, "## 3. Wake latency: publish → blocked reader running\n");
+    let _ = writeln!(
+        md,
+        "CLOCK_MONOTONIC from just before the publish (bass: the chunk's `mono_ns`, stamped right before \
+         `Writer::publish`; raw futex: right before the store + `FUTEX_WAKE`) to the woken process running \
+         (bass: `Port::wait` returned). Publishes are spaced by a random 3–6 ms so waiters are really asleep. \
+         The raw futex ping-pong, the bass 1-reader case and the diagnostic bare-futex reader are interleaved \
+         publish by publish in the same run; {} publishes per configuration and repetition, {} repetitions, \
+         samples pooled. *Last reader* = per publish, the latest of all readers. The polling client is the seed's \
+         BASC `GetBlocks`, a periodic 250 ms task calling getAudioData (4 processes, 2205-frame chunks every 50 ms).\n",
+        w.publishes,
+        w.rep_count()
+    );
+    let raw = w.raw.median();
+    let _ = writeln!(md, "| path | samples | median | p99 | max | repetition medians | median / raw futex |");
+    let _ = writeln!(md, "|---|---:|---:|---:|---:|---:|---:|");
+    dist_row(md, "raw futex ping-pong (2 processes)", &w.raw, raw);
+    dist_row(md, "bass writer → bare FUTEX_WAIT on the port (diagnostic)", &w.bass_raw_waiter, raw);
+    for (k, d) in &w.bass {
+        dist_row(md, &format!("**bass, {k} reader{}**, each reader", if *k == 1 { "" } else { "s" }), d, raw);
+        if *k > 1 {
+            if let Some(l) = w.bass_last.get(k) {
+                dist_row(md, &format!("bass, {k} readers, last reader"), l, raw);
+            }
+        }
+    }
+    if let Some(d) = w.bass_data.get(&1) {
+        dist_row(md, "bass, 1 reader, data in hand (after `get_audio_data`)", d, raw);
+    }
+    dist_row(md, "seed's 250 ms polling client", &w.poll, raw);
+    let _ = writeln!(
+        md,
+        "\nPer-repetition ratio bass (1 reader) / raw futex: {}.\n",
+        spread(&w.ratio_1, fmt_ratio)
+    );
+    let _ = writeln!(md, "Reader CPU per chunk (wake + `get_audio_data` + `chunk_info` + wait again, from `CLOCK_PROCESS_CPUTIME_ID`):");
+    for (k, v) in &w.reader_cpu {
+        let _ = write!(md, " {k} reader{}: {};", if *k == 1 { "" } else { "s" }, spread(v, fmt_ns));
+    }
+    let _ = writeln!(md, " the bare-futex reader: {}.\n", spread(&w.bare_reader_cpu, fmt_ns));
+    let _ = writeln!(md, "![wake latency](perf-wake.png)\n");
+}
+
+fn memory_section(r: &Results, md: &mut String) {
+    let Some(m) = &r.memory else { return };
+    let _ = writeln!(md, "## 6. Memory\n");
+    let _ = writeln!(
+        md,
+        "44.1 kHz stereo, 2205-frame chunks. The writer process fills the window, then publishes a chunk every 5 ms for \
+         1.5 s; a *tail* reader reads every new chunk, a *full* reader reads the whole window at every chunk; the \
+         *original* reader copies the whole port (original design). Resident memory from /proc/PID/status at the end \
+         (KiB): RSS (of which shared memory = the port mapping, and anonymous = private). *Baseline* = this benchmark \
+         binary before opening any port.\n"
+    );
+    let _ = writeln!(md, "| window | window bytes | port file | header + chunk table | allocated (tmpfs) | writer RSS (shm / anon) | tail reader RSS (shm / anon) | full reader RSS (shm / anon) | original reader RSS (shm / anon) | baseline RSS |");
+    let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for x in m {
+        let f = |s: &crate::procs::Rss| format!("{} ({} / {})", s.rss, s.shmem, s.anon);
+        let _ = writeln!(
+            md,
+            "| {} s | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            x.window_s,
+            x.window_bytes,
+            x.file_bytes,
+            x.overhead_bytes,
+            x.allocated_bytes,
+            f(&x.writer),
+            f(&x.tail_reader),
+            f(&x.full_reader),
+            f(&x.orig_reader),
+            x.baseline.rss
+        );
+    }
+    let _ = writeln!(
+        md,
+        "\nThe port's shared memory is counted once however many processes map it (RssShmem appears in each mapper's \
+         RSS, but it is the same pages; Pss divides it). A bass reader's private memory is its own buffers; an original-design \
+         reader holds a private copy of the whole window.\n"
+    );
+}
+
+fn plots(r: &Results, docs: &Path) -> Vec<String> {
+    let mut made = Vec::new();
+    if !r.read.is_empty() {
+        let s = |name: &str, color, f: &dyn Fn(&crate::read::ReadRow) -> f64, dashed| Series {
+            name: name.into(),
+            color,
+            points: r.read.iter().map(|x| (x.bytes as f64, f(x))).collect(),
+            dashed,
+        };
+        let chart = Chart {
+            title: "Read throughput vs block size (44.1 kHz stereo)".into(),
+            xlabel: "block size (bytes, both channels)".into(),
+            ylabel: "GB/s".into(),
+            xlog: true,
+            ylog: true,
+            series: vec![
+                s("bass_get_audio_data, hot", COLORS[0], &|x| median(&x.ffi_gbs), false),
+                s("memcpy, hot", COLORS[1], &|x| median(&x.memcpy_gbs), false),
+                s("bass_get_audio_data, streaming", COLORS[2], &|x| median(&x.stream_ffi_gbs), false),
+                s("memcpy, streaming", COLORS[3], &|x| median(&x.stream_memcpy_gbs), false),
+            ],
+            xfmt: plot::fmt_bytes_tick,
+            yfmt: plot::fmt_num_tick,
+        };
+        if plot::render(&[chart], 1, &docs.join("perf-read.png")).is_ok() {
+            made.push("perf-read.png".into());
+        }
+    }
+    if let Some(p) = &r.publish {
+        let mut series = Vec::new();
+        for (i, &k) in [0usize, 1, 8, 64].iter().enumerate() {
+            for (design, dashed, name) in [(Design::Ring, false, "ring"), (Design::Original, true, "original")] {
+                series.push(Series {
+                    name: format!("{name}, {k} readers"),
+                    color: COLORS[i],
+                    points: crate::publish::WINDOWS.iter().map(|&(w, _)| (w, p.publish_median(design, w, k))).collect(),
+                    dashed,
+                });
+            }
+        }
+        let chart = Chart {
+            title: "Publish: writer CPU per 2205-frame chunk vs window".into(),
+            xlabel: "window (s)".into(),
+            ylabel: "CPU per chunk".into(),
+            xlog: true,
+            ylog: true,
+            series,
+            xfmt: plot::fmt_num_tick,
+            yfmt: plot::fmt_ns_tick,
+        };
+        if plot::render(&[chart], 1, &docs.join("perf-publish.png")).is_ok() {
+            made.push("perf-publish.png".into());
+        }
+    }
+    if let Some(w) = &r.wake {
+        // CDFs on a log time axis.
+        let cdf = |name: String, color, d: &crate::wake::Dist, dashed| {
+            let s = crate::stats::sorted(&d.all);
+            let n = s.len().max(1) as f64;
+            let step = (s.len() / 200).max(1);
+            Series {
+                name,
+                color,
+                points: s.iter().enumerate().step_by(step).map(|(i, &v)| (v.max(1.0), (i + 1) as f64 / n)).collect(),
+                dashed,
+            }
+        };
+        let mut series = vec![cdf("raw futex".into(), COLORS[6], &w.raw, true)];
+        for (i, (k, d)) in w.bass.iter().enumerate() {
+            series.push(cdf(format!("bass, {k} reader(s), each"), COLORS[i], d, false));
+        }
+        series.push(cdf("250 ms polling client".into(), COLORS[3], &w.poll, false));
+        let chart = Chart {
+            title: "Wake latency, publish -> reader running (CDF)".into(),
+            xlabel: "latency".into(),
+            ylabel: "fraction of wakes".into(),
+            xlog: true,
+            ylog: false,
+            series,
+            xfmt: plot::fmt_ns_tick,
+            yfmt: plot::fmt_num_tick,
+        };
+        if plot::render(&[chart], 1, &docs.join("perf-wake.png")).is_ok() {
+            made.push("perf-wake.png".into());
+        }
+    }
+    made
+}
+
+/// Writes performance.md and the plots into `docs`.
+pub fn write(r: &Results, docs: &Path) {
+    let _ = std::fs::create_dir_all(docs);
+    let made = plots(r, docs);
+    let m = &r.machine;
+    let mut md = String::new();
+    let _ = writeln!(md, "# bass performance\n");
+    let _ = writeln!(
+        md,
+        "Generated by `make bench` (`scripts/bench.sh` → `target/release/bass-bench`, source in `bench/`) on {}{}. \
+         Every comparison is measured side by side in the same run and given as a ratio of medians; \
+         spreads are [min–max] over repetitions. Do not edit by hand: rerun `make bench`.\n",
+        m.date,
+        if r.quick { " in **--quick** mode (fewer repetitions: development numbers only)" } else { "" }
+    );
+    let _ = writeln!(md, "## Machine\n");
+    let _ = writeln!(md, "- CPU: {} — {} cores online{}", m.cpu, m.cores, if m.virtualized { ", virtual machine (hypervisor flag set)" } else { "" });
+    let _ = writeln!(md, "- Kernel: Linux {}; memory {:.0} GiB; {}", m.kernel, m.mem_gib, m.rustc);
+    let _ = writeln!(md, "- Load average (1/5/15 min) at the start: {}; at the end: {}; run took {:.0} s", m.load_start, r.load_end, r.elapsed_s);
+    let _ = writeln!(
+        md,
+        "- Noise: this machine is shared (other builds and test suites run on the same 2 cores during the run), \
+         so absolute times move between runs; ratios measured side by side move much less. Wake latencies in \
+         particular depend on whether the target CPU was idle (a virtual CPU waking from idle adds several µs).\n"
+    );
+    let _ = writeln!(md, "## Goals\n");
+    let _ = writeln!(md, "| part | goal | measured | verdict |");
+    let _ = writeln!(md, "|---|---|---|---|");
+    for g in goals(r) {
+        let _ = writeln!(md, "| {} | {} | {} | {} |", g.part, g.goal, g.measured, verdict(g.met));
+    }
+    md.push('\n');
+    read_section(r, &mut md);
+    publish_section(r, &mut md);
+    wake_section(r, &mut md);
+    let _ = writeln!(md, "## 4. End to end through ALSA, and 5. CPU of bassd\n");
+    let _ = writeln!(
+        md,
+        "Not measured in this run: both need the broker (`bassd`), which was not in the tree when this harness was \
+         written. The harness has no stand-in for it; these rows stay open until it lands.\n"
+    );
+    memory_section(r, &mut md);
+    md.push_str(ANALYSIS);
+    md.push_str(HOWTO);
+    if made.is_empty() {
+        md.push_str("\n(No plot could be written.)\n");
+    }
+    std::fs::write(docs.join("performance.md"), md).expect("write performance.md");
+}
+
+const ANALYSIS: &str = include_str!("analysis.md");
+
+const HOWTO: &str = "
+## How to run
+
+- `make bench` builds the workspace in release mode and runs `scripts/bench.sh`, which runs
+  `target/release/bass-bench` and rewrites this file and `docs/perf-*.png` (about 5 minutes on 2 cores).
+- `target/release/bass-bench --parts 1,3 --docs /tmp/x` runs some parts only, elsewhere;
+  `--quick` gives development numbers in well under a minute.
+- Ports live in a scratch directory under /dev/shm (`BASS_RUNTIME_DIR`), removed at the end.
+- The bench is not part of `make test`; its own unit tests (statistics) run with `cargo test -p bass-bench`.
+";
+
+/// Repetition count of the wake results.
+impl crate::wake::WakeResults {
+    /// How many repetitions were run.
+    pub fn rep_count(&self) -> usize {
+        self.raw.rep_medians.len()
+    }
+}

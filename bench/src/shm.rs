@@ -24,14 +24,24 @@ impl Region {
         Region::map(&f, len)
     }
 
+    /// Maps an existing file of `len` bytes read-only (as clients map a port).
+    pub fn open_ro(path: &Path, len: usize) -> Region {
+        let f = OpenOptions::new().read(true).open(path).expect("open shared file");
+        Region::map_prot(&f, len, libc::PROT_READ)
+    }
+
     fn map(f: &std::fs::File, len: usize) -> Region {
+        Region::map_prot(f, len, libc::PROT_READ | libc::PROT_WRITE)
+    }
+
+    fn map_prot(f: &std::fs::File, len: usize, prot: libc::c_int) -> Region {
         // SAFETY: a fresh shared mapping of an open file descriptor with a length the file
         // has; no existing memory is affected. The result is checked against MAP_FAILED.
         let ptr = unsafe {
             libc::mmap(
                 std::ptr::null_mut(),
                 len,
-                libc::PROT_READ | libc::PROT_WRITE,
+                prot,
                 libc::MAP_SHARED,
                 f.as_raw_fd(),
                 0,

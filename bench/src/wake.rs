@@ -68,6 +68,13 @@ pub struct WakeResults {
     pub bass_data: BTreeMap<usize, Dist>,
     /// Per repetition: bass (1 reader) median / raw futex median.
     pub ratio_1: Vec<f64>,
+    /// Diagnostic: bass writer, a reader doing a bare FUTEX_WAIT on the port's futex word
+    /// instead of `Port::wait` (separates writer-side from reader-side overhead).
+    pub bass_raw_waiter: Dist,
+    /// Per reader count, per repetition: a reader's CPU time per chunk (wake, read, wait).
+    pub reader_cpu: BTreeMap<usize, Vec<f64>>,
+    /// Per repetition: CPU per chunk of the bare-futex reader.
+    pub bare_reader_cpu: Vec<f64>,
     /// The 250 ms polling client.
     pub poll: Dist,
     /// Publishes per configuration and repetition.
@@ -100,14 +107,25 @@ const PING_T: usize = 8;
 const PONG: usize = 16;
 const STOP: usize = 20;
 
-fn raw_futex(n: usize) -> Vec<f64> {
-    let path = bassclient::paths::runtime_dir().join("bench-futex");
-    let r = Region::create(&path, 4096);
-    let mut kid = Child::spawn("futex-pong", &[path.display().to_string()]);
-    kid.ready();
-    let mut rng = Rng::new();
-    for _ in 0..n {
-        std::thread::sleep(rng.gap(3000, 6000));
+/// The parent side of the raw futex ping-pong.
+struct Pinger {
+    region: Region,
+    kid: Child,
+    path: std::path::PathBuf,
+}
+
+impl Pinger {
+    fn start() -> Pinger {
+        let path = bassclient::paths::runtime_dir().join("bench-futex");
+        let region = Region::create(&path, 4096);
+        let mut kid = Child::spawn("futex-pong", &[path.display().to_string()]);
+        kid.ready();
+        Pinger { region, kid, path }
+    }
+
+    /// One ping; returns when the child has answered (and is about to block again).
+    fn ping(&self) {
+        let r = &self.region;
         let pong = r.u32_at(PONG).load(Acquire);
         r.u64_at(PING_T).store(now_ns(), Relaxed);
         r.u32_at(PING).fetch_add(1, Release);
@@ -116,12 +134,17 @@ fn raw_futex(n: usize) -> Vec<f64> {
             futex_wait(r.u32_at(PONG), pong, 1_000_000_000);
         }
     }
-    r.u32_at(STOP).store(1, Release);
-    r.u32_at(PING).fetch_add(1, Release);
-    futex_wake(r.u32_at(PING));
-    let lines = kid.finish();
-    let _ = std::fs::remove_file(&path);
-    lines.iter().filter_map(|l| l.strip_prefix("lat ")).filter_map(|v| v.parse().ok()).collect()
+
+    /// Stops the child; returns its latencies (ns).
+    fn finish(self) -> Vec<f64> {
+        let r = &self.region;
+        r.u32_at(STOP).store(1, Release);
+        r.u32_at(PING).fetch_add(1, Release);
+        futex_wake(r.u32_at(PING));
+        let lines = self.kid.finish();
+        let _ = std::fs::remove_file(&self.path);
+        lines.iter().filter_map(|l| l.strip_prefix("lat ")).filter_map(|v| v.parse().ok()).collect()
+    }
 }
 
 /// Child: the other side of the raw futex ping-pong.
@@ -150,38 +173,91 @@ pub fn child_futex_pong(args: &[String]) {
 /// Frames per chunk of the wake-latency port (small: the copy is not what is measured).
 const WAKE_NFPC: u32 = 64;
 
-fn bass_wake(readers: usize, n: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
-    let name = "bench-wake";
-    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: WAKE_NFPC, chunks_on_port: 64 };
-    let params = PortParams { geometry, device: "bench:wake".into(), group: None };
-    let mut w = Writer::create(name, &params).expect("create port");
-    let data = vec![7i32; WAKE_NFPC as usize * 2];
-    for _ in 0..64 {
-        w.publish(Source::Interleaved(&data), ChunkMeta::default()).expect("publish");
+/// A bass port with wake-latency readers attached.
+struct WakePort {
+    w: Writer,
+    kids: Vec<Child>,
+    data: Vec<i32>,
+}
+
+impl WakePort {
+    fn start(name: &str, readers: usize, role: &str) -> WakePort {
+        let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: WAKE_NFPC, chunks_on_port: 64 };
+        let params = PortParams { geometry, device: "bench:wake".into(), group: None };
+        let mut w = Writer::create(name, &params).expect("create port");
+        let data = vec![7i32; WAKE_NFPC as usize * 2];
+        for _ in 0..64 {
+            w.publish(Source::Interleaved(&data), ChunkMeta::default()).expect("publish");
+        }
+        let kids = spawn_ready(readers, role, &[name.to_owned()]);
+        WakePort { w, kids, data }
     }
-    let kids = spawn_ready(readers, "wake-reader", &[name.to_owned()]);
+
+    /// Publishes one chunk stamped with the current time.
+    fn publish(&mut self) {
+        let meta = ChunkMeta { mono_ns: now_ns(), ..ChunkMeta::default() };
+        self.w.publish(Source::Interleaved(&self.data), meta).expect("publish");
+    }
+
+    /// Stops; returns (every reader's latency, per publish the last reader's, data in hand)
+    /// and the readers' median CPU time per chunk (wake, read, wait again).
+    fn finish(self) -> ((Vec<f64>, Vec<f64>, Vec<f64>), f64) {
+        self.w.stop();
+        let lines = finish_all(self.kids);
+        let _ = self.w.remove();
+        let (mut each, mut data_in_hand) = (Vec::new(), Vec::new());
+        let mut last: BTreeMap<u64, f64> = BTreeMap::new();
+        let cpu: Vec<f64> = lines
+            .iter()
+            .filter_map(|l| Some(crate::procs::field(l, "cpu_ns")? / crate::procs::field(l, "chunks")?.max(1.0)))
+            .collect();
+        for l in &lines {
+            let v: Vec<u64> = l.split_whitespace().filter_map(|x| x.parse().ok()).collect();
+            if let [lfi, lat, dat] = v[..] {
+                each.push(lat as f64);
+                data_in_hand.push(dat as f64);
+                let e = last.entry(lfi).or_insert(0.0);
+                *e = e.max(lat as f64);
+            }
+        }
+        ((each, last.into_values().collect(), data_in_hand), median(&cpu))
+    }
+}
+
+/// Many readers on one port, `n` publishes.
+fn bass_wake(readers: usize, n: usize) -> ((Vec<f64>, Vec<f64>, Vec<f64>), f64) {
+    let mut p = WakePort::start("bench-wake-n", readers, "wake-reader");
     std::thread::sleep(Duration::from_millis(50));
     let mut rng = Rng::new();
     for _ in 0..n {
         std::thread::sleep(rng.gap(3000, 6000));
-        let meta = ChunkMeta { mono_ns: now_ns(), ..ChunkMeta::default() };
-        w.publish(Source::Interleaved(&data), meta).expect("publish");
+        p.publish();
     }
-    w.stop();
-    let lines = finish_all(kids);
-    let _ = w.remove();
-    let (mut each, mut data_in_hand) = (Vec::new(), Vec::new());
-    let mut last: BTreeMap<u64, f64> = BTreeMap::new();
-    for l in &lines {
-        let v: Vec<u64> = l.split_whitespace().filter_map(|x| x.parse().ok()).collect();
-        if let [lfi, lat, dat] = v[..] {
-            each.push(lat as f64);
-            data_in_hand.push(dat as f64);
-            let e = last.entry(lfi).or_insert(0.0);
-            *e = e.max(lat as f64);
+    p.finish()
+}
+
+/// The one-reader comparison, interleaved publish by publish so that all three see the
+/// same machine: raw futex ping, bass publish to a `Port::wait` reader, bass publish to a
+/// bare-futex reader. Returns (raw, bass, bass with bare waiter, bass data in hand) and the
+/// CPU per chunk of the `Port::wait` reader and of the bare-futex reader.
+fn one_reader_side_by_side(n: usize) -> ((Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>), (f64, f64)) {
+    let pinger = Pinger::start();
+    let mut a = WakePort::start("bench-wake-a", 1, "wake-reader");
+    let mut b = WakePort::start("bench-wake-b", 1, "wake-raw-waiter");
+    std::thread::sleep(Duration::from_millis(50));
+    let mut rng = Rng::new();
+    for k in 0..3 * n {
+        std::thread::sleep(rng.gap(3000, 6000));
+        match k % 3 {
+            0 => pinger.ping(),
+            1 => a.publish(),
+            _ => b.publish(),
         }
     }
-    (each, last.into_values().collect(), data_in_hand)
+    let raw = pinger.finish();
+    let ((bass, _, data), cpu_a) = a.finish();
+    let ((bare, _, _), cpu_b) = b.finish();
+    ((raw, bass, bare, data), (cpu_a, cpu_b))
 }
 
 /// Child: a reader blocked in `Port::wait`; prints `lfi wake_ns data_ns` per chunk.
@@ -192,6 +268,7 @@ pub fn child_wake_reader(args: &[String]) {
     let (mut l, mut r) = (vec![0i32; cap], vec![0i32; cap]);
     let mut out = String::new();
     crate::procs::say_ready();
+    let cpu0 = crate::procs::process_cpu_ns();
     loop {
         match port.wait(nfr, Duration::from_secs(30)) {
             Ok(lfi) => {
@@ -208,6 +285,46 @@ pub fn child_wake_reader(args: &[String]) {
             Err(e) => panic!("wake reader: {e}"),
         }
     }
+    out.push_str(&format!("cpu_ns={} chunks={}\n", crate::procs::process_cpu_ns() - cpu0, out.lines().count()));
+    print!("{out}");
+}
+
+/// Child: like `wake-reader`, but blocks with a bare FUTEX_WAIT on the port header's futex
+/// word (read-only mapping) instead of `Port::wait`.
+pub fn child_raw_waiter(args: &[String]) {
+    use std::mem::offset_of;
+    use bassclient::format::Header;
+    let port = Port::open(&args[0]).expect("open port");
+    let map = Region::open_ro(port.path(), 4096);
+    let futex = map.u32_at(offset_of!(Header, futex));
+    let lfi_word = map.u64_at(offset_of!(Header, last_frame_index));
+    let state = map.u32_at(offset_of!(Header, state));
+    let mut nfr = port.info().expect("info").last_frame_index + 1;
+    let cap = port.geometry().frames_per_chunk as usize * 8;
+    let (mut l, mut r) = (vec![0i32; cap], vec![0i32; cap]);
+    let mut out = String::new();
+    crate::procs::say_ready();
+    let cpu0 = crate::procs::process_cpu_ns();
+    loop {
+        let seq = futex.load(Acquire);
+        let lfi = lfi_word.load(Acquire);
+        if lfi < nfr {
+            if state.load(Acquire) == State::Stopped as u32 {
+                break;
+            }
+            futex_wait(futex, seq, 0);
+            continue;
+        }
+        let woke = now_ns();
+        let mut bufs = [&mut l[..], &mut r[..]];
+        port.get_audio_data(cap, &mut nfr, &mut bufs).expect("read");
+        let read = now_ns();
+        let published = port.chunk_info(lfi).map(|c| c.mono_ns).unwrap_or(0);
+        if published > 0 {
+            out.push_str(&format!("{lfi} {} {}\n", woke.saturating_sub(published), read.saturating_sub(published)));
+        }
+    }
+    out.push_str(&format!("cpu_ns={} chunks={}\n", crate::procs::process_cpu_ns() - cpu0, out.lines().count()));
     print!("{out}");
 }
 
@@ -276,24 +393,42 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
     let n = if quick { 80 } else { 250 };
     let mut res = WakeResults { publishes: n, ..WakeResults::default() };
     for rep in 0..reps {
-        let raw = raw_futex(n);
-        let raw_med = median(&raw);
-        println!("  rep {} raw futex: median {} p99 {}", rep + 1, fmt_ns(raw_med), fmt_ns(quantile(&raw, 0.99)));
+        let ((raw, one, bare, data), (cpu_one, cpu_bare)) = one_reader_side_by_side(n);
+        res.reader_cpu.entry(1).or_default().push(cpu_one);
+        res.bare_reader_cpu.push(cpu_bare);
+        let (raw_med, one_med) = (median(&raw), median(&one));
+        println!(
+            "  rep {} raw futex: median {} p99 {} | bass 1 reader: median {} p99 {} (data in hand {}, CPU/chunk {}) | bass writer + bare FUTEX_WAIT reader: median {} (CPU/chunk {}) | ratio {}",
+            rep + 1,
+            fmt_ns(raw_med),
+            fmt_ns(quantile(&raw, 0.99)),
+            fmt_ns(one_med),
+            fmt_ns(quantile(&one, 0.99)),
+            fmt_ns(median(&data)),
+            fmt_ns(cpu_one),
+            fmt_ns(median(&bare)),
+            fmt_ns(cpu_bare),
+            fmt_ratio(one_med / raw_med)
+        );
+        res.ratio_1.push(one_med / raw_med);
         res.raw.add_rep(raw);
-        for &k in READERS {
-            let (each, last, data) = bass_wake(k, n);
+        res.bass_raw_waiter.add_rep(bare);
+        res.bass.entry(1).or_default().add_rep(one.clone());
+        res.bass_last.entry(1).or_default().add_rep(one);
+        res.bass_data.entry(1).or_default().add_rep(data);
+        for &k in READERS.iter().filter(|&&k| k > 1) {
+            let ((each, last, data), cpu) = bass_wake(k, n);
+            res.reader_cpu.entry(k).or_default().push(cpu);
             println!(
-                "  rep {} bass {k:>2} readers: median {} p99 {} max {}; last reader median {}; data in hand median {}",
+                "  rep {} bass {k:>2} readers: median {} p99 {} max {}; last reader median {}; data in hand median {}; reader CPU/chunk {}",
                 rep + 1,
                 fmt_ns(median(&each)),
                 fmt_ns(quantile(&each, 0.99)),
                 fmt_ns(each.iter().cloned().fold(0.0, f64::max)),
                 fmt_ns(median(&last)),
-                fmt_ns(median(&data))
+                fmt_ns(median(&data)),
+                fmt_ns(cpu)
             );
-            if k == 1 {
-                res.ratio_1.push(median(&each) / raw_med);
-            }
             res.bass.entry(k).or_default().add_rep(each);
             res.bass_last.entry(k).or_default().add_rep(last);
             res.bass_data.entry(k).or_default().add_rep(data);

@@ -1,0 +1,9 @@
+#!/usr/bin/env bash
+# Runs the bass benchmark harness and regenerates docs/performance.md and docs/perf-*.png.
+# Called by `make bench` (after `make build`); not part of `make test`.
+# Usage: scripts/bench.sh [bass-bench options, e.g. --quick or --parts 1,3]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+target="${CARGO_TARGET_DIR:-target}"
+cargo build --release -p bass-bench
+exec "$target/release/bass-bench" --docs docs "$@"
