@@ -58,5 +58,26 @@ fmt:
 bench: build
 	@if [ -x scripts/bench.sh ]; then scripts/bench.sh; else echo "bench: not yet"; fi
 
+# Install the broker, the CLI, the client library (.so, .a), its headers, a pkg-config file and a
+# CMake package: make install PREFIX=/opt/bass [DESTDIR=...] (default PREFIX /usr/local).
+PREFIX ?= /usr/local
+INSTALL_ROOT = $(DESTDIR)$(PREFIX)
+BUILT_DIR = $(or $(CARGO_TARGET_DIR),target)/release
+VERSION := $(shell sed -n 's/^version = "\(.*\)"/\1/p' Cargo.toml | head -1)
+install: build
+	install -d $(INSTALL_ROOT)/bin $(INSTALL_ROOT)/lib/pkgconfig $(INSTALL_ROOT)/lib/cmake/bassclient \
+	  $(INSTALL_ROOT)/include $(INSTALL_ROOT)/share/bass/matlab
+	install -m 0755 $(BUILT_DIR)/bassd $(BUILT_DIR)/bass $(INSTALL_ROOT)/bin/
+	install -m 0755 $(BUILT_DIR)/libbassclient.so $(INSTALL_ROOT)/lib/
+	install -m 0644 $(BUILT_DIR)/libbassclient.a $(INSTALL_ROOT)/lib/
+	install -m 0644 include/bass.h examples-c/bass.hpp $(INSTALL_ROOT)/include/
+	sed -e 's|@PREFIX@|$(PREFIX)|' -e 's|@VERSION@|$(VERSION)|' pkgconfig/bassclient.pc.in \
+	  > $(INSTALL_ROOT)/lib/pkgconfig/bassclient.pc
+	install -m 0644 cmake/bassclientConfig.cmake $(INSTALL_ROOT)/lib/cmake/bassclient/
+	sed -e 's|@VERSION@|$(VERSION)|' cmake/bassclientConfigVersion.cmake.in \
+	  > $(INSTALL_ROOT)/lib/cmake/bassclient/bassclientConfigVersion.cmake
+	install -m 0644 matlab/bass_mex.c matlab/Bass.m matlab/README.md $(INSTALL_ROOT)/share/bass/matlab/
+	@echo "installed bass $(VERSION) into $(INSTALL_ROOT)"
+
 clean:
 	$(CARGO) clean

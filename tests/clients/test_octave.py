@@ -43,7 +43,8 @@ def test_octave_replays_the_seed_session_example_1(mexdir, clients_env, live_por
     """Acquire (through the broker when it runs), then GetBlocks(1, 88200, 0) from the Bass class."""
     acquire = ""
     if broker_available() and os.environ.get("BASS_CLIENTS_SOURCE") != "sim_writer":
-        acquire = "bass.Acquire('-a', 'sim:pattern', 44100, 2205, 20); s = bass.Status(); assert(strcmp(s.state, 'capturing'));"
+        acquire = ("bass.Acquire('-a', 'sim:pattern', 44100, 2205, 20); pause(0.3); s = bass.Status(); "
+                   "assert(strcmp(s.state, 'capturing') && s.sampleRate == 44100 && s.nFramesPerChunk == 2205);")
     code = f"bass = Bass('{live_port}'); {acquire} pause(0.3); bass.GetBlocks(1, 88200, 0);"
     outs = []
     for _ in range(3):  # a run whose periods saw other than 5 chunks is retried (see test_basc_seed)
