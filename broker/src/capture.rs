@@ -162,6 +162,11 @@ impl Acquisition {
         }
     }
 
+    /// Restarts the stall watchdog's clock (the broker itself was frozen).
+    pub fn rebase_watchdog(&self, now_ns: u64) {
+        self.shared.progress_ns.fetch_max(now_ns, Ordering::AcqRel);
+    }
+
     /// Stops the capture: signals the thread, waits up to `timeout` for it, and marks the port
     /// Stopped (unless it already ended on an error). A thread blocked inside the device is
     /// left behind; it exits when the device returns and never publishes again.

@@ -56,6 +56,8 @@ pub const DEFAULT_MAX_PORT_BYTES: u64 = 512 << 20;
 const STOP_TIMEOUT: Duration = Duration::from_secs(2);
 /// Period of the stall watchdog.
 const TICK: Duration = Duration::from_millis(25);
+/// A gap between two watchdog ticks longer than this means the broker was frozen.
+const FROZEN_NS: u64 = 200_000_000;
 /// Most control connections open at once.
 const MAX_CLIENTS: usize = 128;
 
@@ -63,12 +65,13 @@ const MAX_CLIENTS: usize = 128;
 pub struct Broker {
     cfg: Config,
     current: Option<Acquisition>,
+    last_tick_ns: u64,
 }
 
 impl Broker {
     /// A broker with no acquisition.
     pub fn new(cfg: Config) -> Broker {
-        Broker { cfg, current: None }
+        Broker { cfg, current: None, last_tick_ns: monotonic_ns() }
     }
 
     /// Answers one request.
@@ -197,9 +200,20 @@ impl Broker {
     }
 
     /// Runs the stall watchdog once.
+    ///
+    /// If the broker itself did not run for a while (SIGSTOP, a suspended machine, heavy
+    /// overload), the silence is ours, not the device's: the device gets a fresh grace
+    /// period instead of being declared stalled.
     pub fn tick(&mut self) {
+        let now = monotonic_ns();
+        let late = now.saturating_sub(self.last_tick_ns) > FROZEN_NS;
+        self.last_tick_ns = now;
         if let Some(a) = &self.current {
-            a.check_stall(monotonic_ns());
+            if late {
+                a.rebase_watchdog(now);
+            } else {
+                a.check_stall(now);
+            }
         }
     }
 

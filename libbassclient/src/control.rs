@@ -598,7 +598,13 @@ impl Client {
 
     /// Sends a raw message and returns the raw reply (for tools and tests).
     pub fn call(&mut self, m: &Message) -> Result<Message> {
-        send_message(self.fd.as_fd_borrowed(), m)?;
+        if let Err(e) = send_message(self.fd.as_fd_borrowed(), m) {
+            // A broker that refuses a connection answers before closing it: read that reply.
+            return match recv_message(self.fd.as_fd_borrowed()) {
+                Ok(Some(r)) => Ok(r),
+                _ => Err(e),
+            };
+        }
         match recv_message(self.fd.as_fd_borrowed())? {
             Some(r) => Ok(r),
             None => Err(Error::Protocol("the broker closed the connection without a reply".into())),

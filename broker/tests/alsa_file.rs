@@ -1,0 +1,148 @@
+//! Real ALSA, no sound card: the `file` PCM plugin (over `null`) with an `infile`, for every
+//! sample format bass accepts — exact samples from the file through bassd and the port.
+//!
+//! The file plugin is not paced: it delivers as fast as it is read. To keep the frames on the
+//! port until the test has read them, the infile is a FIFO holding exactly the test data: the
+//! broker captures those frames, then blocks reading the FIFO (and its stall watchdog ends
+//! the acquisition), so nothing overwrites them.
+
+mod common;
+
+use std::io::Write;
+use std::os::fd::AsRawFd;
+use std::path::Path;
+
+use bassclient::testsignal::pattern_sample;
+use common::*;
+
+const NFPC: u32 = 441;
+const CHUNKS: u64 = 10;
+const FRAMES: u64 = NFPC as u64 * CHUNKS;
+
+/// A test value with all bits in play (sign included) for frame `f`, channel `c`.
+fn value(f: u64, c: u32) -> i32 {
+    pattern_sample(f, c).wrapping_mul(0x9E37_79B1_u32 as i32)
+}
+
+/// The raw little-endian sample of `v` in `format`, and what the port must hold for it.
+fn encode(format: &str, v: i32, out: &mut Vec<u8>) -> i32 {
+    match format {
+        "S16_LE" => {
+            let s = v as i16;
+            out.extend_from_slice(&s.to_le_bytes());
+            i32::from(s) << 16
+        }
+        "S24_LE" => {
+            // 24 bits in the low bytes; a garbage top byte must be ignored.
+            let raw = (v as u32 & 0x00FF_FFFF) | 0xA5 << 24;
+            out.extend_from_slice(&raw.to_le_bytes());
+            ((v as u32) << 8) as i32
+        }
+        "S24_3LE" => {
+            out.extend_from_slice(&v.to_le_bytes()[..3]);
+            ((v as u32) << 8) as i32
+        }
+        "S32_LE" => {
+            out.extend_from_slice(&v.to_le_bytes());
+            v
+        }
+        "FLOAT_LE" => {
+            let k = v >> 16;
+            out.extend_from_slice(&(k as f32 / 32768.0).to_le_bytes());
+            k << 16
+        }
+        other => panic!("format {other}"),
+    }
+}
+
+fn mkfifo(path: &Path) {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(path.as_os_str().as_bytes()).unwrap();
+    // SAFETY: valid NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0, "mkfifo");
+}
+
+/// Captures the test data in `format` (forced, or the broker's choice if None) and checks
+/// every sample.
+fn capture_through_file_plugin(format: Option<&str>, expect_format: &str) {
+    let dir = TempDir::new(&format!("file-{expect_format}"));
+    let fifo = dir.path().join("in.fifo");
+    mkfifo(&fifo);
+    let rc = dir.path().join("asoundrc");
+    std::fs::write(
+        &rc,
+        format!(
+            "pcm.bass_file {{\n  type file\n  slave.pcm \"null\"\n  file \"/dev/null\"\n  infile \"{}\"\n  format \"raw\"\n}}\n",
+            fifo.display()
+        ),
+    )
+    .unwrap();
+    let alsa_path = format!("/usr/share/alsa/alsa.conf:{}", rc.display());
+    let b = Bassd::start(dir.path(), "default", &[], &[("ALSA_CONFIG_PATH", &alsa_path)]);
+
+    // The FIFO holds exactly FRAMES frames (O_RDWR: opening does not wait for a reader).
+    let mut w = std::fs::OpenOptions::new().read(true).write(true).open(&fifo).unwrap();
+    // SAFETY: fcntl on an open pipe; a bigger pipe holds the whole test data.
+    unsafe { libc::fcntl(w.as_raw_fd(), libc::F_SETPIPE_SZ, 1 << 20) };
+    let mut raw = Vec::new();
+    let mut expected = vec![Vec::new(), Vec::new()];
+    for f in 1..=FRAMES {
+        for c in 0..2u32 {
+            expected[c as usize].push(encode(expect_format, value(f, c), &mut raw));
+        }
+    }
+    assert!(raw.len() <= 1 << 20);
+    w.write_all(&raw).unwrap();
+
+    let mut r = req("bass_file", 48000, NFPC, 20, 2);
+    r.format = format.map(str::to_owned);
+    let a = b.client().acquire(&r).unwrap();
+    assert_eq!(a.format, expect_format);
+    let port = b.port();
+    wait_frame(&port, FRAMES);
+    let got = read_frames(&port, 1, FRAMES);
+    for c in 0..2 {
+        for (i, (g, e)) in got[c].iter().zip(&expected[c]).enumerate() {
+            assert_eq!(
+                g,
+                e,
+                "{expect_format}: frame {} channel {c}: got {g:#010x}, expected {e:#010x}",
+                i + 1
+            );
+        }
+    }
+    assert_eq!(b.client().status().unwrap().format, expect_format);
+    // Let the plugin see the end of its infile, then stop.
+    drop(w);
+    b.client().stop().unwrap();
+}
+
+#[test]
+fn file_plugin_s16_le_samples_arrive_exactly() {
+    capture_through_file_plugin(Some("S16_LE"), "S16_LE");
+}
+
+#[test]
+fn file_plugin_s24_le_samples_arrive_exactly() {
+    capture_through_file_plugin(Some("S24_LE"), "S24_LE");
+}
+
+#[test]
+fn file_plugin_s24_3le_samples_arrive_exactly() {
+    capture_through_file_plugin(Some("S24_3LE"), "S24_3LE");
+}
+
+#[test]
+fn file_plugin_s32_le_samples_arrive_exactly() {
+    capture_through_file_plugin(Some("S32_LE"), "S32_LE");
+}
+
+#[test]
+fn file_plugin_float_le_samples_arrive_exactly() {
+    capture_through_file_plugin(Some("FLOAT_LE"), "FLOAT_LE");
+}
+
+#[test]
+fn the_broker_prefers_s32_when_the_device_offers_every_format() {
+    capture_through_file_plugin(None, "S32_LE");
+}

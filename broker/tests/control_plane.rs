@@ -1,0 +1,266 @@
+//! Every service through the control socket, bad requests, the raw protocol, named brokers,
+//! and the lifecycle (second instance, killed broker, SIGTERM).
+
+mod common;
+
+use std::os::fd::AsFd;
+use std::process::Command;
+
+use bassclient::control::{self, Message};
+use bassclient::format::{error_code, State};
+use bassclient::testsignal::pattern_sample;
+use bassclient::Error;
+use common::*;
+
+#[test]
+fn every_service_works_through_the_socket() {
+    let dir = TempDir::new("services");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    let mut c = b.client();
+
+    let devices = c.list_devices().unwrap();
+    for sim in ["sim:pattern", "sim:sine", "sim:xrun", "sim:stall"] {
+        let d = devices.iter().find(|d| d.name == sim).unwrap_or_else(|| panic!("{sim} not listed"));
+        assert!(d.description.starts_with("Simulated"), "{d:?}");
+    }
+
+    let s = c.status().unwrap();
+    assert_eq!((s.state, s.epoch, s.last_frame_index), (State::Idle as u32, 0, 0));
+    assert_eq!(s.broker_pid, b.pid() as u32);
+
+    let a = c.acquire(&req("sim:pattern", 16000, 160, 20, 2)).unwrap();
+    assert_eq!(a.epoch, 1);
+    assert_eq!(a.port, b.port_path());
+    let port = b.port();
+    wait_frame(&port, 320);
+    let s = c.status().unwrap();
+    assert_eq!(s.state, State::Capturing as u32);
+    assert_eq!((s.sample_rate, s.frames_per_chunk, s.chunks_on_port, s.channels), (16000, 160, 20, 2));
+    assert_eq!((s.epoch, s.device.as_str(), s.format.as_str()), (1, "sim:pattern", "S32_LE"));
+    assert!(s.last_frame_index >= 320 && s.last_frame_index % 160 == 0);
+
+    c.stop().unwrap();
+    let s = c.status().unwrap();
+    assert_eq!(s.state, State::Stopped as u32);
+    assert!(matches!(port.wait(u64::MAX >> 8, PATIENCE), Err(Error::Stopped { .. })));
+    let last = port.info().unwrap().last_frame_index;
+    assert_eq!(read_frames(&port, last, last)[1][0], pattern_sample(last, 1));
+    // Stop is idempotent; Acquire after Stop starts a new epoch.
+    c.stop().unwrap();
+    assert_eq!(c.acquire(&req("sim:pattern", 16000, 160, 20, 2)).unwrap().epoch, 2);
+}
+
+#[test]
+fn acquire_while_acquiring_restarts_with_the_new_parameters() {
+    let dir = TempDir::new("restart");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    let mut c = b.client();
+    c.acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+    let old = b.port();
+    wait_frame(&old, 80);
+    let a = c.acquire(&req("sim:sine", 48000, 480, 5, 1)).unwrap();
+    assert_eq!(a.epoch, 2);
+    assert!(matches!(old.wait(u64::MAX >> 8, PATIENCE), Err(Error::Restarted)));
+    let new = b.port();
+    assert_eq!(new.epoch(), 2);
+    assert_eq!((new.geometry().sample_rate, new.geometry().channels), (48000, 1));
+}
+
+/// Bad requests are refused with a message naming the problem; the running acquisition
+/// keeps running (same epoch, frames keep coming).
+#[test]
+fn bad_requests_are_refused_and_the_running_acquisition_continues() {
+    let dir = TempDir::new("bad");
+    let b = Bassd::start(dir.path(), "default", &["--max-port-bytes", "10000000"], &[]);
+    let mut c = b.client();
+    c.acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+    let port = b.port();
+    let mut with_format = req("sim:pattern", 8000, 80, 10, 2);
+    with_format.format = Some("U8".into());
+    let cases = [
+        (req("sim:pattern", 8000, 0, 10, 2), "nFramesPerChunk = 0"),
+        (req("sim:pattern", 8000, 80, 0, 2), "nChunksOnPort = 0"),
+        (req("sim:pattern", 0, 80, 10, 2), "sampleRate = 0"),
+        (req("sim:pattern", 8000, 80, 10, 0), "channels = 0"),
+        (req("sim:pattern", 8000, 80, 10, 65), "channels = 65"),
+        (req("sim:pattern", 8000, u32::MAX, u32::MAX, 64), "exceeds the format's limit"),
+        (req("sim:pattern", 8000, 100_000, 100, 2), "memory cap of 10000000 bytes"),
+        (req("sim:nosuch", 8000, 80, 10, 2), "unknown simulated device \"sim:nosuch\""),
+        (req("", 8000, 80, 10, 2), "device name is empty"),
+        (with_format, "unknown sample format \"U8\""),
+    ];
+    for (r, want) in cases {
+        match c.acquire(&r) {
+            Err(Error::Broker(m)) => {
+                assert!(m.contains(want), "{r:?}: {m:?} does not say {want:?}");
+                assert!(m.ends_with("[invalid-argument]"), "{m}");
+            }
+            other => panic!("{r:?} was not refused: {other:?}"),
+        }
+        let last = port.info().unwrap().last_frame_index;
+        wait_frame(&port, last + 80);
+    }
+    let s = c.status().unwrap();
+    assert_eq!((s.state, s.epoch), (State::Capturing as u32, 1));
+}
+
+/// A device that fails to open is only known after the running acquisition was stopped:
+/// the port then shows the error, and a later Acquire works.
+#[test]
+fn an_unknown_alsa_device_leaves_the_port_in_error_and_a_later_acquire_works() {
+    let dir = TempDir::new("nodev");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    let mut c = b.client();
+    c.acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+    let old = b.port();
+    let e = c.acquire(&req("bass_no_such_pcm", 8000, 80, 10, 2)).unwrap_err();
+    assert!(
+        matches!(&e, Error::Broker(m) if m.contains("bass_no_such_pcm") && m.ends_with("[device]")),
+        "{e}"
+    );
+    assert!(matches!(old.wait(u64::MAX >> 8, PATIENCE), Err(Error::Restarted)));
+    let failed = b.port();
+    assert_eq!(failed.epoch(), 2);
+    let info = failed.info().unwrap();
+    assert_eq!((info.state, info.error_code), (Some(State::Error), error_code::CONFIG));
+    assert!(
+        info.message.contains("cannot open ALSA capture device \"bass_no_such_pcm\""),
+        "{}",
+        info.message
+    );
+    assert!(matches!(failed.wait(1, PATIENCE), Err(Error::Device { code: error_code::CONFIG, .. })));
+    let s = c.status().unwrap();
+    assert_eq!((s.state, s.error_code), (State::Error as u32, error_code::CONFIG));
+    assert_eq!(c.acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap().epoch, 3);
+}
+
+#[test]
+fn the_protocol_refuses_other_versions_and_garbage() {
+    let dir = TempDir::new("proto");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    let mut c = b.client();
+    let r = c.call(&Message { major: 2, verb: "status".into(), fields: vec![] }).unwrap();
+    assert_eq!((r.verb.as_str(), r.get("code")), ("error", Some("version")));
+    let r = c.call(&Message::new("frobnicate")).unwrap();
+    assert_eq!((r.verb.as_str(), r.get("code")), ("error", Some("protocol")));
+    let r = c.call(&Message::new("acquire").with("sample_rate", "fast")).unwrap();
+    assert_eq!((r.verb.as_str(), r.get("code")), ("error", Some("protocol")));
+    // Raw bytes that are not a message at all, on a fresh connection.
+    let fd = control::seqpacket_socket().unwrap();
+    let (addr, len) = control::sockaddr(&b.socket()).unwrap();
+    // SAFETY: connect with a valid sockaddr_un; send a valid buffer.
+    unsafe {
+        use std::os::fd::AsRawFd;
+        assert_eq!(libc::connect(fd.as_raw_fd(), (&addr as *const libc::sockaddr_un).cast(), len), 0);
+        assert_eq!(libc::send(fd.as_raw_fd(), b"hello\n".as_ptr().cast(), 6, 0), 6);
+    }
+    let r = control::recv_message(fd.as_fd()).unwrap().unwrap();
+    assert_eq!((r.verb.as_str(), r.get("code")), ("error", Some("protocol")));
+    // The broker is still fine.
+    assert_eq!(c.status().unwrap().state, State::Idle as u32);
+}
+
+#[test]
+fn two_named_brokers_coexist() {
+    let dir = TempDir::new("named");
+    let a = Bassd::start(dir.path(), "left", &[], &[]);
+    let b = Bassd::start(dir.path(), "right", &[], &[]);
+    a.client().acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+    b.client().acquire(&req("sim:silence", 16000, 160, 10, 1)).unwrap();
+    let (pa, pb) = (a.port(), b.port());
+    assert_ne!(a.port_path(), b.port_path());
+    wait_frame(&pa, 160);
+    wait_frame(&pb, 160);
+    assert_eq!(read_frames(&pa, 160, 160)[0][0], pattern_sample(160, 0));
+    assert_eq!(read_frames(&pb, 1, 160), vec![vec![0; 160]]);
+    a.client().stop().unwrap();
+    assert_eq!(a.client().status().unwrap().state, State::Stopped as u32);
+    assert_eq!(b.client().status().unwrap().state, State::Capturing as u32);
+}
+
+#[test]
+fn a_second_bassd_with_the_same_name_refuses_to_start() {
+    let dir = TempDir::new("second");
+    let first = Bassd::start(dir.path(), "default", &[], &[]);
+    let out = Command::new(bassd_bin()).env("BASS_RUNTIME_DIR", dir.path()).output().expect("run bassd");
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("a broker named \"default\" is already running"), "{err}");
+    assert!(err.contains(&format!("pid {}", first.pid())), "{err}");
+    // The first one is unaffected.
+    assert_eq!(first.client().status().unwrap().broker_pid, first.pid() as u32);
+}
+
+#[test]
+fn a_killed_brokers_socket_and_port_are_replaced_safely() {
+    let dir = TempDir::new("stale");
+    let mut b = Bassd::start(dir.path(), "default", &[], &[]);
+    b.client().acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+    let port = b.port();
+    wait_frame(&port, 80);
+    b.signal(libc::SIGKILL);
+    b.wait_exit();
+    assert!(b.socket().exists(), "a killed broker leaves its socket");
+    assert!(matches!(port.wait(u64::MAX >> 8, PATIENCE), Err(Error::WriterGone { .. })));
+    assert!(matches!(b.try_client(), Err(Error::NoBroker { .. })));
+    let b2 = Bassd::start(dir.path(), "default", &[], &[]);
+    assert!(b2.log_text().contains("stale control socket"), "{}", b2.log_text());
+    let a = b2.client().acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+    assert_eq!(a.epoch, 2, "the epoch continues from the dead broker's port");
+    let p2 = b2.port();
+    wait_frame(&p2, 80);
+    assert_eq!(read_frames(&p2, 80, 80)[0][0], pattern_sample(80, 0));
+}
+
+#[test]
+fn sigterm_stops_the_capture_marks_the_port_stopped_and_removes_the_socket() {
+    for sig in [libc::SIGTERM, libc::SIGINT] {
+        let dir = TempDir::new("sigterm");
+        let mut b = Bassd::start(dir.path(), "default", &[], &[]);
+        b.client().acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+        let port = b.port();
+        wait_frame(&port, 80);
+        let waiter = std::thread::spawn({
+            let path = b.port_path();
+            move || bassclient::Port::open_path(&path).unwrap().wait(u64::MAX >> 8, PATIENCE)
+        });
+        b.signal(sig);
+        assert!(b.wait_exit().success());
+        assert!(matches!(waiter.join().unwrap(), Err(Error::Stopped { .. })));
+        assert_eq!(port.info().unwrap().state, Some(State::Stopped));
+        assert!(!b.socket().exists());
+        assert!(matches!(b.try_client(), Err(Error::NoBroker { .. })));
+    }
+}
+
+#[test]
+fn clients_of_another_user_are_refused_by_peer_credentials() {
+    // Needs root to run a client as another user; elsewhere the socket's mode already refuses.
+    // SAFETY: geteuid cannot fail.
+    if unsafe { libc::geteuid() } != 0 {
+        eprintln!("skipped: needs root to impersonate another user");
+        return;
+    }
+    let dir = TempDir::new("peercred");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    // Open the file modes so that only the broker's own check stands in the way.
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+    std::fs::set_permissions(b.socket(), std::fs::Permissions::from_mode(0o666)).unwrap();
+    let out = Command::new("setpriv")
+        .args(["--reuid=65534", "--regid=65534", "--clear-groups", bass_bin(), "status"])
+        .env("BASS_RUNTIME_DIR", dir.path())
+        .output();
+    let Ok(out) = out else {
+        eprintln!("skipped: setpriv not available");
+        return;
+    };
+    let err = String::from_utf8_lossy(&out.stderr);
+    if err.contains("Permission denied (os error 13)") && err.contains("bass-default.sock") {
+        eprintln!("skipped: the bass binary or the socket path is not reachable as nobody: {err}");
+        return;
+    }
+    assert!(!out.status.success());
+    assert!(err.contains("permission denied: not the broker's user or group"), "{err}");
+    assert_eq!(b.client().status().unwrap().state, State::Idle as u32);
+}
