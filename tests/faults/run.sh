@@ -1,0 +1,102 @@
+#!/usr/bin/env bash
+# The fault and abuse suite (issue 5; docs/reliability.md). Run by `make test-faults` after
+# `cargo build --release --workspace`. Honours $CARGO_TARGET_DIR (default target/).
+#
+#   1. the Rust fault tests (tests/faults/tests/t*.rs, #[ignore]d in plain `cargo test`),
+#      one at a time, in release;
+#   2. the corrupted-port tests again in a debug build (overflow checks on);
+#   3. the C ABI abuse program (tests/faults/c/abi_abuse.c) plain, under
+#      AddressSanitizer + UndefinedBehaviorSanitizer, and under ThreadSanitizer;
+#   4. Miri on the heap-backed ring, when the toolchain has it (optional).
+#
+# Every test prints its measured figures as `FIGURE item N: ...`; they are collected in
+# $CARGO_TARGET_DIR/faults/figures.txt and printed at the end.
+# Knobs: BASS_FAULTS_TORN_SECS (60), BASS_FAULTS_SOAK_FRAMES (4.5e9), BASS_FAULTS_KILLS (100),
+# BASS_FAULTS_SEED, BASS_FAULTS_MIRI=0 to skip Miri, BASS_FAULTS_STRICT_SHRINK=1.
+set -euo pipefail
+top=$(cd "$(dirname "$0")/../.." && pwd)
+cd "$top"
+target="${CARGO_TARGET_DIR:-$top/target}"
+export CARGO_TARGET_DIR="$target"
+cargo=${CARGO:-cargo}
+out="$target/faults"
+rm -rf "$out"
+mkdir -p "$out"
+log="$out/log.txt"
+passed=0
+failed=0
+failures=()
+t0=$SECONDS
+
+step() { # name, command...
+  local name=$1
+  shift
+  local s=$SECONDS
+  echo "== faults: $name"
+  if "$@" 2>&1 | tee -a "$log"; then
+    passed=$((passed + 1))
+    echo "== faults: $name: ok ($((SECONDS - s)) s)"
+  else
+    failed=$((failed + 1))
+    failures+=("$name")
+    echo "== faults: $name: FAILED ($((SECONDS - s)) s)"
+  fi
+}
+
+"$cargo" build --release -p bass-faults --bins --tests
+step "rust fault tests (release)" \
+  "$cargo" test --release -p bass-faults -- --ignored --nocapture --test-threads=1
+step "corrupted ports (debug build, overflow checks)" \
+  "$cargo" test -p bass-faults --test t05_corrupt_ports -- --ignored --nocapture --test-threads=1
+
+# The C ABI under sanitizers. The Rust library itself is not instrumented: ASan/UBSan/TSan
+# check the C side of every call (and libc calls the library makes, e.g. memcpy, through
+# ASan's interceptors); guard pages catch any write or read past a caller's buffer whatever
+# the instrumentation.
+lib="$target/release"
+cc=${CC:-cc}
+cflags=(-std=c11 -Wall -Wextra -Wpedantic -Werror -I "$top/include")
+link=(-L "$lib" -lbassclient -Wl,-rpath,"$lib" -lpthread)
+src="$top/tests/faults/c/abi_abuse.c"
+run_c() { # binary, env...
+  local bin=$1
+  shift
+  local rt
+  rt=$(mktemp -d "${TMPDIR:-/tmp}/bass-faults-c.XXXXXX")
+  env BASS_RUNTIME_DIR="$rt" "$@" "$bin"
+  local rc=$?
+  rm -rf "$rt"
+  return $rc
+}
+"$cc" "${cflags[@]}" -O2 "$src" -o "$out/abi_abuse" "${link[@]}"
+step "C ABI abuse (plain)" run_c "$out/abi_abuse"
+"$cc" "${cflags[@]}" -O1 -g -fsanitize=address,undefined -fno-sanitize-recover=all "$src" \
+  -o "$out/abi_abuse_asan" "${link[@]}"
+step "C ABI abuse (ASan + UBSan)" run_c "$out/abi_abuse_asan" \
+  ASAN_OPTIONS=detect_leaks=1:abort_on_error=0:exitcode=86 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
+if "$cc" -fsanitize=thread -x c - -o "$out/tsan-probe" <<<'int main(void){return 0;}' 2>/dev/null \
+   && "$out/tsan-probe"; then
+  "$cc" "${cflags[@]}" -O1 -g -fsanitize=thread "$src" -o "$out/abi_abuse_tsan" "${link[@]}"
+  step "C ABI abuse (TSan)" run_c "$out/abi_abuse_tsan" TSAN_OPTIONS=halt_on_error=1:exitcode=66
+else
+  echo "FIGURE item 12: SKIPPED ThreadSanitizer: $cc cannot build/run -fsanitize=thread here" | tee -a "$log"
+fi
+
+# Miri on the heap-backed ring (optional: needs a nightly toolchain with miri and rust-src).
+if [[ "${BASS_FAULTS_MIRI:-1}" != 0 ]] && "$cargo" +nightly miri --version >/dev/null 2>&1; then
+  step "Miri: heap-backed ring" env CARGO_TARGET_DIR="$target/miri" \
+    "$cargo" +nightly miri test -p bass-faults --test t12_miri_ring -- --nocapture
+else
+  echo "FIGURE item 12: SKIPPED Miri: no nightly toolchain with miri here (rustup toolchain install nightly --component miri rust-src; then: cargo +nightly miri test -p bass-faults --test t12_miri_ring)" | tee -a "$log"
+fi
+
+grep -h '^FIGURE' "$log" | sort -s -t: -k1,1V > "$out/figures.txt" || true
+echo
+echo "== faults: measured figures ($out/figures.txt)"
+cat "$out/figures.txt"
+echo "== faults: $((SECONDS - t0)) s"
+if ((failed > 0)); then
+  printf '== faults: FAILED: %s\n' "${failures[@]}"
+fi
+echo "faults: $passed passed, $failed failed"
+((failed == 0))
