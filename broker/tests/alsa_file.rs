@@ -85,7 +85,7 @@ fn capture_through_file_plugin(format: Option<&str>, expect_format: &str) {
     // SAFETY: fcntl on an open pipe; a bigger pipe holds the whole test data.
     unsafe { libc::fcntl(w.as_raw_fd(), libc::F_SETPIPE_SZ, 1 << 20) };
     let mut raw = Vec::new();
-    let mut expected = vec![Vec::new(), Vec::new()];
+    let mut expected = [Vec::new(), Vec::new()];
     for f in 1..=FRAMES {
         for c in 0..2u32 {
             expected[c as usize].push(encode(expect_format, value(f, c), &mut raw));
