@@ -70,18 +70,124 @@ pub fn list_dir(dir: &Path) -> Vec<String> {
 
 /// Path of the fault agent binary (built by cargo alongside the tests).
 pub fn agent_path() -> PathBuf {
-    if let Some(p) = std::env::var_os("BASS_FAULT_AGENT") {
+    bin_path("bass-fault-agent", "BASS_FAULT_AGENT")
+}
+
+/// Path of a workspace binary (`bassd`, `bass`, the agent): `$env_var` if set, else next to
+/// the running test (integration tests live in target/<profile>/deps, binaries one level up).
+/// The broker binaries are built by `cargo build --release --workspace` (make test-faults).
+pub fn bin_path(name: &str, env_var: &str) -> PathBuf {
+    if let Some(p) = std::env::var_os(env_var) {
         return p.into();
     }
-    // Integration tests live in target/<profile>/deps; the binary one level up.
     let exe = std::env::current_exe().expect("current exe");
     let dir = exe.parent().expect("exe dir");
-    for cand in [dir.join("bass-fault-agent"), dir.parent().unwrap_or(dir).join("bass-fault-agent")] {
+    for cand in [dir.join(name), dir.parent().unwrap_or(dir).join(name)] {
         if cand.is_file() {
             return cand;
         }
     }
-    panic!("bass-fault-agent not found next to {}", exe.display())
+    panic!("{name} not found next to {} (build the workspace first, or set {env_var})", exe.display())
+}
+
+/// A running `bassd` with its own runtime directory, killed on drop.
+pub struct Bassd {
+    /// The broker process.
+    pub child: Option<Child>,
+    /// Its runtime directory (`$BASS_RUNTIME_DIR`).
+    pub dir: PathBuf,
+    /// Broker name.
+    pub name: String,
+}
+
+impl Bassd {
+    /// Starts `bassd --name NAME --rt-priority 0 ARGS` in `dir` and waits until its control
+    /// socket answers a status request (guarded by a generous 20 s).
+    pub fn start(dir: &Path, name: &str, args: &[&str], env: &[(&str, &str)]) -> Bassd {
+        let mut cmd = Command::new(bin_path("bassd", "BASS_BASSD"));
+        cmd.args(["--name", name, "--rt-priority", "0"]).args(args);
+        cmd.env("BASS_RUNTIME_DIR", dir).env("BASS_LOG", "error");
+        for (k, v) in env {
+            cmd.env(k, v);
+        }
+        cmd.stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::null());
+        let child = cmd.spawn().expect("spawn bassd");
+        let mut b = Bassd { child: Some(child), dir: dir.to_owned(), name: name.to_owned() };
+        let ok = wait_until(Duration::from_secs(20), || {
+            if let Some(st) = b.child.as_mut().and_then(|c| c.try_wait().ok().flatten()) {
+                panic!("bassd exited during start-up: {st}");
+            }
+            b.try_client().and_then(|mut c| c.status()).is_ok()
+        });
+        assert!(ok, "bassd did not answer within 20 s");
+        b
+    }
+
+    /// Process id.
+    pub fn pid(&self) -> u32 {
+        self.child.as_ref().map(|c| c.id()).unwrap_or(0)
+    }
+
+    /// Control socket path.
+    pub fn socket(&self) -> PathBuf {
+        self.dir.join(format!("bass-{}.sock", self.name))
+    }
+
+    /// Port file path.
+    pub fn port_path(&self) -> PathBuf {
+        self.dir.join(format!("bass-{}.port", self.name))
+    }
+
+    /// A control client, if the broker answers.
+    pub fn try_client(&self) -> bassclient::Result<bassclient::control::Client> {
+        bassclient::control::Client::connect_path(&self.socket(), &self.name)
+    }
+
+    /// A control client (panics if the broker does not answer).
+    pub fn client(&self) -> bassclient::control::Client {
+        self.try_client().expect("connect to bassd")
+    }
+
+    /// Sends `sig` and reaps the process.
+    pub fn kill(&mut self, sig: libc::c_int) {
+        if let Some(mut c) = self.child.take() {
+            // SAFETY: kill(2) on our own child.
+            unsafe { libc::kill(c.id() as libc::pid_t, sig) };
+            let _ = c.wait();
+        }
+    }
+}
+
+impl Drop for Bassd {
+    fn drop(&mut self) {
+        if let Some(c) = self.child.as_ref() {
+            // SAFETY: kill(2) on our own child; SIGTERM lets bassd remove its socket.
+            unsafe { libc::kill(c.id() as libc::pid_t, libc::SIGTERM) };
+            let end = Instant::now() + Duration::from_secs(5);
+            while Instant::now() < end {
+                if let Some(c) = self.child.as_mut() {
+                    if c.try_wait().ok().flatten().is_some() {
+                        self.child = None;
+                        return;
+                    }
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
+        }
+        self.kill(libc::SIGKILL);
+    }
+}
+
+/// An Acquire request.
+pub fn acquire_req(device: &str, rate: u32, nfpc: u32, ncop: u32, channels: u32) -> bassclient::control::AcquireRequest {
+    bassclient::control::AcquireRequest {
+        device: device.into(),
+        sample_rate: rate,
+        frames_per_chunk: nfpc,
+        chunks_on_port: ncop,
+        channels,
+        format: None,
+    }
 }
 
 /// A running agent process with line-oriented stdout.
