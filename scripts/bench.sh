@@ -5,5 +5,5 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 target="${CARGO_TARGET_DIR:-target}"
-cargo build --release -p bass-bench
+cargo build --release -p bass-bench -p bass-broker
 exec "$target/release/bass-bench" --docs docs "$@"

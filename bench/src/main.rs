@@ -6,6 +6,8 @@
 //! Usage: `bass-bench [--quick] [--parts 1,2,3,4,5,6] [--docs DIR]`;
 //! `bass-bench child ROLE ARGS...` is this binary's own helper-process mode.
 
+mod e2e;
+mod jack;
 mod machine;
 mod memory;
 mod original;
@@ -83,6 +85,10 @@ fn main() {
         println!("part 3: wake latency vs a raw futex and the 250 ms polling client");
         results.wake = Some(wake::run(reps(3), opts.quick));
     }
+    if opts.parts.contains(&4) || opts.parts.contains(&5) {
+        println!("parts 4 and 5: end to end through ALSA/jack vs a direct JACK client; bassd CPU");
+        results.e2e = Some(e2e::run(opts.quick));
+    }
     if opts.parts.contains(&6) {
         println!("part 6: memory");
         results.memory = Some(memory::run());
@@ -102,6 +108,7 @@ fn child(role: &str, args: &[String]) {
         "poll-reader" => wake::child_poll_reader(args),
         "wake-raw-waiter" => wake::child_raw_waiter(args),
         "mem-reader" => memory::child_reader(args),
+        "cpu-reader" => e2e::child_cpu_reader(args),
         "mem-writer" => memory::child_writer(args),
         "mem-orig-reader" => memory::child_orig_reader(args),
         other => panic!("unknown child role {other}"),
