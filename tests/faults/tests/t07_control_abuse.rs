@@ -164,6 +164,8 @@ fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
         drop(fd);
     }
     let cycles_s = t.elapsed().as_secs_f64();
+    let drained = bass_faults::wait_until(Duration::from_secs(10), || fd_count(b.pid()) <= fds_before);
+    assert!(drained, "the broker kept connections of the 1000 cycles open: {} fds", fd_count(b.pid()));
 
     // A client that connects, sends requests and never reads its replies.
     let lazy = connect(&sock);
@@ -179,12 +181,16 @@ fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
         )
     };
     let mut sent = 0;
+    let mut last_send_error = String::new();
     let mut latencies = Vec::new();
     let t = Instant::now();
     let mut next_probe = Instant::now();
     while t.elapsed() < Duration::from_secs(3) {
-        if send_raw(&lazy, &Message::new("status").encode()).is_ok() {
-            sent += 1;
+        match send_raw(&lazy, &Message::new("status").encode()) {
+            Ok(()) => sent += 1,
+            Err(e) => {
+                last_send_error = e.to_string();
+            }
         }
         if Instant::now() >= next_probe {
             next_probe += Duration::from_millis(10);
@@ -240,7 +246,7 @@ fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
     let rf = reader.result();
     figure!(
         7,
-        "{} malformed/truncated/oversized/unknown/wrong-version requests refused {:?}; empty datagram: {:?}; 1000 connect/disconnect cycles in {cycles_s:.2} s; never-reading client sent {sent} requests in 3 s (its sends block once its replies fill its buffer) while a good client's status ({} probes) took median {:.2} ms max {:.1} ms; {}; broker fds {fds_before} before, {fds_after} after; capture: epoch {epoch} unchanged, xruns 0, gap frames 0, lastFrameIndex {}; reader delivered={} lost={} corrupted={}",
+        "{} malformed/truncated/oversized/unknown/wrong-version requests refused {:?}; empty datagram: {:?}; 1000 connect/disconnect cycles in {cycles_s:.2} s; never-reading client sent {sent} requests in 3 s (then its sends fail: {last_send_error:?}) while a good client's status ({} probes) took median {:.2} ms max {:.1} ms; {}; broker fds {fds_before} before, {fds_after} after; capture: epoch {epoch} unchanged, xruns 0, gap frames 0, lastFrameIndex {}; reader delivered={} lost={} corrupted={}",
         cases.len(),
         refusals,
         empty,
