@@ -7,6 +7,8 @@ need=()
 have_pkg() { dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q 'install ok installed'; }
 
 pkgs=(build-essential pkg-config libasound2-dev libasound2-plugins alsa-utils jackd2 procps util-linux cmake)
+# The Python client and its tests (tests/clients, python/tests, tests/conformance).
+pkgs+=(python3 python3-numpy python3-pytest)
 if [[ "${1:-}" == "--with-octave" ]]; then
   pkgs+=(octave liboctave-dev)
 fi
@@ -22,5 +24,6 @@ if ((${#need[@]})); then
 fi
 
 if ! python3 -c 'import numpy, pytest' 2>/dev/null; then
-  python3 -m pip install -q numpy pytest
+  # A python3 other than Debian's (e.g. pyenv): pip; Debian's own pip refuses without the flag.
+  python3 -m pip install -q numpy pytest 2>/dev/null || python3 -m pip install -q --break-system-packages numpy pytest
 fi
