@@ -341,18 +341,31 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
     // Time of the frame after the last one read, for estimating overrun gaps.
     let mut expected_ns: Option<u64> = None;
     let mut after_xrun = false;
+    // Timestamps further ahead than this of where the stream should be mean lost frames.
+    let unreported_gap_ns = (4 * asm.frames_ns(nfpc as u64)).max(100_000_000);
     while !shared.stop.is_set() {
         let want = nfpc - asm.filled;
         match dev.read(&mut scratch, want, &shared.stop) {
             ReadEvent::Frames { frames, first_mono_ns, time_estimated, observed_mono_ns } => {
                 shared.progress_ns.store(monotonic_ns(), Ordering::Release);
                 shared.got_data.store(true, Ordering::Release);
+                // Frames lost: after a reported overrun, or when the timestamps jump ahead
+                // by more than the device's timing noise (a device path that drops frames
+                // without reporting it, such as ALSA's jack plugin when the broker froze).
+                let jump = expected_ns.map_or(0, |exp| first_mono_ns.saturating_sub(exp));
+                if !after_xrun && jump > unreported_gap_ns {
+                    shared.writer().add_xruns(1);
+                    tracing::warn!(
+                        jump_ms = jump / 1_000_000,
+                        "device timestamps jumped ahead: frames were lost unreported"
+                    );
+                    after_xrun = true;
+                }
                 if after_xrun {
                     after_xrun = false;
                     asm.discontinuity = true;
                     if let Some(exp) = expected_ns {
-                        let gap_ns = first_mono_ns.saturating_sub(exp);
-                        let gap = ((gap_ns as f64) * asm.rate as f64 / 1e9).round() as u64;
+                        let gap = ((jump as f64) * asm.rate as f64 / 1e9).round() as u64;
                         tracing::warn!(gap_frames = gap, "overrun recovered; zero-filling the lost frames");
                         asm.push_zeros(gap, exp);
                     }

@@ -64,6 +64,7 @@ pub struct AlsaDevice {
     rate: u32,
     frame_bytes: usize,
     bytes: Vec<u8>,
+    buffer: Frames,
 }
 
 /// Parameters for [`open`].
@@ -171,6 +172,7 @@ pub fn open(p: &OpenParams<'_>) -> Result<AlsaDevice, OpenError> {
         rate: p.rate,
         frame_bytes,
         bytes: vec![0; frame_bytes * (period.max(1) as usize).max(p.period as usize)],
+        buffer,
     })
 }
 
@@ -206,24 +208,27 @@ impl AlsaDevice {
         ReadEvent::Xrun
     }
 
-    /// CLOCK_MONOTONIC of the oldest unread frame, from the status timestamp and delay,
-    /// or estimated from `now` when the device gives no usable timestamp.
-    fn oldest_frame_time(&self) -> (u64, bool) {
-        let now = monotonic_ns();
+    /// CLOCK_MONOTONIC of the oldest unread frame: the status timestamp minus the delay
+    /// where the device gives a timestamp (hardware), else estimated as now minus the frames
+    /// waiting (`snd_pcm_avail_update`; plugins such as `jack` report neither in their
+    /// status). `None` when more frames wait than the buffer holds: an overrun the device
+    /// did not report.
+    fn oldest_frame_time(&self) -> Option<(u64, bool)> {
         let to_ns =
             |frames: Frames| (frames.max(0) as u64).saturating_mul(1_000_000_000) / u64::from(self.rate);
-        match self.pcm.status() {
-            Ok(st) => {
-                let t = ts_ns(st.get_htstamp());
-                let plausible = t != 0 && t <= now + 1_000_000_000 && now - t.min(now) < 5_000_000_000;
-                if plausible {
-                    (t.saturating_sub(to_ns(st.get_delay())), false)
-                } else {
-                    (now.saturating_sub(to_ns(st.get_avail())), true)
-                }
-            }
-            Err(_) => (now, true),
+        let avail = self.pcm.avail_update().unwrap_or(0);
+        let now = monotonic_ns();
+        if avail > self.buffer {
+            return None;
         }
+        if let Ok(st) = self.pcm.status() {
+            let t = ts_ns(st.get_htstamp());
+            let plausible = t != 0 && t <= now + 1_000_000_000 && now - t.min(now) < 5_000_000_000;
+            if plausible {
+                return Some((t.saturating_sub(to_ns(st.get_delay())), false));
+            }
+        }
+        Some((now.saturating_sub(to_ns(avail)), true))
     }
 }
 
@@ -239,7 +244,13 @@ impl Capture for AlsaDevice {
             if stop.is_set() {
                 return ReadEvent::Stopped;
             }
-            let (first_ns, estimated) = self.oldest_frame_time();
+            let Some((first_ns, estimated)) = self.oldest_frame_time() else {
+                let e = alsa::Error::new(
+                    "snd_pcm_status (more frames available than the buffer holds)",
+                    -libc::EPIPE,
+                );
+                return self.recover(&e);
+            };
             let got = self.pcm.io_bytes().readi(&mut self.bytes[..frames * self.frame_bytes]);
             match got {
                 Ok(n) if n > 0 => {

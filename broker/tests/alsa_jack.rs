@@ -1,0 +1,259 @@
+//! Real ALSA paced in real time without a sound card: ALSA's `jack` PCM plugin over a
+//! `jackd -d dummy` server that each test starts (its own server name). Killing jackd is an
+//! unplug that ALSA never reports — the jack plugin just stops delivering — so the stall
+//! watchdog must catch it.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use bassclient::format::{error_code, State};
+use bassclient::{Error, Port};
+use common::*;
+
+const RATE: u32 = 48000;
+
+/// A `jackd -d dummy` server with a private name.
+struct Jackd {
+    child: Option<Child>,
+}
+
+impl Jackd {
+    /// Starts the server and waits until it answers. Servers starting at the same instant
+    /// can trip over JACK's shared registry, so starts are serialised and retried.
+    fn start(name: &str, log_dir: &Path) -> Jackd {
+        static START: Mutex<()> = Mutex::new(());
+        let _serial = START.lock().unwrap_or_else(|e| e.into_inner());
+        for attempt in 1..=3 {
+            let log = std::fs::File::create(log_dir.join(format!("jackd-{attempt}.log"))).unwrap();
+            let child = Command::new("jackd")
+                .args([
+                    "-n",
+                    name,
+                    "--no-realtime",
+                    "-d",
+                    "dummy",
+                    "-r",
+                    &RATE.to_string(),
+                    "-p",
+                    "256",
+                    "-C",
+                    "2",
+                    "-P",
+                    "2",
+                ])
+                .env("JACK_NO_AUDIO_RESERVATION", "1")
+                .stdout(Stdio::null())
+                .stderr(log)
+                .spawn()
+                .expect("start jackd (apt-get install jackd2; scripts/install-deps.sh)");
+            let mut j = Jackd { child: Some(child) };
+            let ok = Command::new("jack_wait")
+                .args(["-s", name, "-w", "-t", "10"])
+                .env("JACK_NO_START_SERVER", "1")
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .status()
+                .map(|s| s.success())
+                .unwrap_or(false);
+            if ok {
+                return j;
+            }
+            j.kill(libc::SIGKILL);
+        }
+        let logs: Vec<String> = (1..=3)
+            .map(|a| std::fs::read_to_string(log_dir.join(format!("jackd-{a}.log"))).unwrap_or_default())
+            .collect();
+        panic!("jackd -n {name} did not come up; logs:\n{}", logs.join("\n---\n"));
+    }
+
+    fn kill(&mut self, sig: i32) {
+        if let Some(mut c) = self.child.take() {
+            // SAFETY: kill(2) on our own child.
+            unsafe { libc::kill(c.id() as i32, sig) };
+            let _ = c.wait();
+        }
+    }
+}
+
+impl Drop for Jackd {
+    /// SIGTERM (so the server releases its slot), SIGKILL if it lingers.
+    fn drop(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            // SAFETY: kill(2) on our own child.
+            unsafe { libc::kill(c.id() as i32, libc::SIGTERM) };
+            let deadline = Instant::now() + Duration::from_secs(5);
+            while c.try_wait().ok().flatten().is_none() {
+                if Instant::now() > deadline {
+                    let _ = c.kill();
+                    let _ = c.wait();
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+        }
+    }
+}
+
+struct Rig {
+    dir: TempDir,
+    jack_name: String,
+    alsa_path: String,
+}
+
+impl Rig {
+    fn new(tag: &str) -> Rig {
+        let dir = TempDir::new(tag);
+        // A fixed name per test: JACK keeps 8 server slots per machine, and the slot of a
+        // server killed with SIGKILL is only reclaimed when a server of the same name starts.
+        let jack_name = format!("bass-test-{tag}");
+        let rc = dir.path().join("asoundrc");
+        std::fs::write(
+            &rc,
+            "pcm.bass_jack {\n  type jack\n  capture_ports { 0 system:capture_1 1 system:capture_2 }\n}\n",
+        )
+        .unwrap();
+        let alsa_path = format!("/usr/share/alsa/alsa.conf:{}", rc.display());
+        Rig { dir, jack_name, alsa_path }
+    }
+
+    fn path(&self) -> &Path {
+        self.dir.path()
+    }
+
+    fn bassd(&self) -> Bassd {
+        Bassd::start(
+            self.path(),
+            "default",
+            &[],
+            &[
+                ("ALSA_CONFIG_PATH", &self.alsa_path),
+                ("JACK_DEFAULT_SERVER", &self.jack_name),
+                ("JACK_NO_START_SERVER", "1"),
+                ("JACK_NO_AUDIO_RESERVATION", "1"),
+            ],
+        )
+    }
+}
+
+fn port_path(b: &Bassd) -> PathBuf {
+    b.port_path()
+}
+
+#[test]
+fn jack_capture_is_paced_and_a_killed_server_is_a_lost_device_until_the_next_acquire() {
+    let rig = Rig::new("jack");
+    let mut jackd = Jackd::start(&rig.jack_name, rig.path());
+    let b = rig.bassd();
+    let mut c = b.client();
+    let a = c.acquire(&req("bass_jack", RATE, 480, 200, 2)).unwrap();
+    assert_eq!(a.format, "FLOAT_LE", "the jack plugin offers FLOAT only");
+    let mut epoch = a.epoch;
+    let port = b.port();
+    wait_frame(&port, 48_000);
+    // Paced: one second of frames spans about one second of timestamps (the unpaced file
+    // plugin would deliver them in milliseconds). Loose bounds: this checks pacing, not timing.
+    let (t0, t1) = (port.chunk_info(1).unwrap(), port.chunk_info(47_521).unwrap());
+    let span = (t1.mono_ns - t0.mono_ns) as f64 / 1e9;
+    assert!((0.8..1.2).contains(&span), "47520 frames at 48 kHz spanned {span} s of timestamps");
+    for c in read_frames(&port, 1, 48_000) {
+        assert!(c.iter().all(|&s| s == 0), "the dummy backend captures silence");
+    }
+
+    let mut port = port;
+    for sig in [libc::SIGKILL, libc::SIGTERM] {
+        // A reader waiting for far-future frames is woken with the device error.
+        let waiter = std::thread::spawn({
+            let path = port_path(&b);
+            move || Port::open_path(&path).unwrap().wait(u64::MAX >> 8, PATIENCE)
+        });
+        // Let the waiter block first (it also works if it opens after the loss).
+        std::thread::sleep(Duration::from_millis(50));
+        jackd.kill(sig);
+        match waiter.join().unwrap() {
+            Err(Error::Device { code, message }) => {
+                assert!(code == error_code::DEVICE_STALLED || code == error_code::DEVICE_LOST, "code {code}");
+                assert!(message.contains("device stalled") || message.contains("lost"), "{message}");
+            }
+            other => panic!("signal {sig}: expected a device error, got {other:?}"),
+        }
+        let s = c.status().unwrap();
+        assert_eq!(s.state, State::Error as u32);
+        assert_eq!(s.epoch, epoch);
+
+        // A new server and a new Acquire: capture resumes with a new epoch.
+        jackd = Jackd::start(&rig.jack_name, rig.path());
+        let a = eventually("an Acquire on the restarted jackd", || {
+            c.acquire(&req("bass_jack", RATE, 480, 200, 2)).ok()
+        });
+        assert_eq!(a.epoch, epoch + 1);
+        epoch = a.epoch;
+        assert!(matches!(port.wait(u64::MAX >> 8, PATIENCE), Err(Error::Restarted)));
+        port = b.port();
+        wait_frame(&port, 4800);
+        assert_eq!(c.status().unwrap().state, State::Capturing as u32);
+    }
+}
+
+#[test]
+fn jack_refuses_what_the_device_cannot_do_with_clear_messages() {
+    let rig = Rig::new("jackbad");
+    let _jackd = Jackd::start(&rig.jack_name, rig.path());
+    let b = rig.bassd();
+    let mut c = b.client();
+    let mut s16 = req("bass_jack", RATE, 480, 20, 2);
+    s16.format = Some("S16_LE".into());
+    let cases = [
+        (
+            req("bass_jack", 44100, 441, 20, 2),
+            "sample rate 44100 Hz is not supported by device \"bass_jack\" (it supports only 48000 Hz)",
+        ),
+        (
+            req("bass_jack", RATE, 480, 20, 3),
+            "3 channels are not supported by device \"bass_jack\" (it supports only 2)",
+        ),
+        (s16, "sample format S16_LE is not supported by device \"bass_jack\""),
+    ];
+    for (r, want) in cases {
+        match c.acquire(&r) {
+            Err(Error::Broker(m)) => assert!(m.contains(want), "{m:?} does not say {want:?}"),
+            other => panic!("{r:?} was not refused: {other:?}"),
+        }
+        let info = b.port().info().unwrap();
+        assert_eq!((info.state, info.error_code), (Some(State::Error), error_code::CONFIG));
+        assert!(info.message.contains(want), "{}", info.message);
+    }
+    // And the broker is still fine.
+    c.acquire(&req("bass_jack", RATE, 480, 20, 2)).unwrap();
+    wait_frame(&b.port(), 960);
+}
+
+/// Freezing the broker (SIGSTOP) overruns the device buffer: the overrun is recovered, counted
+/// and zero-filled, and the acquisition goes on.
+#[test]
+fn an_overrun_is_recovered_counted_and_zero_filled() {
+    let rig = Rig::new("jackxrun");
+    let _jackd = Jackd::start(&rig.jack_name, rig.path());
+    let b = rig.bassd();
+    let mut c = b.client();
+    c.acquire(&req("bass_jack", RATE, 480, 400, 2)).unwrap();
+    let port = b.port();
+    wait_frame(&port, 4800);
+    b.signal(libc::SIGSTOP);
+    let frozen = Instant::now();
+    while frozen.elapsed() < Duration::from_millis(1000) {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    b.signal(libc::SIGCONT);
+    let info = eventually("the overrun to be counted", || {
+        let i = port.info().unwrap();
+        (i.xruns > 0 && i.gap_frames > 0).then_some(i)
+    });
+    assert_eq!(info.state, Some(State::Capturing));
+    // Capture goes on after the gap.
+    wait_frame(&port, info.last_frame_index + 4800);
+    assert_eq!(c.status().unwrap().state, State::Capturing as u32);
+}
