@@ -12,6 +12,7 @@
 //! bass-fault-agent poke    --port P                (writes through its read-only mapping)
 //! bass-fault-agent shrink-victim --port P          (library calls until stdin closes)
 //! bass-fault-agent try-open --port P               (reports whether it may open / write)
+//! bass-fault-agent control-victim --socket S --name N  (status requests forever)
 //! ```
 
 use std::collections::HashMap;
@@ -69,6 +70,7 @@ fn main() {
         "poke" => poke(&args),
         "shrink-victim" => shrink_victim(&args),
         "try-open" => try_open(&args),
+        "control-victim" => control_victim(&args),
         _ => {
             eprintln!("usage: bass-fault-agent writer|reader|stepped|victim|poke|shrink-victim --port PATH ...");
             std::process::exit(2);
@@ -399,4 +401,15 @@ fn try_open(a: &Args) {
     };
     println!("RESULT uid={} read={read} write={write}", // SAFETY: getuid cannot fail.
         unsafe { libc::getuid() });
+}
+
+/// Connects to a broker's control socket and sends status requests forever, to be
+/// SIGKILLed mid-request.
+fn control_victim(a: &Args) {
+    let socket = PathBuf::from(a.s("socket", ""));
+    let mut c = bassclient::control::Client::connect_path(&socket, &a.s("name", "default")).expect("connect");
+    println!("ready pid={}", std::process::id());
+    loop {
+        let _ = c.status();
+    }
 }
