@@ -1,0 +1,81 @@
+"""The Python package's control plane and the C++ example against a live broker / port."""
+
+import os
+import subprocess
+import time
+
+import numpy as np
+import pytest
+
+import bass
+from conftest import TARGET, broker_available
+
+
+@pytest.fixture
+def broker(clients_env):
+    """A private bassd (name "py"), stopped and terminated afterwards."""
+    if not broker_available():
+        pytest.skip("bassd or the control plane is not built")
+    p = subprocess.Popen([os.path.join(TARGET, "release", "bassd"), "--name", "py"], env=clients_env,
+                         stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 10
+    while True:
+        try:
+            bass.status(broker="py")
+            break
+        except bass.BassError as e:
+            assert e.code == bass.BASS_ERR_NO_BROKER
+            assert time.monotonic() < deadline and p.poll() is None
+            time.sleep(0.05)
+    yield "py"
+    p.terminate()
+    p.wait(timeout=10)
+
+
+def test_python_acquire_status_blocks_and_stop_through_the_broker(broker):
+    names = [n for n, _ in bass.list_devices(broker=broker)]
+    assert "sim:pattern" in names
+    epoch = bass.acquire("sim:pattern", 48000, 480, 10, broker=broker)
+    with bass.Port(broker) as port:
+        assert port.epoch == epoch
+        blocks = list(port.blocks(1000, nfr=1, count=5, timeout=5))
+        for k, b in enumerate(blocks):
+            assert (b.first_frame, b.next_frame, b.loss) == (1 + 1000 * k, 1001 + 1000 * k, 0)
+            frames = np.arange(b.first_frame, b.next_frame)
+            np.testing.assert_array_equal(b.left, bass.pattern_expected(frames, 0))
+            np.testing.assert_array_equal(b.right, bass.pattern_expected(frames, 1))
+        s = bass.status(broker=broker)
+        assert (s["state_name"], s["sample_rate"], s["frames_per_chunk"], s["chunks_on_port"], s["epoch"]) == \
+            ("capturing", 48000, 480, 10, epoch)
+        assert s["device"].startswith("sim:pattern") and s["last_frame_index"] >= 5000
+        bass.stop(broker=broker)
+        with pytest.raises(bass.BassError) as e:
+            port.wait(2**40, timeout=5)
+        assert e.value.code == bass.BASS_ERR_STOPPED
+
+
+def test_python_acquire_of_an_unknown_device_fails_with_the_brokers_message(broker):
+    with pytest.raises(bass.BassError) as e:
+        bass.acquire("no-such-device-xyz", broker=broker)
+    assert e.value.code == bass.BASS_ERR_BROKER and e.value.name == "BROKER"
+    assert "no-such-device-xyz" in e.value.message
+
+
+def test_cpp_blocks_example_reads_consecutive_pattern_blocks(live_port, clients_env):
+    exe = os.path.join(clients_env["CLIENTS_BIN"], "blocks_cpp")
+    p = subprocess.run([exe, "--port", live_port, "--check-pattern", "4", "4410", "-4410"], env=clients_env,
+                       capture_output=True, text=True, timeout=30)
+    assert p.returncode == 0, p.stderr
+    lines = [l for l in p.stdout.splitlines() if l.startswith("block ")]
+    assert len(lines) == 4
+    spans = [tuple(map(int, l.split("frames ")[1].split(",")[0].split(".."))) for l in lines]
+    assert all(b - a == 4409 for a, b in spans)
+    assert all(spans[i + 1][0] == spans[i][1] + 1 for i in range(3))
+    assert all(", lost 0," in l for l in lines)
+
+
+def test_cpp_errors_carry_the_result_code(clients_env):
+    exe = os.path.join(clients_env["CLIENTS_BIN"], "blocks_cpp")
+    p = subprocess.run([exe, "--port", "no-such-port"], env=clients_env, capture_output=True, text=True, timeout=30)
+    assert p.returncode == 1
+    assert "[code 4]" in p.stderr and "no-such-port" in p.stderr
