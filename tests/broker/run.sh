@@ -1,0 +1,85 @@
+#!/usr/bin/env bash
+# tests/broker: the broker from the outside, as C users and shell users see it.
+#  1. the control-plane C ABI (tests/broker/control_abi.c, strict warnings, plain and under
+#     ASan/UBSan) against real bassd processes;
+#  2. the bass command-line tool (devices, acquire, status, blocks, stop, errors).
+# The Rust integration tests (broker/tests/: sim devices, ALSA file and jack plugins,
+# lifecycle) run with `cargo test --release --workspace`; pass --with-cargo to run them here too.
+set -euo pipefail
+top=$(cd "$(dirname "$0")/../.." && pwd)
+bin="${CARGO_TARGET_DIR:-$top/target}/release"
+for f in bassd bass libbassclient.so; do
+  [[ -e "$bin/$f" ]] || { echo "tests/broker: $bin/$f missing; run cargo build --release --workspace" >&2; exit 1; }
+done
+work=$(mktemp -d -t bass-broker-tests.XXXXXX)
+pids=()
+cleanup() {
+  for p in "${pids[@]}"; do kill -TERM "$p" 2>/dev/null || true; done
+  for p in "${pids[@]}"; do wait "$p" 2>/dev/null || true; done
+  rm -rf "$work"
+}
+trap cleanup EXIT
+passed=0
+failed=0
+ok() { passed=$((passed + 1)); echo "ok   $*"; }
+bad() { failed=$((failed + 1)); echo "FAIL $*"; }
+
+# Starts bassd NAME in runtime dir $1 and waits for its socket (bounded).
+start_bassd() {
+  local dir=$1 name=$2
+  BASS_RUNTIME_DIR="$dir" BASS_LOG=warn "$bin/bassd" --name "$name" --rt-priority 0 2>>"$dir/bassd-$name.log" &
+  pids+=($!)
+  for _ in $(seq 400); do
+    [[ -S "$dir/bass-$name.sock" ]] && return 0
+    sleep 0.025
+  done
+  echo "bassd $name did not start:"; cat "$dir/bassd-$name.log"; return 1
+}
+
+# 1. C ABI
+cc=${CC:-cc}
+flags=(-std=c11 -Wall -Wextra -Wpedantic -Werror -I "$top/include")
+link=(-L "$bin" -lbassclient -Wl,-rpath,"$bin" -lpthread)
+"$cc" "${flags[@]}" -O2 "$top/tests/broker/control_abi.c" -o "$work/control_abi" "${link[@]}"
+variants=(control_abi)
+if "$cc" "${flags[@]}" -O1 -g -fsanitize=address,undefined -fno-sanitize-recover=all \
+     "$top/tests/broker/control_abi.c" -o "$work/control_abi_asan" "${link[@]}" 2>"$work/asan-build.log"; then
+  variants+=(control_abi_asan)
+else
+  echo "note: sanitizers unavailable here; running the plain build only"
+fi
+for v in "${variants[@]}"; do
+  d="$work/rt-$v"; mkdir -p "$d"
+  start_bassd "$d" default
+  start_bassd "$d" second
+  if BASS_RUNTIME_DIR="$d" ASAN_OPTIONS=detect_leaks=1 "$work/$v"; then ok "C ABI ($v)"; else bad "C ABI ($v)"; fi
+done
+
+# 2. CLI
+d="$work/rt-cli"; mkdir -p "$d"
+start_bassd "$d" default
+bass() { BASS_RUNTIME_DIR="$d" "$bin/bass" "$@"; }
+out=$(bass devices)
+if grep -q '^DEVICE' <<<"$out" && grep -q '^sim:pattern  *Simulated' <<<"$out"; then ok "bass devices"; else bad "bass devices: $out"; fi
+out=$(bass acquire sim:pattern --rate 8000 --frames 80 --chunks 50 --wait)
+if grep -q 'epoch 1' <<<"$out" && grep -q 'first chunk published' <<<"$out"; then ok "bass acquire --wait"; else bad "bass acquire: $out"; fi
+out=$(bass status)
+if grep -q '^state *capturing' <<<"$out" && grep -q '8000 Hz, 2 ch, 80 frames x 50 chunks' <<<"$out"; then ok "bass status"; else bad "bass status: $out"; fi
+out=$(bass blocks --block 160 --count 3)
+n=$(grep -c '^block .*(160) loss 0 ' <<<"$out" || true)
+if [[ $n == 3 ]]; then ok "bass blocks"; else bad "bass blocks: $out"; fi
+if out=$(bass acquire sim:pattern --frames 0 2>&1); then bad "bass acquire --frames 0 succeeded"; else
+  if grep -q 'nFramesPerChunk = 0' <<<"$out"; then ok "bass refuses a bad request"; else bad "bad request message: $out"; fi
+fi
+out=$(bass stop) && out=$(bass status)
+if grep -q '^state *stopped' <<<"$out"; then ok "bass stop"; else bad "bass stop: $out"; fi
+if out=$(BASS_RUNTIME_DIR="$d" "$bin/bass" --name nobody status 2>&1); then bad "status of a missing broker succeeded"; else
+  if grep -q 'is bassd --name nobody running' <<<"$out"; then ok "missing broker is reported"; else bad "missing broker: $out"; fi
+fi
+
+if [[ "${1:-}" == "--with-cargo" ]]; then
+  if (cd "$top" && cargo test --release -p bass-broker); then ok "cargo test -p bass-broker"; else bad "cargo test -p bass-broker"; fi
+fi
+
+echo "tests/broker: $passed passed, $failed failed"
+[[ $failed == 0 ]]
