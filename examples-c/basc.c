@@ -265,6 +265,24 @@ int main(int argc, char **argv) {
             blocks++;
         }
         fflush(stdout);
+        /* The periodic mode never blocks, so it notices the end of the acquisition here: once
+         * the port has nothing more to give and no longer captures, stop. */
+        if (!o.wait_mode && n < requested) {
+            bass_port_info now;
+            r = bass_port_get_info(port, &now);
+            if (r != BASS_OK) {
+                status = fail("bass_port_get_info", r);
+                break;
+            }
+            if (now.state != BASS_STATE_CAPTURING && now.state != BASS_STATE_IDLE && nfr > now.last_frame_index) {
+                static const char *const names[] = {"idle", "capturing", "stopped", "ended on a device error",
+                                                    "replaced by a new acquisition"};
+                fprintf(stderr, "basc: the acquisition was %s%s%s\n", now.state < 5 ? names[now.state] : "ended",
+                        now.message[0] ? ": " : "", now.message);
+                status = 1;
+                break;
+            }
+        }
     }
     fprintf(stderr, "basc: %lu block(s) of %lu frames, %" PRIu64 " frames lost, next frame %" PRIu64 "\n", blocks,
             o.frames_per_block, total_loss, nfr);

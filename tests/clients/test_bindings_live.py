@@ -79,3 +79,20 @@ def test_cpp_errors_carry_the_result_code(clients_env):
     p = subprocess.run([exe, "--port", "no-such-port"], env=clients_env, capture_output=True, text=True, timeout=30)
     assert p.returncode == 1
     assert "[code 4]" in p.stderr and "no-such-port" in p.stderr
+
+
+def test_python_wait_is_interrupted_by_ctrl_c(live_port, clients_env):
+    import signal
+    import sys
+
+    from conftest import ROOT
+
+    code = "import bass, sys; p = bass.Port(sys.argv[1]); print('waiting', flush=True); p.wait(2**60)"
+    env = dict(clients_env, PYTHONPATH=os.path.join(ROOT, "python"))
+    proc = subprocess.Popen([sys.executable, "-c", code, live_port], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    assert proc.stdout.readline() == "waiting\n"
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=10)
+    assert proc.returncode != 0 and "KeyboardInterrupt" in err
