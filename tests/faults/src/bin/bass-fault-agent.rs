@@ -13,6 +13,7 @@
 //! bass-fault-agent shrink-victim --port P          (library calls until stdin closes)
 //! bass-fault-agent try-open --port P               (reports whether it may open / write)
 //! bass-fault-agent control-victim --socket S --name N  (status requests forever)
+//! bass-fault-agent follow --port P --n N --expect zero|pattern  (across epochs, until stdin closes)
 //! ```
 
 use std::collections::HashMap;
@@ -71,6 +72,7 @@ fn main() {
         "shrink-victim" => shrink_victim(&args),
         "try-open" => try_open(&args),
         "control-victim" => control_victim(&args),
+        "follow" => follow(&args),
         _ => {
             eprintln!("usage: bass-fault-agent writer|reader|stepped|victim|poke|shrink-victim --port PATH ...");
             std::process::exit(2);
@@ -412,4 +414,62 @@ fn control_victim(a: &Args) {
     loop {
         let _ = c.status();
     }
+}
+
+fn mono_ns() -> u64 {
+    ts_ns(&monotonic()) as u64
+}
+
+/// Follows the port by name across acquisitions until stdin closes: reads every block,
+/// checks the content (`--expect zero` for silence, `pattern` for the test pattern), and
+/// prints `DEVICE code=.. at_ns=..` when the acquisition ends on a device error and
+/// `EPOCH e at_ns=..` for every port (epoch) it reads.
+fn follow(a: &Args) {
+    let path = a.port();
+    let n = a.u("n", 480) as usize;
+    let expect_zero = a.s("expect", "zero") == "zero";
+    let stop = stdin_stop_flag();
+    let port0 = open(a);
+    println!("ready pid={} epoch={}", std::process::id(), port0.epoch());
+    drop(port0);
+    let (mut delivered, mut lost, mut corrupted, mut epochs, mut errors) = (0u64, 0u64, 0u64, 0u64, 0u64);
+    let mut last_epoch = 0u64;
+    while !stop.load(Ordering::Relaxed) {
+        let port = match Port::open_path(&path) {
+            Ok(p) if p.epoch() != last_epoch => p,
+            Ok(_) | Err(Error::NotFound { .. } | Error::NotReady) => {
+                std::thread::sleep(Duration::from_millis(5));
+                continue;
+            }
+            Err(e) => panic!("reopen: {e}"),
+        };
+        last_epoch = port.epoch();
+        epochs += 1;
+        println!("EPOCH {} at_ns={}", last_epoch, mono_ns());
+        let mut bufs = vec![vec![0i32; n.min(port.frames_on_port() as usize)]; port.geometry().channels as usize];
+        let mut nfr = 1u64;
+        while !stop.load(Ordering::Relaxed) {
+            match port.wait(nfr + n as u64 - 1, Duration::from_millis(500)) {
+                Ok(_) | Err(Error::Timeout { .. }) => {}
+                Err(Error::Device { code, message }) => {
+                    errors += 1;
+                    println!("DEVICE code={code} at_ns={} message={}", mono_ns(), message.replace(' ', "_"));
+                    break;
+                }
+                Err(Error::Restarted | Error::Stopped { .. }) => break,
+                Err(e) => panic!("wait: {e}"),
+            }
+            let before = nfr;
+            let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| b.as_mut_slice()).collect();
+            let r = port.get_audio_data(n, &mut nfr, &mut outs).expect("get_audio_data");
+            if expect_zero {
+                corrupted += bufs.iter().map(|b| b[..r.frames].iter().filter(|&&s| s != 0).count() as u64).sum::<u64>();
+            } else {
+                corrupted += count_corrupted(before + r.loss, r.frames, &bufs);
+            }
+            delivered += r.frames as u64;
+            lost += r.loss;
+        }
+    }
+    println!("RESULT delivered={delivered} lost={lost} corrupted={corrupted} epochs={epochs} device_errors={errors}");
 }
