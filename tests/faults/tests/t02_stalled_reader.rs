@@ -10,10 +10,13 @@
 //! delivered frame lies within the window bounds seen around the read, 0 corrupted samples,
 //! delivered + lost = requested exactly; the writer publishes every chunk it scheduled
 //! (its lateness is reported: a stopped reader cannot delay it — readers never write the port).
+//!
+//! Pass (broker variant): the same with a real `bassd` capturing `sim:pattern`: the broker
+//! shows 0 xruns and 0 gap frames after the stalls, and kept real-time pace.
 
 use std::time::Duration;
 
-use bass_faults::{figure, Agent, Fields, TempDir};
+use bass_faults::{acquire_req, figure, Agent, Bassd, Fields, TempDir};
 use bassclient::testsignal::fill_pattern_interleaved;
 use bassclient::{ChunkMeta, Geometry, PortParams, Source, Writer};
 
@@ -132,4 +135,55 @@ fn live_writer_is_not_delayed_by_a_stopped_reader_whose_losses_are_exact() {
     // The writer ran its schedule: 4 s of 10 ms chunks (±1 for the start/stop boundary).
     let expected = 4_000_000 / pace_us;
     assert!(wf.u("chunks").abs_diff(expected) <= 1, "writer published {} chunks, scheduled {expected}", wf.u("chunks"));
+}
+
+#[test]
+#[ignore = "fault suite: run by tests/faults/run.sh"]
+fn broker_shows_no_xrun_while_a_reader_is_stopped_longer_than_the_window() {
+    let dir = TempDir::new("stall-bassd");
+    let b = Bassd::start(&dir.0, "st", &[], &[]);
+    let mut c = b.client();
+    // 48 kHz, 10 ms chunks, a 100 ms window.
+    c.acquire(&acquire_req("sim:pattern", 48000, 480, 10, 2)).unwrap();
+    let (nfpc, nfop) = (480u64, 4800u64);
+    let mut r = Agent::spawn(&["reader", "--port", b.port_path().to_str().unwrap(), "--mode", "wait", "--n", "480", "--log-loss"]);
+    r.expect_line("ready");
+    let t0 = std::time::Instant::now();
+    let lfi0 = c.status().unwrap().last_frame_index;
+    let stops = 5;
+    for _ in 0..stops {
+        std::thread::sleep(Duration::from_millis(200));
+        r.signal(libc::SIGSTOP);
+        std::thread::sleep(Duration::from_millis(300));
+        r.signal(libc::SIGCONT);
+    }
+    std::thread::sleep(Duration::from_millis(200));
+    let s = c.status().unwrap();
+    let elapsed = t0.elapsed().as_secs_f64();
+    c.stop().unwrap();
+    let (status, lines) = r.finish();
+    assert!(status.success(), "reader failed: {lines:?}");
+    let rf = Fields::parse(lines.iter().rev().find(|l| l.starts_with("RESULT")).expect("RESULT"));
+    let losses: Vec<Fields> = lines.iter().filter(|l| l.starts_with("LOSS")).map(|l| Fields::parse(l)).collect();
+    for l in &losses {
+        let first = l.u("nfr_before") + l.u("loss");
+        let lo = (l.u("lfi_before") + 1).saturating_sub(nfop);
+        let hi = (l.u("lfi_after") + nfpc + 1).saturating_sub(nfop);
+        assert!(lo <= first && first <= hi, "loss does not match the window around the read: {l:?}");
+    }
+    let rate = (s.last_frame_index - lfi0) as f64 / elapsed;
+    figure!(
+        2,
+        "bassd sim:pattern 48 kHz, window 100 ms: reader stopped {stops}x 300 ms: {} loss events, lost={} delivered={} corrupted={}; broker xruns={} gap_frames={} and published {rate:.0} frames/s meanwhile",
+        losses.len(),
+        rf.u("lost"),
+        rf.u("delivered"),
+        rf.u("corrupted"),
+        s.xruns,
+        s.gap_frames
+    );
+    assert_eq!((s.xruns, s.gap_frames), (0, 0), "a stopped reader caused xruns or gaps");
+    assert_eq!(rf.u("corrupted"), 0);
+    assert_eq!(rf.u("delivered") + rf.u("lost"), rf.u("requested"));
+    assert!(losses.len() >= stops);
 }
