@@ -179,7 +179,13 @@ impl Drop for Bassd {
 }
 
 /// An Acquire request.
-pub fn acquire_req(device: &str, rate: u32, nfpc: u32, ncop: u32, channels: u32) -> bassclient::control::AcquireRequest {
+pub fn acquire_req(
+    device: &str,
+    rate: u32,
+    nfpc: u32,
+    ncop: u32,
+    channels: u32,
+) -> bassclient::control::AcquireRequest {
     bassclient::control::AcquireRequest {
         device: device.into(),
         sample_rate: rate,
@@ -227,7 +233,12 @@ impl Agent {
         loop {
             let mut l = String::new();
             let n = self.out.read_line(&mut l).expect("read agent stdout");
-            assert!(n > 0, "agent {} exited before printing {prefix:?}; output: {:?}", self.pid(), self.lines);
+            assert!(
+                n > 0,
+                "agent {} exited before printing {prefix:?}; output: {:?}",
+                self.pid(),
+                self.lines
+            );
             let l = l.trim_end().to_owned();
             self.lines.push(l.clone());
             if l.starts_with(prefix) {
@@ -271,9 +282,11 @@ impl Agent {
         let pid = self.pid();
         let (status, lines) = self.finish();
         assert!(status.success(), "agent {pid} failed: {status}; output: {lines:?}");
-        let line = lines.iter().rev().find(|l| l.starts_with("RESULT")).unwrap_or_else(|| {
-            panic!("agent {pid} printed no RESULT line; output: {lines:?}")
-        });
+        let line = lines
+            .iter()
+            .rev()
+            .find(|l| l.starts_with("RESULT"))
+            .unwrap_or_else(|| panic!("agent {pid} printed no RESULT line; output: {lines:?}"));
         Fields::parse(line)
     }
 }
@@ -418,7 +431,10 @@ impl Rng {
 /// The seed for randomised tests: `$BASS_FAULTS_SEED`, else the clock.
 pub fn seed() -> u64 {
     std::env::var("BASS_FAULTS_SEED").ok().and_then(|s| s.parse().ok()).unwrap_or_else(|| {
-        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(1)
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_nanos() as u64)
+            .unwrap_or(1)
     })
 }
 

@@ -93,7 +93,10 @@ fn run(path: &std::path::Path, delay: Duration, kill: impl FnOnce()) -> Outcome 
     let intent = intent_of(path);
     let mid_chunk = intent > lfi;
     if mid_chunk && r.frames > 0 {
-        assert!(first + nfop > intent, "frame {first} shares its slot with a frame being written (intent {intent})");
+        assert!(
+            first + nfop > intent,
+            "frame {first} shares its slot with a frame being written (intent {intent})"
+        );
     }
     Outcome { waiter_delay: wt - t_kill, follower_delay: ft - t_kill, mid_chunk, delivered }
 }
@@ -155,7 +158,8 @@ fn writer_killed_mid_chunk_leaves_only_intact_frames_readable() {
     for _ in 0..runs() {
         let dir = TempDir::new("wkill");
         let path = dir.join("bass-wkill.port");
-        let mut w = Agent::spawn(&["writer", "--port", path.to_str().unwrap(), "--nfpc", "65536", "--ncop", "4"]);
+        let mut w =
+            Agent::spawn(&["writer", "--port", path.to_str().unwrap(), "--nfpc", "65536", "--ncop", "4"]);
         w.expect_line("ready");
         let delay = Duration::from_micros(rng.below(30_000));
         outcomes.push(run(&path, delay, || {

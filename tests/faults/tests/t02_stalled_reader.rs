@@ -32,7 +32,8 @@ fn stopped_reader_reports_exactly_the_frames_that_left_the_window_and_no_stale_s
     let (nfpc, ncop) = (64u32, 8u32);
     let nfop = u64::from(nfpc * ncop);
     let geometry = Geometry { channels: 2, sample_rate: 48000, frames_per_chunk: nfpc, chunks_on_port: ncop };
-    let mut w = Writer::create_at(&path, &PortParams { geometry, device: "stall".into(), group: None }).unwrap();
+    let mut w =
+        Writer::create_at(&path, &PortParams { geometry, device: "stall".into(), group: None }).unwrap();
     let mut chunk = vec![0i32; (nfpc * 2) as usize];
     let mut publish = |w: &mut Writer, chunks: u32| {
         for _ in 0..chunks {
@@ -48,7 +49,10 @@ fn stopped_reader_reports_exactly_the_frames_that_left_the_window_and_no_stale_s
     assert_eq!((f.u("n"), f.u("loss"), f.u("nfr"), f.u("corrupted")), (256, 0, 257, 0), "{f:?}");
     for (round, stall_chunks) in [(1u32, 20u32), (2, 9), (3, 8), (4, 200)].into_iter() {
         r.signal(libc::SIGSTOP);
-        assert!(bass_faults::wait_until(Duration::from_secs(5), || proc_state(r.pid()) == 'T'), "reader not stopped");
+        assert!(
+            bass_faults::wait_until(Duration::from_secs(5), || proc_state(r.pid()) == 'T'),
+            "reader not stopped"
+        );
         let nfr_before = w.last_frame_index() + 1;
         publish(&mut w, stall_chunks);
         let lfi = w.last_frame_index();
@@ -88,7 +92,18 @@ fn live_writer_is_not_delayed_by_a_stopped_reader_whose_losses_are_exact() {
     let (nfpc, ncop, pace_us) = (480u64, 10u64, 10_000u64);
     let nfop = nfpc * ncop;
     let mut w = Agent::spawn(&[
-        "writer", "--port", p, "--nfpc", "480", "--ncop", "10", "--pace-us", "10000", "--seconds", "4", "--wait-go",
+        "writer",
+        "--port",
+        p,
+        "--nfpc",
+        "480",
+        "--ncop",
+        "10",
+        "--pace-us",
+        "10000",
+        "--seconds",
+        "4",
+        "--wait-go",
     ]);
     w.expect_line("ready");
     let mut r = Agent::spawn(&["reader", "--port", p, "--mode", "wait", "--n", "480", "--log-loss"]);
@@ -107,12 +122,16 @@ fn live_writer_is_not_delayed_by_a_stopped_reader_whose_losses_are_exact() {
     let (status, lines) = r.finish();
     assert!(status.success(), "reader failed: {lines:?}");
     let rf = Fields::parse(lines.iter().rev().find(|l| l.starts_with("RESULT")).expect("RESULT"));
-    let losses: Vec<Fields> = lines.iter().filter(|l| l.starts_with("LOSS")).map(|l| Fields::parse(l)).collect();
+    let losses: Vec<Fields> =
+        lines.iter().filter(|l| l.starts_with("LOSS")).map(|l| Fields::parse(l)).collect();
     for l in &losses {
         let first = l.u("nfr_before") + l.u("loss");
         let lo = (l.u("lfi_before") + 1).saturating_sub(nfop);
         let hi = (l.u("lfi_after") + nfpc + 1).saturating_sub(nfop);
-        assert!(lo <= first && first <= hi, "loss does not match the window around the read: {l:?} (bounds {lo}..={hi})");
+        assert!(
+            lo <= first && first <= hi,
+            "loss does not match the window around the read: {l:?} (bounds {lo}..={hi})"
+        );
     }
     let published = wf.u("last");
     figure!(
@@ -134,7 +153,11 @@ fn live_writer_is_not_delayed_by_a_stopped_reader_whose_losses_are_exact() {
     assert!(losses.len() >= stops, "every stop longer than the window must show up as a loss");
     // The writer ran its schedule: 4 s of 10 ms chunks (±1 for the start/stop boundary).
     let expected = 4_000_000 / pace_us;
-    assert!(wf.u("chunks").abs_diff(expected) <= 1, "writer published {} chunks, scheduled {expected}", wf.u("chunks"));
+    assert!(
+        wf.u("chunks").abs_diff(expected) <= 1,
+        "writer published {} chunks, scheduled {expected}",
+        wf.u("chunks")
+    );
 }
 
 #[test]
@@ -146,7 +169,16 @@ fn broker_shows_no_xrun_while_a_reader_is_stopped_longer_than_the_window() {
     // 48 kHz, 10 ms chunks, a 100 ms window.
     c.acquire(&acquire_req("sim:pattern", 48000, 480, 10, 2)).unwrap();
     let (nfpc, nfop) = (480u64, 4800u64);
-    let mut r = Agent::spawn(&["reader", "--port", b.port_path().to_str().unwrap(), "--mode", "wait", "--n", "480", "--log-loss"]);
+    let mut r = Agent::spawn(&[
+        "reader",
+        "--port",
+        b.port_path().to_str().unwrap(),
+        "--mode",
+        "wait",
+        "--n",
+        "480",
+        "--log-loss",
+    ]);
     r.expect_line("ready");
     let t0 = std::time::Instant::now();
     let lfi0 = c.status().unwrap().last_frame_index;
@@ -164,7 +196,8 @@ fn broker_shows_no_xrun_while_a_reader_is_stopped_longer_than_the_window() {
     let (status, lines) = r.finish();
     assert!(status.success(), "reader failed: {lines:?}");
     let rf = Fields::parse(lines.iter().rev().find(|l| l.starts_with("RESULT")).expect("RESULT"));
-    let losses: Vec<Fields> = lines.iter().filter(|l| l.starts_with("LOSS")).map(|l| Fields::parse(l)).collect();
+    let losses: Vec<Fields> =
+        lines.iter().filter(|l| l.starts_with("LOSS")).map(|l| Fields::parse(l)).collect();
     for l in &losses {
         let first = l.u("nfr_before") + l.u("loss");
         let lo = (l.u("lfi_before") + 1).saturating_sub(nfop);

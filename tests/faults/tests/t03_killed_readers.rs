@@ -21,11 +21,24 @@ fn readers_killed_mid_read_and_mid_wait_leak_nothing_and_disturb_no_one() {
     let dir = TempDir::new("kill");
     let path = dir.join("bass-kill.port");
     let p = path.to_str().unwrap();
-    let mut w = Agent::spawn(&["writer", "--port", p, "--nfpc", "64", "--ncop", "8", "--pace-us", "1000", "--wait-go"]);
+    let mut w = Agent::spawn(&[
+        "writer",
+        "--port",
+        p,
+        "--nfpc",
+        "64",
+        "--ncop",
+        "8",
+        "--pace-us",
+        "1000",
+        "--wait-go",
+    ]);
     w.expect_line("ready");
     let mut steady: Vec<Agent> = [("copy", "64", "200"), ("wait", "128", "0")]
         .iter()
-        .map(|(m, n, pause)| Agent::spawn(&["reader", "--port", p, "--mode", m, "--n", n, "--pause-us", pause]))
+        .map(|(m, n, pause)| {
+            Agent::spawn(&["reader", "--port", p, "--mode", m, "--n", n, "--pause-us", pause])
+        })
         .collect();
     for r in &mut steady {
         r.expect_line("ready");

@@ -42,7 +42,9 @@ fn killed_readers_and_control_clients_leak_nothing_in_bassd() {
         v.signal(libc::SIGKILL);
         let (status, _) = v.finish();
         assert_eq!(status.signal(), Some(libc::SIGKILL));
-        *kinds.entry(["reader mid-read", "reader mid-wait", "control client mid-request"][i % 3]).or_default() += 1;
+        *kinds
+            .entry(["reader mid-read", "reader mid-wait", "control client mid-request"][i % 3])
+            .or_default() += 1;
     }
     let settled = bass_faults::wait_until(Duration::from_secs(5), || fd_count(b.pid()) <= fds_before);
     let fds_after = fd_count(b.pid());

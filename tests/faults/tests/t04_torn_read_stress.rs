@@ -13,8 +13,14 @@ use std::time::{Duration, Instant};
 use bass_faults::{env_secs, figure, Agent, TempDir};
 
 /// (mode, N, pause µs) of each reader; the last one is SIGSTOPped and SIGCONTed.
-const READERS: [(&str, usize, u64); 6] =
-    [("copy", 64, 0), ("copy", 300, 20), ("copy", 2000, 500), ("wait", 256, 0), ("view", 512, 0), ("copy", 128, 0)];
+const READERS: [(&str, usize, u64); 6] = [
+    ("copy", 64, 0),
+    ("copy", 300, 20),
+    ("copy", 2000, 500),
+    ("wait", 256, 0),
+    ("view", 512, 0),
+    ("copy", 128, 0),
+];
 
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
@@ -24,14 +30,34 @@ fn readers_of_any_speed_get_no_torn_sample_and_account_every_frame_for_a_minute(
     let port = dir.join("bass-torn.port");
     let p = port.to_str().unwrap();
     let mut writer = Agent::spawn(&[
-        "writer", "--port", p, "--nfpc", "64", "--ncop", "8", "--pace-us", "50", "--seconds", &secs.to_string(),
+        "writer",
+        "--port",
+        p,
+        "--nfpc",
+        "64",
+        "--ncop",
+        "8",
+        "--pace-us",
+        "50",
+        "--seconds",
+        &secs.to_string(),
         "--wait-go",
     ]);
     writer.expect_line("ready");
     let mut readers: Vec<Agent> = READERS
         .iter()
         .map(|(mode, n, pause)| {
-            Agent::spawn(&["reader", "--port", p, "--mode", mode, "--n", &n.to_string(), "--pause-us", &pause.to_string()])
+            Agent::spawn(&[
+                "reader",
+                "--port",
+                p,
+                "--mode",
+                mode,
+                "--n",
+                &n.to_string(),
+                "--pause-us",
+                &pause.to_string(),
+            ])
         })
         .collect();
     for r in &mut readers {
@@ -58,7 +84,8 @@ fn readers_of_any_speed_get_no_torn_sample_and_account_every_frame_for_a_minute(
     let (mut checked, mut total_lost) = (0u64, 0u64);
     for (k, r) in readers.into_iter().enumerate() {
         let f = r.result();
-        let (delivered, lost, corrupted, requested) = (f.u("delivered"), f.u("lost"), f.u("corrupted"), f.u("requested"));
+        let (delivered, lost, corrupted, requested) =
+            (f.u("delivered"), f.u("lost"), f.u("corrupted"), f.u("requested"));
         figure!(
             4,
             "reader {k} {:?}: delivered={delivered} lost={lost} corrupted={corrupted} requested={requested} reads={} loss_events={} view_overwritten={}",

@@ -56,7 +56,8 @@ const FIELDS: [(&str, usize, usize); 27] = [
 fn valid_port(dir: &TempDir) -> Vec<u8> {
     let path = dir.join("bass-src.port");
     let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: NFPC, chunks_on_port: NCOP };
-    let mut w = Writer::create_at(&path, &PortParams { geometry, device: "corrupt".into(), group: None }).unwrap();
+    let mut w =
+        Writer::create_at(&path, &PortParams { geometry, device: "corrupt".into(), group: None }).unwrap();
     let mut chunk = vec![0; (NFPC * 2) as usize];
     for _ in 0..6 {
         fill_pattern_interleaved(&mut chunk, 2, w.last_frame_index() + 1);
@@ -217,7 +218,21 @@ fn truncation_at_every_boundary_is_corrupt() {
     for (_, off, width) in FIELDS {
         cuts.extend([off, off + 1, off + width - 1, off + width]);
     }
-    cuts.extend([255, 256, 511, 512, 639, 640, 4095, 4096, 4097, 4096 + 32, 4096 + 32 * NCOP as usize, samples - 1, samples]);
+    cuts.extend([
+        255,
+        256,
+        511,
+        512,
+        639,
+        640,
+        4095,
+        4096,
+        4097,
+        4096 + 32,
+        4096 + 32 * NCOP as usize,
+        samples - 1,
+        samples,
+    ]);
     let nfop = (NFPC * NCOP) as usize;
     for c in 0..=2 {
         let ring = samples + c * nfop * 4;
@@ -237,7 +252,13 @@ fn truncation_at_every_boundary_is_corrupt() {
             other => panic!("truncated at {cut}: expected Corrupt, got {other:?}"),
         }
     }
-    figure!(5, "truncation: {} cut points from 0 to {} bytes: all refused on open {:?}", cuts.len(), total - 1, t.refused);
+    figure!(
+        5,
+        "truncation: {} cut points from 0 to {} bytes: all refused on open {:?}",
+        cuts.len(),
+        total - 1,
+        t.refused
+    );
     assert_eq!(t.opened, 0);
 }
 
@@ -285,14 +306,21 @@ fn a_hostile_write_intent_never_delivers_frames_it_cannot_vouch_for() {
         let got = catch_unwind(AssertUnwindSafe(|| port.get_audio_data(64, &mut nfr, &mut [&mut l, &mut r])));
         match got {
             Err(_) => panic!("write_intent = {intent:#x}: get_audio_data panicked"),
-            Ok(Ok(read)) => assert_eq!(read.frames, 0, "write_intent = {intent:#x}: {read:?} delivered frames the intent cannot vouch for"),
+            Ok(Ok(read)) => assert_eq!(
+                read.frames, 0,
+                "write_intent = {intent:#x}: {read:?} delivered frames the intent cannot vouch for"
+            ),
             Ok(Err(e)) => assert!(matches!(e, Error::Corrupt(_)), "write_intent = {intent:#x}: {e:?}"),
         }
         let mut nfr = 50;
-        let got = catch_unwind(AssertUnwindSafe(|| port.view(64, &mut nfr).map(|v| (v, port.view_overwritten(&v)))));
+        let got = catch_unwind(AssertUnwindSafe(|| {
+            port.view(64, &mut nfr).map(|v| (v, port.view_overwritten(&v)))
+        }));
         match got {
             Err(_) => panic!("write_intent = {intent:#x}: view/view_overwritten panicked"),
-            Ok(Ok((v, over))) => assert_eq!(over, v.frames as u64, "write_intent = {intent:#x}: view says intact"),
+            Ok(Ok((v, over))) => {
+                assert_eq!(over, v.frames as u64, "write_intent = {intent:#x}: view says intact")
+            }
             Ok(Err(e)) => assert!(matches!(e, Error::Corrupt(_)), "{e:?}"),
         }
         let got = catch_unwind(AssertUnwindSafe(|| port.chunk_info(90)));
@@ -332,7 +360,10 @@ fn foreign_magic_and_major_versions_are_refused_by_name() {
     let mut bytes = good.clone();
     put(&mut bytes, 8, 4, 0);
     assert!(matches!(exercise(&dir, &bytes, "major 0", &mut t), Some(Error::NotReady)));
-    figure!(5, "foreign formats: 5 magics -> BadMagic, majors 2/3/256/2^32-1 -> Incompatible, major 0 -> NotReady");
+    figure!(
+        5,
+        "foreign formats: 5 magics -> BadMagic, majors 2/3/256/2^32-1 -> Incompatible, major 0 -> NotReady"
+    );
 }
 
 #[test]
@@ -341,7 +372,8 @@ fn a_port_shrunk_under_a_reader_gives_corrupt_not_sigbus() {
     let dir = TempDir::new("corrupt-shrink");
     let path = dir.join("bass-shrink.port");
     let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: NFPC, chunks_on_port: NCOP };
-    let mut w = Writer::create_at(&path, &PortParams { geometry, device: "shrink".into(), group: None }).unwrap();
+    let mut w =
+        Writer::create_at(&path, &PortParams { geometry, device: "shrink".into(), group: None }).unwrap();
     for _ in 0..6 {
         w.publish(Source::Zeros, ChunkMeta::default()).unwrap();
     }
@@ -362,13 +394,23 @@ fn a_port_shrunk_under_a_reader_gives_corrupt_not_sigbus() {
         ];
         for (what, r) in results {
             t.calls += 1;
-            assert!(matches!(r, Err(Error::Corrupt(_))), "file shrunk to {size}: {what} gave {r:?}, expected Corrupt");
+            assert!(
+                matches!(r, Err(Error::Corrupt(_))),
+                "file shrunk to {size}: {what} gave {r:?}, expected Corrupt"
+            );
         }
         file.set_len(total).unwrap();
         let mut nfr = 1;
-        assert!(port.get_audio_data(64, &mut nfr, &mut [&mut l, &mut r]).is_ok(), "restored size reads again");
+        assert!(
+            port.get_audio_data(64, &mut nfr, &mut [&mut l, &mut r]).is_ok(),
+            "restored size reads again"
+        );
     }
-    figure!(5, "shrunk while mapped (7 sizes from total-1 down to 0): {} calls, all BASS_ERR_CORRUPT, no SIGBUS", t.calls);
+    figure!(
+        5,
+        "shrunk while mapped (7 sizes from total-1 down to 0): {} calls, all BASS_ERR_CORRUPT, no SIGBUS",
+        t.calls
+    );
     drop(w);
 }
 
@@ -385,7 +427,8 @@ fn a_port_shrinking_while_a_reader_process_hammers_it_is_measured() {
     let dir = TempDir::new("corrupt-shrink-live");
     let path = dir.join("bass-shrink-live.port");
     let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: 1024, chunks_on_port: 64 };
-    let mut w = Writer::create_at(&path, &PortParams { geometry, device: "shrink".into(), group: None }).unwrap();
+    let mut w =
+        Writer::create_at(&path, &PortParams { geometry, device: "shrink".into(), group: None }).unwrap();
     for _ in 0..64 {
         w.publish(Source::Zeros, ChunkMeta::default()).unwrap();
     }

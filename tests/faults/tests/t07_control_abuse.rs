@@ -90,7 +90,10 @@ fn run_bass_as(b: &Bassd, setpriv: &[&str]) -> (bool, String) {
         .env("BASS_RUNTIME_DIR", &b.dir)
         .output()
         .expect("setpriv");
-    (out.status.success(), format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr)))
+    (
+        out.status.success(),
+        format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr)),
+    )
 }
 
 #[test]
@@ -105,7 +108,8 @@ fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
     assert_eq!(meta.gid(), GROUP, "control socket group");
     let mut good = b.client();
     let epoch = good.acquire(&acquire_req("sim:pattern", 48000, 480, 20, 2)).unwrap().epoch;
-    let mut reader = Agent::spawn(&["reader", "--port", b.port_path().to_str().unwrap(), "--mode", "wait", "--n", "480"]);
+    let mut reader =
+        Agent::spawn(&["reader", "--port", b.port_path().to_str().unwrap(), "--mode", "wait", "--n", "480"]);
     reader.expect_line("ready");
     std::thread::sleep(Duration::from_millis(100));
     let fds_before = fd_count(b.pid());
@@ -117,15 +121,27 @@ fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
         ("no verb".into(), b"bass-control/1".to_vec(), &["protocol"]),
         ("bad major".into(), b"bass-control/x status".to_vec(), &["protocol", "version"]),
         ("key without =".into(), b"bass-control/1 status\nnokeyvalue\n".to_vec(), &["protocol"]),
-        ("bad number".into(), b"bass-control/1 acquire\ndevice=sim:pattern\nsample_rate=abc\n".to_vec(), &["protocol", "invalid-argument"]),
+        (
+            "bad number".into(),
+            b"bass-control/1 acquire\ndevice=sim:pattern\nsample_rate=abc\n".to_vec(),
+            &["protocol", "invalid-argument"],
+        ),
         ("unknown verb".into(), b"bass-control/1 explode".to_vec(), &["protocol"]),
         ("reply verb as request".into(), b"bass-control/1 ok".to_vec(), &["protocol"]),
         ("version 2".into(), b"bass-control/2 status".to_vec(), &["version"]),
         ("version 0".into(), b"bass-control/0 status".to_vec(), &["version"]),
         ("version 2^32".into(), b"bass-control/4294967296 status".to_vec(), &["version", "protocol"]),
         ("NUL in verb".into(), b"bass-control/1 sta\x00tus\n".to_vec(), &["protocol"]),
-        ("negative number".into(), b"bass-control/1 acquire\ndevice=sim:pattern\nframes_per_chunk=-480\n".to_vec(), &["protocol", "invalid-argument"]),
-        ("number too big".into(), b"bass-control/1 acquire\ndevice=sim:pattern\nchunks_on_port=99999999999999999999\n".to_vec(), &["protocol", "invalid-argument"]),
+        (
+            "negative number".into(),
+            b"bass-control/1 acquire\ndevice=sim:pattern\nframes_per_chunk=-480\n".to_vec(),
+            &["protocol", "invalid-argument"],
+        ),
+        (
+            "number too big".into(),
+            b"bass-control/1 acquire\ndevice=sim:pattern\nchunks_on_port=99999999999999999999\n".to_vec(),
+            &["protocol", "invalid-argument"],
+        ),
     ];
     let first_line = b"bass-control/1 acquire";
     for cut in 1..first_line.len() {
@@ -143,9 +159,13 @@ fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
     for (name, bytes, codes) in &cases {
         let a = one_shot(&sock, bytes);
         match &a {
-            Answer::Error(code) if codes.contains(&code.as_str()) => *refusals.entry(code.clone()).or_default() += 1,
+            Answer::Error(code) if codes.contains(&code.as_str()) => {
+                *refusals.entry(code.clone()).or_default() += 1
+            }
             // A datagram larger than the socket's send buffer cannot even be sent: refused by the kernel.
-            Answer::SendFailed(e) if name.starts_with("oversized") => *refusals.entry(format!("send: {e}")).or_default() += 1,
+            Answer::SendFailed(e) if name.starts_with("oversized") => {
+                *refusals.entry(format!("send: {e}")).or_default() += 1
+            }
             other => panic!("{name}: expected an error reply with code {codes:?}, got {other:?}"),
         }
         assert!(good.status().is_ok(), "broker stopped answering after {name}");

@@ -36,19 +36,30 @@ fn bad_acquires_are_refused_clearly_and_the_last_valid_one_wins() {
     let cases: Vec<(&str, bassclient::control::AcquireRequest, &str)> = vec![
         ("nFramesPerChunk = 0", acquire_req("sim:pattern", 48000, 0, 20, 2), "invalid-argument"),
         ("nChunksOnPort = 0", acquire_req("sim:pattern", 48000, 480, 0, 2), "invalid-argument"),
-        ("nFPC x nCOP overflows", acquire_req("sim:pattern", 48000, u32::MAX, u32::MAX, 2), "invalid-argument"),
+        (
+            "nFPC x nCOP overflows",
+            acquire_req("sim:pattern", 48000, u32::MAX, u32::MAX, 2),
+            "invalid-argument",
+        ),
         ("window above the 16 MiB cap", acquire_req("sim:pattern", 48000, 48000, 100, 2), "invalid-argument"),
         ("rate 0", acquire_req("sim:pattern", 0, 480, 20, 2), "invalid-argument"),
         ("channels 65", acquire_req("sim:pattern", 48000, 480, 20, 65), "invalid-argument"),
         ("channels 2^32-1", acquire_req("sim:pattern", 48000, 480, 20, u32::MAX), "invalid-argument"),
-        ("missing sim device", acquire_req("sim:no-such-device", 48000, 480, 20, 2), "invalid-argument|device"),
+        (
+            "missing sim device",
+            acquire_req("sim:no-such-device", 48000, 480, 20, 2),
+            "invalid-argument|device",
+        ),
         ("missing ALSA device", acquire_req("hw:99,0", 48000, 480, 20, 2), "device"),
         ("empty device name", acquire_req("", 48000, 480, 20, 2), "invalid-argument|device"),
     ];
     let mut lines = Vec::new();
     for (name, req, code) in &cases {
         let m = refusal(c.acquire(req)).unwrap_or_else(|| panic!("{name}: accepted"));
-        assert!(code.split('|').any(|k| m.ends_with(&format!("[{k}]"))), "{name}: refusal {m:?} lacks code [{code}]");
+        assert!(
+            code.split('|').any(|k| m.ends_with(&format!("[{k}]"))),
+            "{name}: refusal {m:?} lacks code [{code}]"
+        );
         lines.push(format!("{name}: {m}"));
         assert!(c.status().is_ok(), "broker stopped answering after {name}");
     }
@@ -78,7 +89,8 @@ fn bad_acquires_are_refused_clearly_and_the_last_valid_one_wins() {
     let follower = {
         let stop = stop.clone();
         std::thread::spawn(move || {
-            let (mut epochs, mut corrupted, mut delivered, mut reopen_errors) = (Vec::<u64>::new(), 0u64, 0u64, 0u64);
+            let (mut epochs, mut corrupted, mut delivered, mut reopen_errors) =
+                (Vec::<u64>::new(), 0u64, 0u64, 0u64);
             'outer: while !stop.load(Ordering::Relaxed) {
                 let port = match Port::open_path(&path) {
                     Ok(p) => p,

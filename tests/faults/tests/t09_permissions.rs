@@ -26,14 +26,19 @@ fn port_is_0640_with_the_configured_group_and_readers_map_it_read_only() {
     let dir = TempDir::new("perm");
     let path = dir.join("bass-perm.port");
     let plain = dir.join("bass-plain.port");
-    let _w0 = Writer::create_at(&plain, &PortParams { geometry: geometry(), device: "p".into(), group: None }).unwrap();
+    let _w0 =
+        Writer::create_at(&plain, &PortParams { geometry: geometry(), device: "p".into(), group: None })
+            .unwrap();
     let m0 = std::fs::metadata(&plain).unwrap();
     // SAFETY: getegid cannot fail.
     let my_gid = unsafe { libc::getegid() };
     assert_eq!(m0.mode() & 0o777, 0o640, "mode of a port without a group");
     assert_eq!(m0.gid(), my_gid);
-    let mut w =
-        Writer::create_at(&path, &PortParams { geometry: geometry(), device: "p".into(), group: Some(GROUP) }).unwrap();
+    let mut w = Writer::create_at(
+        &path,
+        &PortParams { geometry: geometry(), device: "p".into(), group: Some(GROUP) },
+    )
+    .unwrap();
     w.publish(Source::Zeros, ChunkMeta::default()).unwrap();
     let m = std::fs::metadata(&path).unwrap();
     assert_eq!(m.mode() & 0o777, 0o640, "port file mode");
@@ -53,7 +58,10 @@ fn port_is_0640_with_the_configured_group_and_readers_map_it_read_only() {
         flags & libc::O_ACCMODE as u32,
         status.signal().map(|s| if s == libc::SIGSEGV { "SIGSEGV".to_string() } else { s.to_string() })
     );
-    assert!(!perms.is_empty() && perms.split(',').all(|p| p == "r--s"), "reader mapping must be r--s, got {perms}");
+    assert!(
+        !perms.is_empty() && perms.split(',').all(|p| p == "r--s"),
+        "reader mapping must be r--s, got {perms}"
+    );
     assert_eq!(flags & libc::O_ACCMODE as u32, libc::O_RDONLY as u32, "reader must open O_RDONLY");
     assert!(!lines.iter().any(|l| l == "SURVIVED"), "a write through the reader's mapping succeeded");
     assert_eq!(status.signal(), Some(libc::SIGSEGV), "the write must fault: {status}");
@@ -90,16 +98,30 @@ fn another_uid_reads_only_through_the_group_and_never_writes() {
     let dir = TempDir::new("perm-uid");
     std::fs::set_permissions(&dir.0, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
     let path = dir.join("bass-uid.port");
-    let mut w =
-        Writer::create_at(&path, &PortParams { geometry: geometry(), device: "p".into(), group: Some(GROUP) }).unwrap();
+    let mut w = Writer::create_at(
+        &path,
+        &PortParams { geometry: geometry(), device: "p".into(), group: Some(GROUP) },
+    )
+    .unwrap();
     w.publish(Source::Zeros, ChunkMeta::default()).unwrap();
     let outsider = try_open_as(&path, &["--reuid=65534", "--regid=65534", "--clear-groups"]);
     let member = try_open_as(&path, &["--reuid=65534", "--regid=65534", &format!("--groups={GROUP}")]);
-    figure!(9, "uid 65534 outside the group: read={} write={}; in group {GROUP}: read={} write={}", outsider.s("read"), outsider.s("write"), member.s("read"), member.s("write"));
+    figure!(
+        9,
+        "uid 65534 outside the group: read={} write={}; in group {GROUP}: read={} write={}",
+        outsider.s("read"),
+        outsider.s("write"),
+        member.s("read"),
+        member.s("write")
+    );
     assert_eq!(outsider.s("read"), format!("io:{}", libc::EACCES), "an outsider must not open the port");
     assert_eq!(outsider.s("write"), format!("io:{}", libc::EACCES));
     assert!(member.s("read").starts_with("ok"), "a group member must open the port: {member:?}");
-    assert_eq!(member.s("write"), format!("io:{}", libc::EACCES), "a group member must not open it for writing");
+    assert_eq!(
+        member.s("write"),
+        format!("io:{}", libc::EACCES),
+        "a group member must not open it for writing"
+    );
 }
 
 #[test]
@@ -131,8 +153,11 @@ fn no_reader_ever_opens_a_half_initialised_port() {
         })
     };
     for _ in 0..recreations {
-        let mut w =
-            Writer::create_at(&path, &PortParams { geometry: geometry(), device: "init-race".into(), group: None }).unwrap();
+        let mut w = Writer::create_at(
+            &path,
+            &PortParams { geometry: geometry(), device: "init-race".into(), group: None },
+        )
+        .unwrap();
         w.publish(Source::Zeros, ChunkMeta::default()).unwrap();
     }
     done.store(true, Ordering::Relaxed);

@@ -26,7 +26,21 @@ impl Jackd {
         for attempt in 1..=3 {
             let log = std::fs::File::create(log_dir.join(format!("jackd-{attempt}.log"))).unwrap();
             let child = Command::new("jackd")
-                .args(["-n", name, "--no-realtime", "-d", "dummy", "-r", "48000", "-p", "256", "-C", "2", "-P", "2"])
+                .args([
+                    "-n",
+                    name,
+                    "--no-realtime",
+                    "-d",
+                    "dummy",
+                    "-r",
+                    "48000",
+                    "-p",
+                    "256",
+                    "-C",
+                    "2",
+                    "-P",
+                    "2",
+                ])
                 .env("JACK_NO_AUDIO_RESERVATION", "1")
                 .stdout(Stdio::null())
                 .stderr(log)
@@ -69,13 +83,19 @@ impl Drop for Jackd {
 
 fn available() -> Result<(), String> {
     for tool in ["jackd", "jack_wait"] {
-        if Command::new("sh").args(["-c", &format!("command -v {tool}")]).output().map(|o| !o.status.success()).unwrap_or(true) {
+        if Command::new("sh")
+            .args(["-c", &format!("command -v {tool}")])
+            .output()
+            .map(|o| !o.status.success())
+            .unwrap_or(true)
+        {
             return Err(format!("{tool} not installed"));
         }
     }
-    let plugin = ["/usr/lib/x86_64-linux-gnu/alsa-lib", "/usr/lib/aarch64-linux-gnu/alsa-lib", "/usr/lib/alsa-lib"]
-        .iter()
-        .any(|d| Path::new(d).join("libasound_module_pcm_jack.so").exists());
+    let plugin =
+        ["/usr/lib/x86_64-linux-gnu/alsa-lib", "/usr/lib/aarch64-linux-gnu/alsa-lib", "/usr/lib/alsa-lib"]
+            .iter()
+            .any(|d| Path::new(d).join("libasound_module_pcm_jack.so").exists());
     if !plugin {
         return Err("ALSA jack plugin (libasound2-plugins) not installed".into());
     }
@@ -96,7 +116,11 @@ fn killed_jackd_is_an_error_readers_see_and_a_new_acquire_resumes_in_a_new_epoch
     let dir = TempDir::new("jack");
     let jack_name = format!("bass-faults-{}", std::process::id());
     let rc = dir.join("asoundrc");
-    std::fs::write(&rc, "pcm.bass_jack {\n  type jack\n  capture_ports { 0 system:capture_1 1 system:capture_2 }\n}\n").unwrap();
+    std::fs::write(
+        &rc,
+        "pcm.bass_jack {\n  type jack\n  capture_ports { 0 system:capture_1 1 system:capture_2 }\n}\n",
+    )
+    .unwrap();
     let alsa_path = format!("/usr/share/alsa/alsa.conf:{}", rc.display());
     let logs = TempDir::new("jack-logs");
     let mut jackd = Jackd::start(&jack_name, &logs.0);
@@ -113,7 +137,15 @@ fn killed_jackd_is_an_error_readers_see_and_a_new_acquire_resumes_in_a_new_epoch
     );
     let mut c = b.client();
     let mut epoch = c.acquire(&acquire_req("bass_jack", 48000, 480, 200, 2)).expect("acquire on jack").epoch;
-    let mut follower = Agent::spawn(&["follow", "--port", b.port_path().to_str().unwrap(), "--n", "480", "--expect", "zero"]);
+    let mut follower = Agent::spawn(&[
+        "follow",
+        "--port",
+        b.port_path().to_str().unwrap(),
+        "--n",
+        "480",
+        "--expect",
+        "zero",
+    ]);
     follower.expect_line("ready");
     follower.expect_line("EPOCH");
     let mut delays = Vec::new();
@@ -127,7 +159,10 @@ fn killed_jackd_is_an_error_readers_see_and_a_new_acquire_resumes_in_a_new_epoch
         jackd.kill(sig);
         let dev = Fields::parse(&follower.expect_line("DEVICE"));
         let code = dev.u("code") as u32;
-        assert!(code == error_code::DEVICE_STALLED || code == error_code::DEVICE_LOST, "device error code {code}");
+        assert!(
+            code == error_code::DEVICE_STALLED || code == error_code::DEVICE_LOST,
+            "device error code {code}"
+        );
         delays.push(Duration::from_nanos(dev.u("at_ns").saturating_sub(kill_ns)));
         codes.push(code);
         let s = c.status().unwrap();
@@ -149,7 +184,11 @@ fn killed_jackd_is_an_error_readers_see_and_a_new_acquire_resumes_in_a_new_epoch
         assert!(a.epoch > epoch, "a new acquisition must have a new epoch");
         epoch = a.epoch;
         let e = follower.expect_line("EPOCH");
-        assert_eq!(e.split_whitespace().nth(1).and_then(|v| v.parse::<u64>().ok()), Some(epoch), "reader follows to the new epoch: {e}");
+        assert_eq!(
+            e.split_whitespace().nth(1).and_then(|v| v.parse::<u64>().ok()),
+            Some(epoch),
+            "reader follows to the new epoch: {e}"
+        );
     }
     std::thread::sleep(Duration::from_millis(500));
     let s = c.status().unwrap();

@@ -16,12 +16,24 @@ const NFPC: u64 = 4096;
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_billion_frames_keep_accounting_exact_and_memory_flat() {
-    let frames: u64 = std::env::var("BASS_FAULTS_SOAK_FRAMES").ok().and_then(|s| s.parse().ok()).unwrap_or(4_500_000_000);
+    let frames: u64 =
+        std::env::var("BASS_FAULTS_SOAK_FRAMES").ok().and_then(|s| s.parse().ok()).unwrap_or(4_500_000_000);
     let chunks = frames.div_ceil(NFPC);
     let dir = TempDir::new("soak");
     let port = dir.join("bass-soak.port");
     let p = port.to_str().unwrap();
-    let mut w = Agent::spawn(&["writer", "--port", p, "--nfpc", "4096", "--ncop", "16", "--chunks", &chunks.to_string(), "--wait-go"]);
+    let mut w = Agent::spawn(&[
+        "writer",
+        "--port",
+        p,
+        "--nfpc",
+        "4096",
+        "--ncop",
+        "16",
+        "--chunks",
+        &chunks.to_string(),
+        "--wait-go",
+    ]);
     w.expect_line("ready");
     let kinds = [("copy", "4096"), ("wait", "8192"), ("view", "4096")];
     let mut readers: Vec<Agent> =

@@ -24,7 +24,12 @@ fn heap_ring_readers_never_see_torn_frames_and_account_every_frame() {
     let lfi = AtomicU64::new(0);
     let intent = AtomicU64::new(0);
     let samples: Vec<AtomicI32> = (0..CH * NFOP).map(|_| AtomicI32::new(0)).collect();
-    let ring = Ring { last_frame_index: &lfi, write_intent: &intent, samples: &samples, frames_on_port: NFOP as u64 };
+    let ring = Ring {
+        last_frame_index: &lfi,
+        write_intent: &intent,
+        samples: &samples,
+        frames_on_port: NFOP as u64,
+    };
     let last = chunks * NFPC as u64;
     let start = std::sync::Barrier::new(3);
     let results = std::thread::scope(|s| {

@@ -74,7 +74,9 @@ fn main() {
         "control-victim" => control_victim(&args),
         "follow" => follow(&args),
         _ => {
-            eprintln!("usage: bass-fault-agent writer|reader|stepped|victim|poke|shrink-victim --port PATH ...");
+            eprintln!(
+                "usage: bass-fault-agent writer|reader|stepped|victim|poke|shrink-victim --port PATH ..."
+            );
             std::process::exit(2);
         }
     }
@@ -108,7 +110,7 @@ fn monotonic() -> libc::timespec {
 }
 
 fn ts_ns(ts: &libc::timespec) -> i64 {
-    ts.tv_sec as i64 * 1_000_000_000 + ts.tv_nsec as i64
+    ts.tv_sec * 1_000_000_000 + ts.tv_nsec
 }
 
 /// Publishes the pattern signal, paced on absolute deadlines or unpaced; reports how late
@@ -121,8 +123,11 @@ fn writer(a: &Args) {
         chunks_on_port: a.u("ncop", 8) as u32,
     };
     let group = a.0.get("group").map(|g| g.parse().expect("--group GID"));
-    let mut w = Writer::create_at(&a.port(), &PortParams { geometry: geometry.clone(), device: "fault-agent".into(), group })
-        .expect("create port");
+    let mut w = Writer::create_at(
+        &a.port(),
+        &PortParams { geometry: geometry.clone(), device: "fault-agent".into(), group },
+    )
+    .expect("create port");
     println!("ready pid={} epoch={}", std::process::id(), w.epoch());
     let stop = if a.flag("wait-go") {
         let mut go = String::new();
@@ -151,7 +156,12 @@ fn writer(a: &Args) {
             deadline = libc::timespec { tv_sec: (t / 1_000_000_000) as _, tv_nsec: (t % 1_000_000_000) as _ };
             // SAFETY: valid timespec; absolute sleep on CLOCK_MONOTONIC.
             unsafe {
-                libc::clock_nanosleep(libc::CLOCK_MONOTONIC, libc::TIMER_ABSTIME, &deadline, std::ptr::null_mut())
+                libc::clock_nanosleep(
+                    libc::CLOCK_MONOTONIC,
+                    libc::TIMER_ABSTIME,
+                    &deadline,
+                    std::ptr::null_mut(),
+                )
             };
             max_late_ns = max_late_ns.max(ts_ns(&monotonic()) - t);
         }
@@ -342,13 +352,17 @@ fn poke(a: &Args) {
     let path = std::fs::canonicalize(a.port()).expect("canonicalize");
     let p = path.to_string_lossy().into_owned();
     let maps = std::fs::read_to_string("/proc/self/maps").expect("maps");
-    let perms: Vec<&str> =
-        maps.lines().filter(|l| l.ends_with(p.as_str())).filter_map(|l| l.split_whitespace().nth(1)).collect();
+    let perms: Vec<&str> = maps
+        .lines()
+        .filter(|l| l.ends_with(p.as_str()))
+        .filter_map(|l| l.split_whitespace().nth(1))
+        .collect();
     let mut flags = Vec::new();
     for e in std::fs::read_dir("/proc/self/fd").expect("fd dir").flatten() {
         if std::fs::read_link(e.path()).map(|t| t == path).unwrap_or(false) {
-            let info = std::fs::read_to_string(format!("/proc/self/fdinfo/{}", e.file_name().to_string_lossy()))
-                .unwrap_or_default();
+            let info =
+                std::fs::read_to_string(format!("/proc/self/fdinfo/{}", e.file_name().to_string_lossy()))
+                    .unwrap_or_default();
             if let Some(f) = info.lines().find_map(|l| l.strip_prefix("flags:")) {
                 flags.push(f.trim().to_owned());
             }
@@ -401,8 +415,10 @@ fn try_open(a: &Args) {
         Ok(_) => "ok".to_owned(),
         Err(e) => format!("io:{}", e.raw_os_error().unwrap_or(0)),
     };
-    println!("RESULT uid={} read={read} write={write}", // SAFETY: getuid cannot fail.
-        unsafe { libc::getuid() });
+    println!(
+        "RESULT uid={} read={read} write={write}", // SAFETY: getuid cannot fail.
+        unsafe { libc::getuid() }
+    );
 }
 
 /// Connects to a broker's control socket and sends status requests forever, to be
@@ -446,7 +462,8 @@ fn follow(a: &Args) {
         last_epoch = port.epoch();
         epochs += 1;
         println!("EPOCH {} at_ns={}", last_epoch, mono_ns());
-        let mut bufs = vec![vec![0i32; n.min(port.frames_on_port() as usize)]; port.geometry().channels as usize];
+        let mut bufs =
+            vec![vec![0i32; n.min(port.frames_on_port() as usize)]; port.geometry().channels as usize];
         let mut nfr = 1u64;
         while !stop.load(Ordering::Relaxed) {
             match port.wait(nfr + n as u64 - 1, Duration::from_millis(500)) {
@@ -463,7 +480,10 @@ fn follow(a: &Args) {
             let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| b.as_mut_slice()).collect();
             let r = port.get_audio_data(n, &mut nfr, &mut outs).expect("get_audio_data");
             if expect_zero {
-                corrupted += bufs.iter().map(|b| b[..r.frames].iter().filter(|&&s| s != 0).count() as u64).sum::<u64>();
+                corrupted += bufs
+                    .iter()
+                    .map(|b| b[..r.frames].iter().filter(|&&s| s != 0).count() as u64)
+                    .sum::<u64>();
             } else {
                 corrupted += count_corrupted(before + r.loss, r.frames, &bufs);
             }
