@@ -102,6 +102,28 @@ class port {
         return d;
     }
 
+    // getAudioData for the first `n_channels` channels (all if 0): channels[c] holds n frames.
+    struct multi_data {
+        std::vector<std::vector<std::int32_t>> channels;
+        std::uint64_t nfr = 0;
+        std::size_t n = 0;
+        std::uint64_t loss = 0;
+    };
+    multi_data get_audio_data_multi(std::size_t n_frames, std::uint64_t nfr, std::size_t n_channels = 0) const {
+        bass_port_info i = info();
+        if (n_channels == 0) n_channels = i.channels;
+        std::size_t cap = std::max<std::size_t>(1, std::min<std::uint64_t>(n_frames, i.frames_on_port));
+        multi_data d;
+        d.channels.assign(n_channels, std::vector<std::int32_t>(cap));
+        std::vector<std::int32_t *> ptrs;
+        for (auto &c : d.channels) ptrs.push_back(c.data());
+        d.nfr = nfr;
+        check("bass_get_audio_data_multi", bass_get_audio_data_multi(h_, std::min(n_frames, cap), &d.nfr, ptrs.data(),
+                                                                     n_channels, &d.n, &d.loss));
+        for (auto &c : d.channels) c.resize(d.n);
+        return d;
+    }
+
     // Blocks until `frame` is published; returns the last frame index. Throws bass::error with
     // BASS_ERR_TIMEOUT, _STOPPED, _DEVICE, _RESTARTED, _WRITER_GONE or _INTERRUPTED.
     std::uint64_t wait(std::uint64_t frame, std::chrono::milliseconds timeout) const {

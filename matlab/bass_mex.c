@@ -9,6 +9,7 @@
  *                            bass_mex('Close', h)
  *   info                   = bass_mex('Info', h)                       struct
  *   [l, r, nfr, n, loss]   = bass_mex('GetAudioData', h, N, nfr [, noLoss])
+ *   [x, nfr, n, loss]      = bass_mex('GetAudioDataMulti', h, N, nfr)   x: n x channels int32
  *   lfi                    = bass_mex('Wait', h, frame [, timeoutSeconds])
  *   w                      = bass_mex('WriterCreate', name, device, channels, rate, nfpc, ncop)
  *   lfi                    = bass_mex('Publish', w, int32 interleaved samples)
@@ -241,6 +242,38 @@ static void cmd_get_audio_data(int nlhs, mxArray *plhs[], int nrhs, const mxArra
     if (nlhs > 4) plhs[4] = mxCreateDoubleScalar((double)loss);
 }
 
+static void cmd_get_audio_data_multi(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
+    if (nrhs < 4) usage("GetAudioDataMulti needs a port handle, N and nfr");
+    bass_port *port = port_arg(nrhs, prhs, 1);
+    uint64_t n_req = arg_u64(prhs[2], "N");
+    uint64_t nfr = arg_u64(prhs[3], "nfr");
+    bass_port_info info;
+    check("GetAudioDataMulti", bass_port_get_info(port, &info));
+    size_t cap = (size_t)(n_req < info.frames_on_port ? n_req : info.frames_on_port);
+    size_t rows = cap ? cap : 1, channels = info.channels;
+    /* One int32 column per channel, contiguous: column c starts at c * rows. */
+    mxArray *x = mxCreateNumericMatrix(rows, channels, mxINT32_CLASS, mxREAL);
+    int32_t *base = (int32_t *)mxGetData(x);
+    int32_t *ptrs[BASS_MAX_CHANNELS];
+    for (size_t c = 0; c < channels && c < BASS_MAX_CHANNELS; c++) ptrs[c] = base + c * rows;
+    size_t n = 0;
+    uint64_t loss = 0;
+    bass_result res = bass_get_audio_data_multi(port, cap, &nfr, ptrs, channels, &n, &loss);
+    if (res != BASS_OK) {
+        mxDestroyArray(x);
+        fail("GetAudioDataMulti", res);
+    }
+    /* Keep the first n rows of each column. */
+    mxArray *y = mxCreateNumericMatrix(n, channels, mxINT32_CLASS, mxREAL);
+    int32_t *dst = (int32_t *)mxGetData(y);
+    for (size_t c = 0; c < channels && n; c++) memcpy(dst + c * n, base + c * rows, n * sizeof(int32_t));
+    mxDestroyArray(x);
+    plhs[0] = y;
+    if (nlhs > 1) plhs[1] = u64_scalar(nfr);
+    if (nlhs > 2) plhs[2] = mxCreateDoubleScalar((double)n);
+    if (nlhs > 3) plhs[3] = mxCreateDoubleScalar((double)loss);
+}
+
 static void cmd_wait(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
     if (nrhs < 3) usage("Wait needs a port handle and a frame index");
     bass_port *port = port_arg(nrhs, prhs, 1);
@@ -302,6 +335,8 @@ void mexFunction(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
         plhs[0] = info_struct(&info);
     } else if (!strcmp(cmd, "GetAudioData")) {
         cmd_get_audio_data(nlhs, plhs, nrhs, prhs);
+    } else if (!strcmp(cmd, "GetAudioDataMulti")) {
+        cmd_get_audio_data_multi(nlhs, plhs, nrhs, prhs);
     } else if (!strcmp(cmd, "Wait")) {
         cmd_wait(nlhs, plhs, nrhs, prhs);
     } else if (!strcmp(cmd, "WriterCreate")) {

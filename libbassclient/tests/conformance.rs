@@ -26,12 +26,14 @@ fn replay(vectors: &str, port_name: &str) -> String {
     let mut writer: *mut bass_writer = ptr::null_mut();
     let mut port: *mut bass_port = ptr::null_mut();
     let mut out = String::new();
+    let mut channels = 0usize;
     for line in vectors.lines() {
         let tok: Vec<&str> = line.split_whitespace().collect();
         let Some(&op) = tok.first() else { continue };
         match op {
             "case" => {
                 let g: Vec<u32> = tok[2..6].iter().map(|t| t.parse().unwrap()).collect();
+                channels = g[0] as usize;
                 // SAFETY: valid C strings and out pointers.
                 check("bass_writer_create", unsafe {
                     bass_writer_create(name.as_ptr(), device.as_ptr(), g[0], g[1], g[2], g[3], &mut writer)
@@ -69,6 +71,32 @@ fn replay(vectors: &str, port_name: &str) -> String {
                 write!(out, "read {n_frames} {nfr_in} {n} {nfr} {loss}").unwrap();
                 for i in 0..n {
                     write!(out, " {} {}", left[i], right[i]).unwrap();
+                }
+                out.push('\n');
+            }
+            "readm" => {
+                let n_frames: usize = tok[1].parse().unwrap();
+                let nfr_in: u64 = tok[2].parse().unwrap();
+                let mut bufs = vec![vec![0i32; n_frames.max(1)]; channels];
+                let ptrs: Vec<*mut i32> = bufs.iter_mut().map(|b| b.as_mut_ptr()).collect();
+                let (mut nfr, mut n, mut loss) = (nfr_in, 0usize, 0u64);
+                // SAFETY: `channels` buffers of at least n_frames samples each, not overlapping.
+                check("bass_get_audio_data_multi", unsafe {
+                    bass_get_audio_data_multi(
+                        port,
+                        n_frames,
+                        &mut nfr,
+                        ptrs.as_ptr(),
+                        channels,
+                        &mut n,
+                        &mut loss,
+                    )
+                });
+                write!(out, "readm {n_frames} {nfr_in} {n} {nfr} {loss}").unwrap();
+                for i in 0..n {
+                    for b in &bufs {
+                        write!(out, " {}", b[i]).unwrap();
+                    }
                 }
                 out.push('\n');
             }

@@ -78,6 +78,21 @@ int main(int argc, char **argv) {
             printf("read %zu %" PRIu64 " %zu %" PRIu64 " %" PRIu64, want, nfr_in, n, nfr, loss);
             for (size_t i = 0; i < n; i++) printf(" %" PRId32 " %" PRId32, left[i], right[i]);
             printf("\n");
+        } else if (!strcmp(tok, "readm")) {
+            size_t want = (size_t)strtoull(strtok_r(NULL, " ", &save), NULL, 10);
+            uint64_t nfr_in = strtoull(strtok_r(NULL, " ", &save), NULL, 10);
+            uint64_t nfr = nfr_in, loss = 0;
+            size_t n = 0, frames = want ? want : 1;
+            int32_t *chans[BASS_MAX_CHANNELS];
+            for (unsigned long c = 0; c < channels; c++)
+                if (!(chans[c] = malloc(frames * sizeof(int32_t)))) return 1;
+            bass_result r = bass_get_audio_data_multi(p, want, &nfr, chans, channels, &n, &loss);
+            if (r) die("bass_get_audio_data_multi", r);
+            printf("readm %zu %" PRIu64 " %zu %" PRIu64 " %" PRIu64, want, nfr_in, n, nfr, loss);
+            for (size_t i = 0; i < n; i++)
+                for (unsigned long c = 0; c < channels; c++) printf(" %" PRId32, chans[c][i]);
+            printf("\n");
+            for (unsigned long c = 0; c < channels; c++) free(chans[c]);
         } else if (!strcmp(tok, "end")) {
             bass_port_close(p);
             bass_writer_close(w);

@@ -54,6 +54,14 @@ int main(int argc, char **argv) {
                 bass::audio_data d = p->get_audio_data(n_frames, nfr);
                 out << "read " << n_frames << ' ' << nfr << ' ' << d.n << ' ' << d.nfr << ' ' << d.loss;
                 for (std::size_t i = 0; i < d.n; i++) out << ' ' << d.left[i] << ' ' << d.right[i];
+            } else if (op == "readm") {
+                std::size_t n_frames;
+                std::uint64_t nfr;
+                ss >> n_frames >> nfr;
+                auto d = p->get_audio_data_multi(n_frames, nfr);
+                out << "readm " << n_frames << ' ' << nfr << ' ' << d.n << ' ' << d.nfr << ' ' << d.loss;
+                for (std::size_t i = 0; i < d.n; i++)
+                    for (const auto &c : d.channels) out << ' ' << c[i];
             } else if (op == "end") {
                 p.reset();
                 w.reset();

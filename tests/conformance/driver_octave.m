@@ -37,6 +37,16 @@ function driver_octave(vectors, out_path)
           samples = sprintf(' %d', inter(:));  % (sprintf of an empty array would print ' ')
         end
         fprintf(out, 'read %s %s %d %s %d%s\n', u64_str(N), u64_str(nfr), n, u64_str(nfr2), loss, samples);
+      case 'readm'
+        N = parse_u64(tok{2});
+        nfr = parse_u64(tok{3});
+        [x, nfr2, n, loss] = bass_mex('GetAudioDataMulti', h, N, nfr);
+        samples = '';
+        if n > 0
+          xt = x.';                            % channels x n: column-major order interleaves
+          samples = sprintf(' %d', xt(:));
+        end
+        fprintf(out, 'readm %s %s %d %s %d%s\n', u64_str(N), u64_str(nfr), n, u64_str(nfr2), loss, samples);
       case 'end'
         bass_mex('Close', h);
         bass_mex('WriterClose', w);

@@ -36,6 +36,11 @@ def main(path):
                 inter = np.empty(2 * d.n, dtype=np.int64)
                 inter[0::2], inter[1::2] = d.left, d.right
                 out.write(" ".join(map(str, ["read", n_frames, nfr, d.n, d.nfr, d.loss] + inter.tolist())) + "\n")
+            elif tok[0] == "readm":
+                n_frames, nfr = int(tok[1]), int(tok[2])
+                data, nfr_out, n, loss = port.get_audio_data_multi(n_frames, nfr)
+                inter = data.T.reshape(-1).astype(np.int64).tolist()
+                out.write(" ".join(map(str, ["readm", n_frames, nfr, n, nfr_out, loss] + inter)) + "\n")
             elif tok[0] == "end":
                 port.close()
                 writer.close()

@@ -7,7 +7,10 @@ Format (text, one record per line, fields separated by one space, integers in de
   # comment
   case NAME CHANNELS RATE FRAMES_PER_CHUNK CHUNKS_ON_PORT
   publish S...        one chunk, FRAMES_PER_CHUNK * CHANNELS samples, interleaved (l r l r ...)
-  read N NFR n NFR_OUT LOSS S...   getAudioData(N) from NFR: n frames, interleaved l r
+  read N NFR n NFR_OUT LOSS S...   getAudioData(N) from NFR on a stereo port
+                                   (bass_get_audio_data): n frames, interleaved l r
+  readm N NFR n NFR_OUT LOSS S...  the same for all CHANNELS channels
+                                   (bass_get_audio_data_multi): n frames, interleaved
   end
 
 A driver replays every case through the writer and reader C ABI (bass_writer_create,
@@ -22,31 +25,40 @@ import random
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from model import SeedPort, get_audio_data  # noqa: E402
+from model import SeedPort, get_audio_data, get_audio_data_multi  # noqa: E402
 
 U64_MAX = 2**64 - 1
 I32_MIN, I32_MAX = -(2**31), 2**31 - 1
 
 
 class Case:
-    def __init__(self, out, name, rate, fpc, cop, rng):
-        self.out, self.rng = out, rng
-        self.port = SeedPort(rate, fpc, cop)
+    def __init__(self, out, name, rate, fpc, cop, rng, channels=2):
+        self.out, self.rng, self.channels = out, rng, channels
+        self.port = SeedPort(rate, fpc, cop, channels)
         self.nfop = fpc * cop
         self.nfr = 0  # a consumer's chained next frame to read
-        out.append(f"case {name} 2 {rate} {fpc} {cop}")
+        out.append(f"case {name} {channels} {rate} {fpc} {cop}")
 
     def publish(self, chunks=1, values=None):
-        fpc = self.port.nFramesPerChunk
+        fpc, nch = self.port.nFramesPerChunk, self.channels
         for _ in range(chunks):
             if values is None:
-                l = [self.rng.randint(I32_MIN, I32_MAX) for _ in range(fpc)]
-                r = [self.rng.randint(I32_MIN, I32_MAX) for _ in range(fpc)]
+                per_channel = [[self.rng.randint(I32_MIN, I32_MAX) for _ in range(fpc)] for _ in range(nch)]
             else:
-                l, r = values[0::2], values[1::2]
-            self.port.add_chunk(l, r)
-            inter = [v for pair in zip(l, r) for v in pair]
+                per_channel = [values[c::nch] for c in range(nch)]
+            self.port.add_chunk(*per_channel)
+            inter = [v for frame in zip(*per_channel) for v in frame]
             self.out.append("publish " + " ".join(map(str, inter)))
+
+    def readm(self, N, nfr=None):
+        """getAudioData over all channels (bass_get_audio_data_multi)."""
+        start = self.nfr if nfr is None else nfr
+        chans, n, nfr_out, loss = get_audio_data_multi(N, self.port, start)
+        inter = [v for frame in zip(*chans) for v in frame]
+        self.out.append(" ".join(map(str, ["readm", N, start, n, nfr_out, loss] + inter)))
+        if nfr is None:
+            self.nfr = nfr_out
+        return n, loss
 
     def read(self, N, nfr=None):
         """getAudioData(N) from nfr (default: the chained consumer position)."""
@@ -157,6 +169,33 @@ def generate():
             lfi = c.port.lastFrameIndex
             nfr = max(0, lfi + rng.randint(-c.nfop - 8, 8))
             c.read(rng.choice([0, 1, 5, 23, 24, 25, 60]), nfr)
+    c.end()
+
+    out.append("# getAudioData over any number of channels (bass_get_audio_data_multi)")
+    c = Case(out, "four_channels", 96000, 5, 3, rng, channels=4)
+    c.readm(3, 0)
+    for _ in range(40):
+        if rng.random() < 0.4:
+            c.publish(rng.choice([1, 2, 4]))
+        else:
+            c.readm(rng.choice([0, 1, 4, 14, 15, 16, 40]))
+    c.readm(2, 2**63)
+    c.end()
+
+    out.append("# one channel")
+    c = Case(out, "mono", 8000, 3, 2, rng, channels=1)
+    c.readm(2, 0)
+    c.publish(3)
+    c.readm(10, 0)
+    c.readm(2, 6)
+    c.end()
+
+    out.append("# the stereo call and the multi-channel call agree on a stereo port")
+    c = Case(out, "stereo_both_calls", 44100, 4, 4, rng)
+    c.publish(5)
+    for nfr in (0, 3, 5, 9, 20, 21):
+        c.read(6, nfr)
+        c.readm(6, nfr)
     c.end()
     return out
 

@@ -10,23 +10,31 @@ pseudo-code, line for line, with unbounded Python integers.
 
 
 class SeedPort:
-    """The `Audio` port of BASS as two shifting arrays."""
+    """The `Audio` port of BASS as shifting arrays: `left` and `right` (the seed's two), or
+    one array per channel for ports of other widths (`channel[c]`; left/right are channel[0]
+    and channel[1])."""
 
-    def __init__(self, sample_rate, n_frames_per_chunk, n_chunks_on_port):
+    def __init__(self, sample_rate, n_frames_per_chunk, n_chunks_on_port, channels=2):
         self.sampleRate = sample_rate
         self.nFramesPerChunk = n_frames_per_chunk
         self.nChunksOnPort = n_chunks_on_port
         nfop = n_frames_per_chunk * n_chunks_on_port
-        self.left = [0] * nfop
-        self.right = [0] * nfop
+        self.channel = [[0] * nfop for _ in range(channels)]
         self.lastFrameIndex = 0
 
-    def add_chunk(self, left_chunk, right_chunk):
-        """A new chunk arrives: shift the arrays, deleting the oldest chunk."""
+    @property
+    def left(self):
+        return self.channel[0]
+
+    @property
+    def right(self):
+        return self.channel[1]
+
+    def add_chunk(self, *chunks):
+        """A new chunk arrives (one list per channel): shift the arrays, deleting the oldest chunk."""
         nfpc = self.nFramesPerChunk
-        assert len(left_chunk) == nfpc and len(right_chunk) == nfpc
-        self.left = self.left[nfpc:] + list(left_chunk)
-        self.right = self.right[nfpc:] + list(right_chunk)
+        assert len(chunks) == len(self.channel) and all(len(c) == nfpc for c in chunks)
+        self.channel = [array[nfpc:] + list(chunk) for array, chunk in zip(self.channel, chunks)]
         self.lastFrameIndex += nfpc
 
 
@@ -52,3 +60,25 @@ def get_audio_data(N, Audio, nfr):
         pos = pos + 1
         nfr = nfr + 1
     return l, r, n, nfr, loss
+
+
+def get_audio_data_multi(N, Audio, nfr):
+    """getAudioData over every channel of the port: the same algorithm, one output per array.
+    Returns (channels[c][n], n, nfr, loss)."""
+    nFOP = Audio.nFramesPerChunk * Audio.nChunksOnPort
+    lfi = Audio.lastFrameIndex
+    ofi = max(0, lfi - nFOP + 1)
+    loss = 0
+    if nfr < ofi:
+        loss = ofi - nfr
+        nfr = ofi
+    pos = nFOP - (lfi - nfr + 1)
+    out = [[] for _ in Audio.channel]
+    n = 0
+    while n < N and pos < nFOP:
+        for c, array in enumerate(Audio.channel):
+            out[c].append(array[pos])
+        n = n + 1
+        pos = pos + 1
+        nfr = nfr + 1
+    return out, n, nfr, loss

@@ -16,7 +16,7 @@ trap 'rm -rf "$OUT"' EXIT
 # The committed vectors are what the model generates now.
 python3 "$HERE/gen_vectors.py" "$OUT/regenerated.txt"
 cmp -s "$VEC" "$OUT/regenerated.txt" || { echo "conformance: vectors.txt is stale: run tests/conformance/gen_vectors.py" >&2; exit 1; }
-echo "conformance: $(grep -c '^case ' "$VEC") cases, $(grep -c '^publish ' "$VEC") publishes, $(grep -c '^read ' "$VEC") reads"
+echo "conformance: $(grep -c '^case ' "$VEC") cases, $(grep -c '^publish ' "$VEC") publishes, $(grep -c '^read ' "$VEC") stereo reads, $(grep -c '^readm ' "$VEC") multi-channel reads"
 
 [[ -x $BIN/driver_c ]] || "$ROOT/tests/clients/build.sh"
 fail=0
