@@ -61,6 +61,8 @@ pub struct CaptureParams {
     pub rt_priority: i32,
     /// CLOCK_MONOTONIC (ns) at which the Acquire request arrived (for the latency log).
     pub requested_ns: u64,
+    /// Stall watchdog threshold in ms (0 = max(4 chunks, 250 ms)).
+    pub stall_ms: u64,
 }
 
 /// A running (or finished) acquisition, as the control thread holds it.
@@ -117,7 +119,7 @@ impl Acquisition {
         let g = &p.geometry;
         let period_ns = u64::from(g.frames_per_chunk) * 1_000_000_000 / u64::from(g.sample_rate);
         // A few periods, but never less than 250 ms (scheduling noise on a loaded machine).
-        let stall_ns = (4 * period_ns).max(250_000_000);
+        let stall_ns = if p.stall_ms > 0 { p.stall_ms * 1_000_000 } else { (4 * period_ns).max(250_000_000) };
         let grace_ns = stall_ns.max(2_000_000_000);
         let shared = Arc::new(Shared {
             writer: Mutex::new(writer),

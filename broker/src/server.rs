@@ -34,6 +34,8 @@ pub struct Config {
     pub max_port_bytes: u64,
     /// SCHED_FIFO priority of the capture thread (0 = none).
     pub rt_priority: i32,
+    /// Stall watchdog threshold in ms (0 = max(4 chunks, 250 ms)).
+    pub stall_ms: u64,
     /// An Acquire to run at start-up.
     pub acquire: Option<AcquireRequest>,
 }
@@ -45,6 +47,7 @@ impl Default for Config {
             group: None,
             max_port_bytes: DEFAULT_MAX_PORT_BYTES,
             rt_priority: 70,
+            stall_ms: 0,
             acquire: None,
         }
     }
@@ -179,7 +182,12 @@ impl Broker {
             }
         };
         let format = dev.format_name();
-        let cp = CaptureParams { geometry: g.clone(), rt_priority: self.cfg.rt_priority, requested_ns };
+        let cp = CaptureParams {
+            geometry: g.clone(),
+            rt_priority: self.cfg.rt_priority,
+            requested_ns,
+            stall_ms: self.cfg.stall_ms,
+        };
         match Acquisition::start(writer, dev, &r.device, cp) {
             Ok(a) => {
                 tracing::info!(

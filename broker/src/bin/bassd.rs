@@ -8,7 +8,7 @@ use bassd::server::{self, Config};
 const HELP: &str = "\
 bassd: the bass audio capture broker
 
-usage: bassd [--name NAME] [--group GROUP] [--max-port-bytes N] [--rt-priority P]
+usage: bassd [--name NAME] [--group GROUP] [--max-port-bytes N] [--rt-priority P] [--stall-ms MS]
              [--acquire DEVICE [--rate HZ] [--frames N] [--chunks N] [--channels N] [--format F]]
 
   --name NAME          broker name: port bass-NAME.port, socket bass-NAME.sock in
@@ -16,6 +16,7 @@ usage: bassd [--name NAME] [--group GROUP] [--max-port-bytes N] [--rt-priority P
   --group GROUP        also let members of GROUP control the broker and read its port
   --max-port-bytes N   memory cap of one port (default 536870912 = 512 MiB)
   --rt-priority P      SCHED_FIFO priority of the capture thread; 0 = none (default 70)
+  --stall-ms MS        no data for MS ms = device stalled (default 0 = max(4 chunks, 250 ms))
   --acquire DEVICE     start capturing at start-up (defaults: --rate 44100 --frames 2205
                        --chunks 20 --channels 2)
 Logging: BASS_LOG=debug|info|warn (default info), on stderr.
@@ -35,6 +36,7 @@ fn run() -> Result<()> {
         "group",
         "max-port-bytes",
         "rt-priority",
+        "stall-ms",
         "acquire",
         "rate",
         "frames",
@@ -72,6 +74,7 @@ fn run() -> Result<()> {
         group,
         max_port_bytes: args.get("max-port-bytes", def.max_port_bytes)?,
         rt_priority: args.get("rt-priority", def.rt_priority)?,
+        stall_ms: args.get("stall-ms", def.stall_ms)?,
         acquire,
     };
     bassclient::paths::check_name(&cfg.name)?;

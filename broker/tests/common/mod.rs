@@ -62,7 +62,9 @@ impl Bassd {
     pub fn start(dir: &Path, name: &str, args: &[&str], env: &[(&str, &str)]) -> Bassd {
         let log = dir.join(format!("bassd-{name}-{}.log", SEQ.fetch_add(1, Ordering::Relaxed)));
         let mut cmd = Command::new(bassd_bin());
-        cmd.arg("--name").arg(name).arg("--rt-priority").arg("0").args(args);
+        // No real-time priority (the unpaced ALSA file plugin would spin a core at SCHED_FIFO)
+        // and a stall threshold that a loaded test machine cannot trip by accident.
+        cmd.arg("--name").arg(name).arg("--rt-priority").arg("0").arg("--stall-ms").arg("1500").args(args);
         cmd.env("BASS_RUNTIME_DIR", dir).env("BASS_LOG", "info");
         for (k, v) in env {
             cmd.env(k, v);
