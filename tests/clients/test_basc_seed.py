@@ -8,7 +8,7 @@ What is asserted, and why the tolerance is what it is
 -----------------------------------------------------
 BASC calls getAudioData once per 250 ms period; the port advances in whole chunks of 2205
 frames, 5 per period. Scheduling jitter can only move a publish from one side of a BASC call
-to the other: a call then sees 4 or 6 new chunks instead of 5 (the lastFrameIndex a call
+to the other: a call then sees 4 or 6 (on a busy machine, 0 or 20) new chunks instead of 5 (the lastFrameIndex a call
 sees is always a multiple of 2205). It cannot change any number in any other way, but its
 effect propagates: in example 2 a period of 6 chunks loses 1025 + 2205 frames and the
 next one (4 chunks) then loses nothing and leaves slack that shrinks later losses; in example
@@ -21,10 +21,13 @@ just before and after every call, and the test:
 3. replays BASC (GetBlocks over the formal getAudioData, written here from the seed) with
    the observed lastFrameIndex of each call and requires the printed numbers to be exactly
    the replay's — this is the "tolerant only of whole-chunk jitter" criterion;
-4. when every period saw exactly 5 chunks (the ideal schedule, which basc makes likely by
-   starting its period clock half a chunk after a publish), requires the seed's printed
-   excerpt itself in the output. A run with an odd period is retried (at most 3 runs); the
-   examples fail if no run is ideal.
+4. requires the seed's printed excerpt itself in the output: example 1's nine lines exactly
+   (all eight periods of 5 chunks), the excerpts of examples 2 and 3 somewhere in a run of
+   nBlocks = 0 that is ended with Ctrl-C once they appeared (or after a cap of blocks). basc
+   makes the ideal schedule likely by starting its period clock half a chunk after a publish,
+   and runs at SCHED_FIFO priority when allowed; a run without the excerpt (an odd period at
+   the wrong place: the machine was busy) is retried, at most 5 runs. When a whole run had
+   5 chunks in every period, its output must also be the ideal schedule's, line for line.
 Every delivered sample is also checked against the pattern signal (`--check-pattern`).
 """
 
@@ -39,7 +42,7 @@ import pytest
 RATE, FPC, COP = 44100, 2205, 20
 NFOP = FPC * COP
 PERIOD_CHUNKS = 5  # 250 ms at 44100 Hz = 11025 frames = 5 chunks
-ATTEMPTS = 3
+ATTEMPTS = 5
 
 LINE_RE = re.compile(r"^(Requested {1,}\d+ frames, got {1,}\d+\.|!!Lost \d+ frames!!|A new block is ready to be processed\.)$")
 TRACE_START = re.compile(r"^trace start lfi=(\d+) nfr=(\d+)$")
@@ -106,22 +109,37 @@ def get_blocks_lines(N, nfr, lfis):
     return lines
 
 
-def run_basc(env, port, args, stop_after_blocks=None, timeout=120):
-    """Runs basc --trace --check-pattern; with stop_after_blocks, sends SIGINT (Ctrl-C) after that
-    many blocks. Returns (stdout lines, stderr lines, exit status)."""
-    cmd = [os.path.join(env["CLIENTS_BIN"], "basc"), "--port", port, "--trace", "--check-pattern"] + [str(a) for a in args]
+def realtime_prefix():
+    """`chrt -f 20` when this process may use SCHED_FIFO (as a robot's audio client would), so
+    that other load on the machine does not delay basc's calls by whole chunks."""
+    try:
+        subprocess.run(["chrt", "-f", "20", "true"], check=True, capture_output=True)
+        return ["chrt", "-f", "20"]
+    except (OSError, subprocess.CalledProcessError):
+        return []
+
+
+def run_basc(env, port, args, stop_when=None, timeout=120):
+    """Runs basc --trace --check-pattern; with stop_when (a predicate on the lines printed so far),
+    sends SIGINT (Ctrl-C) once it holds. Returns (stdout lines, stderr lines, exit status)."""
+    cmd = realtime_prefix() + [os.path.join(env["CLIENTS_BIN"], "basc"), "--port", port, "--trace",
+                               "--check-pattern"] + [str(a) for a in args]
     p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     out = []
-    if stop_after_blocks is not None:
+    if stop_when is not None:
         deadline = time.monotonic() + timeout
         for line in p.stdout:
             out.append(line.rstrip("\n"))
-            if sum(l.startswith("A new block") for l in out) >= stop_after_blocks or time.monotonic() > deadline:
+            if stop_when(out) or time.monotonic() > deadline:
                 p.send_signal(signal.SIGINT)
                 break
     rest, err = p.communicate(timeout=timeout)
     out += rest.splitlines()
     return out, err.splitlines(), p.returncode
+
+
+def blocks_in(out):
+    return sum(l.startswith("A new block") for l in out)
 
 
 def verify(out, err, N):
@@ -157,22 +175,28 @@ def verify(out, err, N):
     return chunks, ideal
 
 
-def reproduce(env, port, args, N, excerpt, stop_after_blocks=None):
-    """Runs basc until one run has the ideal schedule; asserts the excerpt on that run."""
+def reproduce(env, port, args, N, excerpt, max_blocks=None):
+    """Runs basc (nBlocks = 0 runs end with Ctrl-C once the excerpt appeared, or after
+    max_blocks) until a run prints the seed's excerpt; every run must match the replay.
+    Returns the run's lines and its chunks per period."""
     report = []
+    stop_when = None
+    if max_blocks is not None:
+        stop_when = lambda out: excerpt in "\n".join(out) + "\n" or blocks_in(out) >= max_blocks  # noqa: E731
     for attempt in range(ATTEMPTS):
-        out, err, rc = run_basc(env, port, args, stop_after_blocks)
+        out, err, rc = run_basc(env, port, args, stop_when)
         assert rc == 0, "\n".join(err)
         chunks, ideal = verify(out, err, N)
+        text = "\n".join(out) + "\n"
         if all(k == PERIOD_CHUNKS for k in chunks):
             assert out == ideal
-            text = "\n".join(out) + "\n"
-            assert excerpt in text, text
-            print(f"--- reproduced (run {attempt + 1}, {len(chunks)} periods of 5 chunks) ---")
+        if excerpt in text:
+            odd = sum(k != PERIOD_CHUNKS for k in chunks)
+            print(f"--- reproduced (run {attempt + 1}; {len(chunks)} periods, {odd} of them not 5 chunks) ---")
             print(text if len(out) <= 30 else "...\n" + excerpt_context(out, excerpt))
-            return out
+            return out, chunks
         report.append(f"run {attempt + 1}: chunks per period {chunks}")
-    pytest.fail("no run with an ideal schedule (every printed number did match the replay): " + "; ".join(report))
+    pytest.fail("no run printed the seed's excerpt (every printed number did match the replay): " + "; ".join(report))
 
 
 def excerpt_context(out, excerpt):
@@ -182,22 +206,24 @@ def excerpt_context(out, excerpt):
 
 
 def test_seed_example_1_one_block_of_two_seconds(live_port, clients_env):
-    out = reproduce(clients_env, live_port, [1, 88200, 0], 88200, SEED_EXAMPLE_1)
-    assert "\n".join(out) + "\n" == SEED_EXAMPLE_1
+    out, chunks = reproduce(clients_env, live_port, [1, 88200, 0], 88200, SEED_EXAMPLE_1)
+    assert "\n".join(out) + "\n" == SEED_EXAMPLE_1 and chunks == [5] * 8
 
 
 def test_seed_example_2_short_blocks_lose_1025_frames_each(live_port, clients_env):
-    # Losses start once the lag reaches the window: after 34 periods (8.5 s); run 40 blocks,
-    # nBlocks = 0 as in the seed, ended with Ctrl-C.
-    out = reproduce(clients_env, live_port, [0, 10000, 0], 10000, SEED_EXAMPLE_2, stop_after_blocks=40)
+    # nBlocks = 0 as in the seed, ended with Ctrl-C. Losses start once the lag reaches the
+    # window: after 34 periods (8.5 s) on the ideal schedule.
+    out, chunks = reproduce(clients_env, live_port, [0, 10000, 0], 10000, SEED_EXAMPLE_2, max_blocks=70)
     losses = [int(l.split()[1]) for l in out if l.startswith("!!Lost")]
-    assert losses[0] == 750 and set(losses[1:]) == {1025}
+    if all(k == PERIOD_CHUNKS for k in chunks):
+        assert losses[0] == 750 and set(losses[1:]) == {1025}
 
 
 def test_seed_example_3_long_blocks_are_sometimes_completed_by_a_second_read(live_port, clients_env):
-    # With startOffs = 0 the cycle of incomplete blocks reaches 11550 + 450 at block 57.
-    out = reproduce(clients_env, live_port, [58, 12000, 0], 12000, SEED_EXAMPLE_3)
-    assert sum(l.startswith("A new block") for l in out) == 58
+    # On the ideal schedule, the cycle of incomplete blocks reaches 11550 + 450 at block 57.
+    out, chunks = reproduce(clients_env, live_port, [0, 12000, 0], 12000, SEED_EXAMPLE_3, max_blocks=120)
+    if all(k == PERIOD_CHUNKS for k in chunks):
+        assert 58 <= blocks_in(out) <= 59  # Ctrl-C right after block 58 (one more may slip in)
 
 
 @pytest.mark.parametrize("block,count", [(1000, 30), (10000, 6), (60000, 2)])
