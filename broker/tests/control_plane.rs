@@ -264,3 +264,37 @@ fn clients_of_another_user_are_refused_by_peer_credentials() {
     assert!(err.contains("permission denied: not the broker's user or group"), "{err}");
     assert_eq!(b.client().status().unwrap().state, State::Idle as u32);
 }
+
+#[test]
+fn members_of_the_configured_group_are_served() {
+    // SAFETY: geteuid cannot fail.
+    if unsafe { libc::geteuid() } != 0 {
+        eprintln!("skipped: needs root to run a client as another user");
+        return;
+    }
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+    let dir = TempDir::new("group");
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+    let b = Bassd::start(dir.path(), "default", &["--group", "65534"], &[]);
+    let sock = std::fs::metadata(b.socket()).unwrap();
+    assert_eq!((sock.mode() & 0o777, sock.gid()), (0o660, 65534));
+    // uid 65534 is neither the broker's user nor root: only its group lets it in.
+    let out = Command::new("setpriv")
+        .args(["--reuid=65534", "--regid=65534", "--clear-groups", bass_bin(), "acquire", "sim:pattern"])
+        .args(["--rate", "8000", "--frames", "80", "--chunks", "10"])
+        .env("BASS_RUNTIME_DIR", dir.path())
+        .output();
+    let Ok(out) = out else {
+        eprintln!("skipped: setpriv not available");
+        return;
+    };
+    let err = String::from_utf8_lossy(&out.stderr);
+    if err.contains("Permission denied (os error 13)") {
+        eprintln!("skipped: the bass binary is not reachable as nobody: {err}");
+        return;
+    }
+    assert!(out.status.success(), "{err}");
+    let port = std::fs::metadata(b.port_path()).unwrap();
+    assert_eq!((port.mode() & 0o777, port.gid()), (0o640, 65534));
+    assert_eq!(b.client().status().unwrap().epoch, 1);
+}
