@@ -366,7 +366,8 @@ pub fn write_text(words: &[AtomicU64], text: &str) {
 ///
 /// Frame 0 (the zero frame before any data) maps to the last slot, which stays
 /// zero until frame nFOP is written, when frame 0 has left the window.
+/// Reduced first, so that any `frame` (a caller's nfr may be near 2^64) cannot overflow.
 #[inline]
 pub fn slot(frame: u64, frames_on_port: u64) -> u64 {
-    (frame + frames_on_port - 1) % frames_on_port
+    (frame % frames_on_port + frames_on_port - 1) % frames_on_port
 }
