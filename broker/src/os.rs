@@ -279,3 +279,11 @@ pub fn set_send_timeout(fd: RawFd, t: Duration) -> io::Result<()> {
     })?;
     Ok(())
 }
+
+/// Discards whatever the peer already sent on `fd` (before closing a refused connection,
+/// so that the kernel does not turn our close into a reset that hides our reply).
+pub fn drain(fd: RawFd) {
+    let mut buf = [0u8; 512];
+    // SAFETY: `buf` is valid for writes of its length; MSG_DONTWAIT never blocks.
+    while unsafe { libc::recv(fd, buf.as_mut_ptr().cast(), buf.len(), libc::MSG_DONTWAIT) } > 0 {}
+}

@@ -476,6 +476,7 @@ pub fn send_message(fd: BorrowedFd<'_>, m: &Message) -> Result<()> {
 /// Receives one message; `Ok(None)` when the peer closed the connection.
 pub fn recv_message(fd: BorrowedFd<'_>) -> Result<Option<Message>> {
     let mut buf = vec![0u8; MAX_MESSAGE];
+    let mut reset_seen = false;
     loop {
         // SAFETY: `buf` is valid for writes of its length; `fd` is an open socket.
         let r = unsafe { libc::recv(fd.as_raw_fd(), buf.as_mut_ptr().cast(), buf.len(), libc::MSG_TRUNC) };
@@ -496,6 +497,9 @@ pub fn recv_message(fd: BorrowedFd<'_>) -> Result<Option<Message>> {
                 let timed_out = std::io::Error::from(std::io::ErrorKind::TimedOut);
                 return Err(Error::io("waiting for the broker's reply", timed_out));
             }
+            // A peer that closed with our request unread reports ECONNRESET once, ahead of
+            // the reply it may have queued before closing: look again.
+            std::io::ErrorKind::ConnectionReset if !reset_seen => reset_seen = true,
             std::io::ErrorKind::ConnectionReset => return Ok(None),
             _ => return Err(Error::io("recv on the control socket", e)),
         }
