@@ -239,6 +239,47 @@ class block_reader {
 
 inline const char *version() noexcept { return bass_version(); }
 
+// The control plane: the broker's Acquire, Stop, Status and ListDevices services.
+// `broker` empty = "default".
+namespace detail {
+inline const char *broker_arg(const std::string &broker) { return broker.empty() ? nullptr : broker.c_str(); }
+}  // namespace detail
+
+// Starts (or restarts) an acquisition; returns its epoch. channels 0 = 2.
+inline std::uint64_t acquire(const std::string &device, std::uint32_t sample_rate = 44100,
+                             std::uint32_t frames_per_chunk = 2205, std::uint32_t chunks_on_port = 20,
+                             std::uint32_t channels = 0, const std::string &broker = "") {
+    std::uint64_t epoch = 0;
+    check("bass_acquire", bass_acquire(detail::broker_arg(broker), device.c_str(), sample_rate, frames_per_chunk,
+                                       chunks_on_port, channels, &epoch));
+    return epoch;
+}
+
+inline void stop(const std::string &broker = "") { check("bass_stop", bass_stop(detail::broker_arg(broker))); }
+
+inline bass_broker_status status(const std::string &broker = "") {
+    bass_broker_status s;
+    check("bass_status", bass_status(detail::broker_arg(broker), &s));
+    return s;
+}
+
+// The broker's capture devices as (name, description) pairs.
+inline std::vector<std::pair<std::string, std::string>> list_devices(const std::string &broker = "") {
+    std::size_t need = 0;
+    bass_result r = bass_list_devices(detail::broker_arg(broker), nullptr, 0, &need);
+    if (r != BASS_ERR_BUFFER_TOO_SMALL) check("bass_list_devices", r);
+    std::string buf(need, '\0');
+    check("bass_list_devices", bass_list_devices(detail::broker_arg(broker), &buf[0], buf.size(), &need));
+    std::vector<std::pair<std::string, std::string>> out;
+    std::size_t pos = 0;
+    for (std::size_t nl; (nl = buf.find('\n', pos)) != std::string::npos; pos = nl + 1) {
+        std::string line = buf.substr(pos, nl - pos);
+        std::size_t tab = line.find('\t');
+        out.emplace_back(line.substr(0, tab), tab == std::string::npos ? "" : line.substr(tab + 1));
+    }
+    return out;
+}
+
 }  // namespace bass
 
 #endif  // BASS_HPP

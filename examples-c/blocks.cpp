@@ -2,8 +2,10 @@
 // prints one line per block (frames, loss, peak of each channel); --check-pattern verifies the
 // samples against the pattern test signal.
 //
-// Usage: blocks [--port NAME] [--check-pattern] [nBlocks [nFramesPerBlock [startOffs]]]
+// Usage: blocks [--port NAME] [--acquire DEVICE] [--check-pattern] [nBlocks [nFramesPerBlock [startOffs]]]
 //        (defaults: 10 blocks of 4410 frames from the next frame; startOffs as in basc)
+//        --acquire first asks the broker NAME to acquire DEVICE (44100 Hz, 2205 x 20), lists
+//        its devices and prints its status.
 #include <cinttypes>
 #include <cstdio>
 #include <cstdlib>
@@ -18,16 +20,19 @@ static std::int32_t pattern_expected(std::uint64_t frame, std::uint32_t channel)
 }
 
 int main(int argc, char **argv) {
-    std::string name = "default";
+    std::string name = "default", device;
     bool check_pattern = false;
     long long args[3] = {10, 4410, 0};
     int positional = 0;
     for (int i = 1; i < argc; i++) {
         if (!std::strcmp(argv[i], "--port") && i + 1 < argc) name = argv[++i];
+        else if (!std::strcmp(argv[i], "--acquire") && i + 1 < argc) device = argv[++i];
         else if (!std::strcmp(argv[i], "--check-pattern")) check_pattern = true;
         else if (positional < 3) args[positional++] = std::strtoll(argv[i], nullptr, 10);
         else {
-            std::fprintf(stderr, "usage: blocks [--port NAME] [--check-pattern] [nBlocks [nFramesPerBlock [startOffs]]]\n");
+            std::fprintf(stderr,
+                         "usage: blocks [--port NAME] [--acquire DEVICE] [--check-pattern] [nBlocks [nFramesPerBlock "
+                         "[startOffs]]]\n");
             return 2;
         }
     }
@@ -36,6 +41,14 @@ int main(int argc, char **argv) {
         return 2;
     }
     try {
+        if (!device.empty()) {
+            for (const auto &d : bass::list_devices(name)) std::printf("device %s: %s\n", d.first.c_str(), d.second.c_str());
+            std::uint64_t epoch = bass::acquire(device, 44100, 2205, 20, 2, name);
+            bass::port waiting(name);
+            waiting.wait(1, std::chrono::seconds(5));  // the first chunk
+            bass_broker_status st = bass::status(name);
+            std::printf("acquired %s: epoch %" PRIu64 ", state %u, %u Hz\n", st.device, epoch, st.state, st.sample_rate);
+        }
         bass::port p(name);
         bass_port_info info = p.info();
         std::printf("port %s: %s, %u Hz, %u frames/chunk, %u chunks on port, epoch %" PRIu64 "\n", name.c_str(),

@@ -1,6 +1,7 @@
 """The Python package's control plane and the C++ example against a live broker / port."""
 
 import os
+import re
 import subprocess
 import time
 
@@ -96,3 +97,14 @@ def test_python_wait_is_interrupted_by_ctrl_c(live_port, clients_env):
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=10)
     assert proc.returncode != 0 and "KeyboardInterrupt" in err
+
+
+def test_cpp_example_acquires_through_the_broker_and_reads_from_its_first_frames(broker, clients_env):
+    exe = os.path.join(clients_env["CLIENTS_BIN"], "blocks_cpp")
+    p = subprocess.run([exe, "--port", broker, "--acquire", "sim:pattern", "--check-pattern", "3", "2205", "-100000"],
+                       env=clients_env, capture_output=True, text=True, timeout=30)
+    assert p.returncode == 0, p.stderr
+    assert "device sim:pattern: Simulated: test pattern" in p.stdout
+    assert re.search(r"acquired sim:pattern\S*: epoch \d+, state 1, 44100 Hz", p.stdout), p.stdout
+    # startOffs reaching before frame 0 is clamped to 0: the first block starts with the zero frame
+    assert "block 1: frames 0..2204, lost 0," in p.stdout
