@@ -359,9 +359,11 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
                         "permission denied: not the broker's user or group",
                     );
                     let _ = control::send_message(c.as_fd(), &m);
+                    os::drain(fd);
                 } else if clients.len() >= MAX_CLIENTS {
                     let m = Message::error(ErrorKind::Internal, "too many control connections");
                     let _ = control::send_message(c.as_fd(), &m);
+                    os::drain(fd);
                 } else {
                     clients.push(c);
                 }

@@ -158,7 +158,14 @@ fn jack_capture_is_paced_and_a_killed_server_is_a_lost_device_until_the_next_acq
     // plugin would deliver them in milliseconds). Loose bounds: this checks pacing, not timing.
     let (t0, t1) = (port.chunk_info(1).unwrap(), port.chunk_info(47_521).unwrap());
     let span = (t1.mono_ns - t0.mono_ns) as f64 / 1e9;
-    assert!((0.8..1.2).contains(&span), "47520 frames at 48 kHz spanned {span} s of timestamps");
+    // (Bounds wide enough for a loaded machine: the unpaced alternative is ~1000x off.)
+    let info = port.info().unwrap();
+    assert!(
+        (0.5..1.5).contains(&span),
+        "47520 frames at 48 kHz spanned {span} s of timestamps (xruns {}, gap frames {})",
+        info.xruns,
+        info.gap_frames
+    );
     for c in read_frames(&port, 1, 48_000) {
         assert!(c.iter().all(|&s| s == 0), "the dummy backend captures silence");
     }
