@@ -125,6 +125,7 @@ static int32_t pattern_expected(uint64_t frame, uint32_t channel) {
     return (int32_t)(((uint32_t)(frame & 0x3FFFFFFu) << 6) | (channel & 63u));
 }
 
+/* The last frame index now (for --trace only; UINT64_MAX if the header cannot be read). */
 static uint64_t lfi_now(const bass_port *port) {
     bass_port_info info;
     if (bass_port_get_info(port, &info) != BASS_OK) return UINT64_MAX;
@@ -189,12 +190,16 @@ int main(int argc, char **argv) {
             clock_gettime(CLOCK_MONOTONIC, &t);
             timespec_add_ns(&t, chunk_ns / 2);
             if (sleep_until(&t)) return 0;
+        } else if (r == BASS_ERR_INTERRUPTED) {
+            return 0; /* Ctrl-C before the first call */
         } else if (r != BASS_ERR_TIMEOUT) {
             return fail("bass_port_wait", r);
         }
     }
 
-    uint64_t lfi0 = lfi_now(port);
+    r = bass_port_get_info(port, &info);
+    if (r != BASS_OK) return fail("bass_port_get_info", r);
+    uint64_t lfi0 = info.last_frame_index;
     long long first = (long long)lfi0 + 1 + o.start_offs;
     uint64_t nfr = first < 0 ? 0 : (uint64_t)first; /* clamped: nfr is unsigned */
     if (o.trace) fprintf(stderr, "trace start lfi=%" PRIu64 " nfr=%" PRIu64 "\n", lfi0, nfr);
