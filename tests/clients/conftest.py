@@ -87,3 +87,26 @@ def live_port(clients_env):
                 pass
         proc.terminate()
         proc.wait(timeout=10)
+
+
+@pytest.fixture
+def broker(clients_env):
+    """A private bassd (name "py") for tests that Acquire and Stop, terminated afterwards."""
+    import bass
+
+    if not broker_available():
+        pytest.skip("bassd or the control plane is not built")
+    p = subprocess.Popen([os.path.join(TARGET, "release", "bassd"), "--name", "py"], env=clients_env,
+                         stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 10
+    while True:
+        try:
+            bass.status(broker="py")
+            break
+        except bass.BassError as e:
+            assert e.code == bass.BASS_ERR_NO_BROKER
+            assert time.monotonic() < deadline and p.poll() is None
+            time.sleep(0.05)
+    yield "py"
+    p.terminate()
+    p.wait(timeout=10)

@@ -9,28 +9,6 @@ import numpy as np
 import pytest
 
 import bass
-from conftest import TARGET, broker_available
-
-
-@pytest.fixture
-def broker(clients_env):
-    """A private bassd (name "py"), stopped and terminated afterwards."""
-    if not broker_available():
-        pytest.skip("bassd or the control plane is not built")
-    p = subprocess.Popen([os.path.join(TARGET, "release", "bassd"), "--name", "py"], env=clients_env,
-                         stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 10
-    while True:
-        try:
-            bass.status(broker="py")
-            break
-        except bass.BassError as e:
-            assert e.code == bass.BASS_ERR_NO_BROKER
-            assert time.monotonic() < deadline and p.poll() is None
-            time.sleep(0.05)
-    yield "py"
-    p.terminate()
-    p.wait(timeout=10)
 
 
 def test_python_acquire_status_blocks_and_stop_through_the_broker(broker):

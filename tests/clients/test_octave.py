@@ -103,3 +103,37 @@ def test_ctrl_c_during_wait_returns_to_the_octave_prompt(mexdir, clients_env, li
             os.kill(pid, 9)
             os.waitpid(pid, 0)
         os.close(fd)
+
+
+def test_octave_control_plane_and_pattern_reads_through_a_broker(mexdir, clients_env, broker):
+    code = f"""
+    b = Bass('{broker}');
+    d = b.ListDevices();
+    assert(any(strcmp(d(:, 1), 'sim:pattern')));
+    epoch = b.Acquire('sim:pattern', 48000, 480, 10);
+    assert(isa(epoch, 'uint64') && epoch >= 1);
+    lfi = b.Wait(uint64(960), 5);
+    [l, r, nfr, n, loss] = b.getAudioData(960, uint64(1));
+    f = (1:960).';
+    assert(n == 960 && loss == 0 && nfr == 961);
+    assert(isequal(l, int32(f * 64)) && isequal(r, int32(f * 64 + 1)));
+    s = b.Status();
+    assert(strcmp(s.state, 'capturing') && s.sampleRate == 48000 && s.epoch == epoch);
+    b.Stop();
+    try
+      b.Wait(uint64(2)^40, 5);
+      error('test:fail', 'no error');
+    catch e
+      assert(strcmp(e.identifier, 'bass:stopped'), e.identifier);
+    end
+    try
+      b.Acquire('no-such-device-xyz', 44100, 2205, 20);
+      error('test:fail', 'no error');
+    catch e
+      assert(strcmp(e.identifier, 'bass:broker'), e.identifier);
+    end
+    disp('control plane ok');
+    """
+    rc, out, err = octave(clients_env, code)
+    assert rc == 0, out + err
+    assert "control plane ok" in out
