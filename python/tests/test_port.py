@@ -120,3 +120,29 @@ def test_multi_channel_read_returns_every_channel():
         assert (nfr, n, loss) == (5, 4, 0) and data.shape == (4, 4)
         for c in range(4):
             np.testing.assert_array_equal(data[c], bass.pattern_expected(np.arange(1, 5), c))
+
+
+def test_blocks_longer_than_the_window_are_assembled_without_loss():
+    fpc, cop = 64, 8  # nFOP = 512 frames, blocks of 1500
+    with bass.Writer("p", frames_per_chunk=fpc, chunks_on_port=cop) as w, bass.Port("p") as port:
+        stop = threading.Event()
+
+        def produce():
+            lfi = 0
+            while not stop.is_set() and lfi < 64 * 200:
+                lfi = publish_chunks(w, lfi, 1, fpc)
+                stop.wait(0.004)  # 16 frames/ms: the reader must come back within 16 ms
+
+        t = threading.Thread(target=produce)
+        t.start()
+        try:
+            blocks = list(port.blocks(1500, nfr=1, count=4, timeout=10))
+        finally:
+            stop.set()
+            t.join()
+        assert sum(1500 + b.loss for b in blocks) == blocks[-1].next_frame - 1
+        for b in blocks:
+            if b.loss == 0:
+                frames = np.arange(b.first_frame, b.next_frame)
+                assert len(frames) == 1500
+                np.testing.assert_array_equal(b.left, bass.pattern_expected(frames, 0))

@@ -226,7 +226,7 @@ def test_seed_example_3_long_blocks_are_sometimes_completed_by_a_second_read(liv
         assert 58 <= blocks_in(out) <= 59  # Ctrl-C right after block 58 (one more may slip in)
 
 
-@pytest.mark.parametrize("block,count", [(1000, 30), (10000, 6), (60000, 2)])
+@pytest.mark.parametrize("block,count", [(1000, 30), (10000, 6), (60000, 2), (100000, 1)])
 def test_wait_mode_never_loses_frames_whatever_the_block_size(live_port, clients_env, block, count):
     cmd = [os.path.join(clients_env["CLIENTS_BIN"], "basc"), "--port", live_port, "--wait", "--check-pattern",
            str(count), str(block), "0"]
