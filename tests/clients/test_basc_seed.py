@@ -249,3 +249,26 @@ def test_ctrl_c_ends_an_unlimited_wait_mode_run_cleanly(live_port, clients_env):
     _, err = p.communicate(timeout=10)
     assert p.returncode == 0
     assert re.search(r"basc: \d+ block\(s\) of 2205 frames, 0 frames lost", err)
+
+
+def test_a_start_offset_before_frame_0_clamps_nfr_to_the_zero_frame(clients_env):
+    """nfr is unsigned: lastFrameIndex + 1 + startOffs < 0 starts at frame 0 (the zero frame),
+    with no loss reported (the seed's signed nfr would have counted the negative frames lost)."""
+    env = dict(clients_env)
+    sim = subprocess.Popen([os.path.join(env["CLIENTS_BIN"], "sim_writer"), "--name", "fresh"], env=env,
+                           stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 10
+        while not os.path.exists(os.path.join(env["BASS_RUNTIME_DIR"], "bass-fresh.port")):
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        out, err, rc = run_basc(env, "fresh", [1, 3000, -100000])
+    finally:
+        sim.terminate()
+        sim.wait(timeout=10)
+    assert rc == 0, "\n".join(err)  # --check-pattern: frame 0 read as zeros, then the pattern
+    assert out == ["Requested   3000 frames, got   3000.", "A new block is ready to be processed."]
+    start = [TRACE_START.match(l) for l in err if l.startswith("trace start")][0]
+    assert int(start.group(2)) == 0
+    call = [TRACE_CALL.match(l) for l in err if l.startswith("trace lfi")][0]
+    assert (int(call.group(3)), int(call.group(5)), int(call.group(6)), int(call.group(7))) == (0, 3000, 0, 3000)
