@@ -178,6 +178,23 @@ impl Drop for Bassd {
     }
 }
 
+/// Whether the suite runs as root (the other-uid checks need setpriv as root).
+pub fn is_root() -> bool {
+    // SAFETY: geteuid cannot fail.
+    unsafe { libc::geteuid() == 0 }
+}
+
+/// The group the permission tests configure: 4242 as root (any gid may be given), else the
+/// caller's own group (the only one a non-root process may chown to for sure).
+pub fn test_group() -> u32 {
+    if is_root() {
+        4242
+    } else {
+        // SAFETY: getegid cannot fail.
+        unsafe { libc::getegid() }
+    }
+}
+
 /// An Acquire request.
 pub fn acquire_req(
     device: &str,

@@ -14,8 +14,6 @@ use std::sync::Arc;
 use bass_faults::{figure, Agent, Fields, TempDir};
 use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
 
-const GROUP: u32 = 4242;
-
 fn geometry() -> Geometry {
     Geometry { channels: 2, sample_rate: 48000, frames_per_chunk: 32, chunks_on_port: 4 }
 }
@@ -23,6 +21,7 @@ fn geometry() -> Geometry {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn port_is_0640_with_the_configured_group_and_readers_map_it_read_only() {
+    let group = bass_faults::test_group();
     let dir = TempDir::new("perm");
     let path = dir.join("bass-perm.port");
     let plain = dir.join("bass-plain.port");
@@ -36,13 +35,13 @@ fn port_is_0640_with_the_configured_group_and_readers_map_it_read_only() {
     assert_eq!(m0.gid(), my_gid);
     let mut w = Writer::create_at(
         &path,
-        &PortParams { geometry: geometry(), device: "p".into(), group: Some(GROUP) },
+        &PortParams { geometry: geometry(), device: "p".into(), group: Some(group) },
     )
     .unwrap();
     w.publish(Source::Zeros, ChunkMeta::default()).unwrap();
     let m = std::fs::metadata(&path).unwrap();
     assert_eq!(m.mode() & 0o777, 0o640, "port file mode");
-    assert_eq!(m.gid(), GROUP, "port file group");
+    assert_eq!(m.gid(), group, "port file group");
     let mut poke = Agent::spawn(&["poke", "--port", path.to_str().unwrap()]);
     let line = poke.expect_line("MAPPING");
     let f = Fields::parse(&line);
@@ -51,7 +50,7 @@ fn port_is_0640_with_the_configured_group_and_readers_map_it_read_only() {
     let (status, lines) = poke.finish();
     figure!(
         9,
-        "port mode {:o} group {} (configured {GROUP}); reader mapping perms {perms}, open flags {:o} (O_ACCMODE {}); write through the mapping: {:?}",
+        "port mode {:o} group {} (configured {group}); reader mapping perms {perms}, open flags {:o} (O_ACCMODE {}); write through the mapping: {:?}",
         m.mode() & 0o777,
         m.gid(),
         flags,
@@ -91,6 +90,7 @@ fn try_open_as(path: &std::path::Path, setpriv: &[&str]) -> Fields {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn another_uid_reads_only_through_the_group_and_never_writes() {
+    let group = bass_faults::test_group();
     if !setpriv_available() {
         figure!(9, "SKIPPED other-uid check: needs root and setpriv");
         return;
@@ -100,15 +100,15 @@ fn another_uid_reads_only_through_the_group_and_never_writes() {
     let path = dir.join("bass-uid.port");
     let mut w = Writer::create_at(
         &path,
-        &PortParams { geometry: geometry(), device: "p".into(), group: Some(GROUP) },
+        &PortParams { geometry: geometry(), device: "p".into(), group: Some(group) },
     )
     .unwrap();
     w.publish(Source::Zeros, ChunkMeta::default()).unwrap();
     let outsider = try_open_as(&path, &["--reuid=65534", "--regid=65534", "--clear-groups"]);
-    let member = try_open_as(&path, &["--reuid=65534", "--regid=65534", &format!("--groups={GROUP}")]);
+    let member = try_open_as(&path, &["--reuid=65534", "--regid=65534", &format!("--groups={group}")]);
     figure!(
         9,
-        "uid 65534 outside the group: read={} write={}; in group {GROUP}: read={} write={}",
+        "uid 65534 outside the group: read={} write={}; in group {group}: read={} write={}",
         outsider.s("read"),
         outsider.s("write"),
         member.s("read"),
