@@ -21,6 +21,7 @@ if echo 'int main(void){return 0;}' | $CC -x c -fsanitize=address,undefined -o /
 fi
 
 $CC -std=c11 "${WARN[@]}" -O2 -I"$ROOT/include" "$ROOT/examples-c/basc.c" -o "$BIN/basc" "${LINK[@]}"
+$CC -std=c11 "${WARN[@]}" -O1 -g "${SAN[@]}" -I"$ROOT/include" "$ROOT/examples-c/basc.c" -o "$BIN/basc_san" "${LINK[@]}"
 $CC -std=c11 "${WARN[@]}" -O2 -I"$ROOT/include" "$ROOT/examples-c/sim_writer.c" -o "$BIN/sim_writer" "${LINK[@]}"
 $CC -std=c11 "${WARN[@]}" -g "${SAN[@]}" -I"$ROOT/include" "$ROOT/tests/conformance/driver_c.c" -o "$BIN/driver_c" "${LINK[@]}"
 if [[ -f $ROOT/examples-c/bass.hpp ]]; then

@@ -228,7 +228,8 @@ def test_seed_example_3_long_blocks_are_sometimes_completed_by_a_second_read(liv
 
 @pytest.mark.parametrize("block,count", [(1000, 30), (10000, 6), (60000, 2), (100000, 1)])
 def test_wait_mode_never_loses_frames_whatever_the_block_size(live_port, clients_env, block, count):
-    cmd = [os.path.join(clients_env["CLIENTS_BIN"], "basc"), "--port", live_port, "--wait", "--check-pattern",
+    # basc_san: basc built with ASan/UBSan (where the toolchain has them; tests/clients/build.sh)
+    cmd = [os.path.join(clients_env["CLIENTS_BIN"], "basc_san"), "--port", live_port, "--wait", "--check-pattern",
            str(count), str(block), "0"]
     p = subprocess.run(cmd, env=clients_env, capture_output=True, text=True, timeout=60)
     assert p.returncode == 0, p.stderr
@@ -241,7 +242,7 @@ def test_wait_mode_never_loses_frames_whatever_the_block_size(live_port, clients
 
 
 def test_ctrl_c_ends_an_unlimited_wait_mode_run_cleanly(live_port, clients_env):
-    cmd = [os.path.join(clients_env["CLIENTS_BIN"], "basc"), "--port", live_port, "--wait", "0", "2205", "0"]
+    cmd = [os.path.join(clients_env["CLIENTS_BIN"], "basc_san"), "--port", live_port, "--wait", "0", "2205", "0"]
     p = subprocess.Popen(cmd, env=clients_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     first = p.stdout.readline()
     assert first.startswith("Requested")
