@@ -264,3 +264,82 @@ fn an_overrun_is_recovered_counted_and_zero_filled() {
     wait_frame(&port, info.last_frame_index + 4800);
     assert_eq!(c.status().unwrap().state, State::Capturing as u32);
 }
+
+/// A real overrun reported by ALSA (EPIPE): the capture thread is held inside a read (the
+/// `file` plugin's infile is an empty FIFO) while the `jack` plugin below keeps filling the
+/// buffer. When the FIFO gets data, the read completes, the next one fails with EPIPE, and the
+/// broker restarts the stream, counts the overrun and zero-fills the time it lost; the data
+/// after the gap continue exactly where they stopped.
+#[test]
+fn an_alsa_reported_overrun_is_recovered_and_the_data_resume_exactly() {
+    let rig = Rig::new("jackepipe");
+    let fifo = rig.path().join("in.fifo");
+    {
+        use std::os::unix::ffi::OsStrExt;
+        let c = std::ffi::CString::new(fifo.as_os_str().as_bytes()).unwrap();
+        // SAFETY: valid NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    }
+    let rc = format!(
+        "pcm.bass_jack {{\n  type jack\n  capture_ports {{ 0 system:capture_1 1 system:capture_2 }}\n}}\n\
+         pcm.bass_held {{\n  type file\n  slave.pcm \"bass_jack\"\n  file \"/dev/null\"\n  infile \"{}\"\n  format \"raw\"\n}}\n",
+        fifo.display()
+    );
+    std::fs::write(rig.path().join("asoundrc"), rc).unwrap();
+    let _jackd = Jackd::start(&rig.jack_name, rig.path());
+    let mut w = std::fs::OpenOptions::new().read(true).write(true).open(&fifo).unwrap();
+    let b = Bassd::start(
+        rig.path(),
+        "default",
+        &["--stall-ms", "10000"],
+        &[
+            ("ALSA_CONFIG_PATH", &rig.alsa_path),
+            ("JACK_DEFAULT_SERVER", &rig.jack_name),
+            ("JACK_NO_START_SERVER", "1"),
+            ("JACK_NO_AUDIO_RESERVATION", "1"),
+        ],
+    );
+    let a = b.client().acquire(&req("bass_held", RATE, 480, 400, 2)).unwrap();
+    assert_eq!(a.format, "FLOAT_LE");
+    // The broker is now blocked on the empty FIFO; let the jack plugin overrun its buffer.
+    std::thread::sleep(Duration::from_millis(1000));
+    use std::io::Write;
+    let frames = 48_000usize;
+    let value = |k: usize, c: usize| ((k % 30_000) as f32 + 1.0) / 32768.0 * if c == 0 { 1.0 } else { -1.0 };
+    let mut raw = Vec::with_capacity(frames * 8);
+    for k in 0..frames {
+        for c in 0..2 {
+            raw.extend_from_slice(&value(k, c).to_le_bytes());
+        }
+    }
+    // SAFETY: fcntl on an open pipe.
+    unsafe { libc::fcntl(std::os::fd::AsRawFd::as_raw_fd(&w), libc::F_SETPIPE_SZ, 1 << 20) };
+    w.write_all(&raw).unwrap();
+    let port = b.port();
+    let info = eventually("the overrun to be counted", || {
+        let i = port.info().unwrap();
+        (i.xruns > 0 && i.gap_frames > 0 && i.last_frame_index > i.gap_frames + 4800).then_some(i)
+    });
+    let expect = |k: usize, c: usize| convert_float(value(k, c));
+    // Frames 1..=n0 are data 0..n0, then gap_frames zeros, then data n0.. again.
+    let total = (info.last_frame_index).min(40_000);
+    let d = read_frames(&port, 1, total);
+    let n0 = (0..total as usize).find(|&i| d[0][i] == 0).expect("a zero-filled gap");
+    assert!(n0 > 0, "data before the gap");
+    let frame = |i: usize| (d[0][i], d[1][i]);
+    let before_ok = (0..n0).all(|i| frame(i) == (expect(i, 0), expect(i, 1)));
+    assert!(before_ok, "the {n0} frames before the gap are the first {n0} of the FIFO");
+    let gap = (n0..total as usize).take_while(|&i| frame(i) == (0, 0)).count();
+    assert!(gap as u64 <= info.gap_frames, "gap {gap}, header {}", info.gap_frames);
+    let bad = (n0 + gap..total as usize).find(|&i| frame(i) != (expect(i - gap, 0), expect(i - gap, 1)));
+    assert_eq!(bad, None, "after the gap of {gap} frames the FIFO data continue exactly");
+    assert_eq!(b.client().status().unwrap().state, State::Capturing as u32);
+    // It went through ALSA's overrun (EPIPE + prepare/start), not the timestamp heuristics.
+    let log = b.log_text();
+    assert!(log.contains("overrun (") && log.contains("restarting the stream"), "{log}");
+    drop(w);
+}
+
+fn convert_float(x: f32) -> i32 {
+    (f64::from(x) * 2_147_483_648.0).round() as i32
+}
