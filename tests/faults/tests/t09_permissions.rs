@@ -130,9 +130,10 @@ fn no_reader_ever_opens_a_half_initialised_port() {
     let dir = TempDir::new("perm-init");
     let path = dir.join("bass-init.port");
     let done = Arc::new(AtomicBool::new(false));
+    let opens = Arc::new(std::sync::atomic::AtomicU64::new(0));
     let recreations = 300u64;
     let reader = {
-        let (path, done) = (path.clone(), done.clone());
+        let (path, done, opens) = (path.clone(), done.clone(), opens.clone());
         std::thread::spawn(move || {
             let (mut ok, mut not_found, mut max_epoch) = (0u64, 0u64, 0u64);
             while !done.load(Ordering::Relaxed) {
@@ -144,6 +145,7 @@ fn no_reader_ever_opens_a_half_initialised_port() {
                         assert!(p.epoch() >= 1 && p.epoch() <= recreations);
                         max_epoch = max_epoch.max(p.epoch());
                         ok += 1;
+                        opens.fetch_add(1, Ordering::Relaxed);
                     }
                     Err(Error::NotFound { .. }) => not_found += 1,
                     Err(e) => panic!("a reader saw a half-initialised port: {e:?}"),
@@ -160,6 +162,8 @@ fn no_reader_ever_opens_a_half_initialised_port() {
         .unwrap();
         w.publish(Source::Zeros, ChunkMeta::default()).unwrap();
     }
+    // However the threads were scheduled, let the reader open the final port at least once.
+    bass_faults::wait_until(std::time::Duration::from_secs(10), || opens.load(Ordering::Relaxed) > 0);
     done.store(true, Ordering::Relaxed);
     let (ok, not_found, max_epoch) = reader.join().expect("reader thread");
     let leftovers: Vec<String> = dir.entries().into_iter().filter(|e| e != "bass-init.port").collect();
