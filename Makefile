@@ -5,16 +5,20 @@ export CARGO_TERM_COLOR ?= never
 RELEASE_DIR := target/release
 CFLAGS_STRICT := -std=c11 -Wall -Wextra -Wpedantic -Werror
 
-.PHONY: all deps build demo test test-rust test-loom test-c test-broker test-clients test-faults \
+.PHONY: all deps deps-build build demo test test-rust test-loom test-c test-broker test-clients test-faults \
         header fmt lint bench install clean
 
 all: build
 
-# System packages (apt) and Python modules the build and the tests need.
+# System packages (apt) and Python modules: what the build needs (deps-build), and what
+# the tests need on top of it (deps: Octave for the MEX wrapper).
+deps-build:
+	scripts/install-deps.sh
+
 deps:
 	scripts/install-deps.sh --with-octave
 
-build: deps
+build: deps-build
 	$(CARGO) build --release --workspace
 
 demo: build
