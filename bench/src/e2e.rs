@@ -204,7 +204,8 @@ fn e2e_row(bassd: &Path, dir: &Path, period: u32, chunk: u32, secs: f64) -> E2eR
         }
     };
     let Some(jack) = jack else { return row };
-    let name = "bench-e2e";
+    let name = format!("bench-e2e-{period}");
+    let name = name.as_str();
     let d = match start_bassd(bassd, name, "bassjack", chunk, 200) {
         Ok(d) => d,
         Err(e) => {
@@ -245,7 +246,8 @@ fn e2e_row(bassd: &Path, dir: &Path, period: u32, chunk: u32, secs: f64) -> E2eR
 }
 
 fn cpu_row(bassd: &Path, device: &str, chunk: u32, secs: f64) -> Result<CpuRow, String> {
-    let name = "bench-cpu";
+    let name = format!("bench-cpu-{chunk}");
+    let name = name.as_str();
     let chunks = (48000 * 2 / chunk).max(4);
     let d = start_bassd(bassd, name, device, chunk, chunks)?;
     let mut kids: Vec<Child> = spawn_ready(1, "cpu-reader", &[name.into(), "every".into()]);

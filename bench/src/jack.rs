@@ -94,6 +94,15 @@ impl JackClient {
         if lib.is_null() {
             return Err("libjack.so.0 not found (install jackd2)".into());
         }
+        // Silence libjack's messages (it prints while the server is still starting).
+        type SetMsg = unsafe extern "C" fn(extern "C" fn(*const c_char));
+        extern "C" fn quiet(_: *const c_char) {}
+        for f in ["jack_set_error_function", "jack_set_info_function"] {
+            if let Ok(set) = sym::<SetMsg>(lib, f) {
+                // SAFETY: the documented setter, with a callback that ignores its argument.
+                unsafe { set(quiet) };
+            }
+        }
         let open: ClientOpen = sym(lib, "jack_client_open")?;
         let set_process: SetProcess = sym(lib, "jack_set_process_callback")?;
         let register: PortRegister = sym(lib, "jack_port_register")?;

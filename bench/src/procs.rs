@@ -40,8 +40,19 @@ pub struct Child {
 
 impl Child {
     /// Starts `bass-bench child ROLE ARGS...`.
+    ///
+    /// Experiment hook: with `BASS_BENCH_READER_EXE` set, bass reader roles run from that
+    /// executable instead (a bass-bench built against a modified libbassclient).
     pub fn spawn(role: &str, args: &[String]) -> Child {
-        let exe = std::env::current_exe().expect("own executable");
+        let alt = std::env::var_os("BASS_BENCH_READER_EXE")
+            .filter(|v| !v.is_empty())
+            .filter(|_| matches!(role, "wake-reader" | "ring-reader" | "cpu-reader" | "poll-reader"));
+        let exe = alt.map(std::path::PathBuf::from).unwrap_or_else(|| std::env::current_exe().expect("own executable"));
+        Child::spawn_exe(&exe, role, args)
+    }
+
+    /// Starts `EXE child ROLE ARGS...`.
+    pub fn spawn_exe(exe: &Path, role: &str, args: &[String]) -> Child {
         let mut proc = Command::new(exe)
             .arg("child")
             .arg(role)

@@ -15,12 +15,27 @@ use crate::original::{self, OrigPort};
 use crate::procs::{field, finish_all, spawn_ready};
 use crate::stats::{fmt_ns, fmt_ratio, median, quantile, spread};
 
+
 /// Frames per chunk (the seed's default).
 pub const NFPC: u32 = 2205;
 /// Windows measured: (seconds, chunks on port).
 pub const WINDOWS: &[(f64, u32)] = &[(0.1, 2), (1.0, 20), (10.0, 200), (60.0, 1200)];
 /// Reader process counts.
 pub const READERS: &[usize] = &[0, 1, 8, 64];
+
+/// Chunk sizes of the 10 s-window sweep.
+pub const SWEEP_CHUNKS: &[u32] = &[64, 256, 2205];
+
+/// One chunk size of the sweep (10 s window, 1 reader).
+#[derive(Clone, Debug)]
+pub struct SweepRow {
+    /// nFPC.
+    pub frames_per_chunk: u32,
+    /// Per repetition: ring CPU per publish (ns).
+    pub ring_ns: Vec<f64>,
+    /// Per repetition: original CPU per publish (ns).
+    pub orig_ns: Vec<f64>,
+}
 
 /// Which design.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -61,6 +76,8 @@ pub struct PublishResults {
     pub period_ms: f64,
     /// Where the time of one publish goes.
     pub breakdown: Breakdown,
+    /// Chunk-size sweep at a 10 s window.
+    pub sweep: Vec<SweepRow>,
 }
 
 impl PublishResults {
@@ -75,8 +92,12 @@ impl PublishResults {
     }
 }
 
+fn chunk_of(nfpc: u32) -> Vec<i32> {
+    (0..nfpc as i32 * 2).map(|i| i.wrapping_mul(104729)).collect()
+}
+
 fn chunk() -> Vec<i32> {
-    (0..NFPC as i32 * 2).map(|i| i.wrapping_mul(104729)).collect()
+    chunk_of(NFPC)
 }
 
 struct Pace {
@@ -117,12 +138,12 @@ fn time_publishes(pace: &Pace, mut publish: impl FnMut()) -> (Vec<f64>, Vec<f64>
     (times, walls)
 }
 
-fn ring_cell(ncop: u32, readers: usize, pace: &Pace) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+fn ring_cell(nfpc: u32, ncop: u32, readers: usize, pace: &Pace) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let name = "bench-pub";
-    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: NFPC, chunks_on_port: ncop };
+    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: nfpc, chunks_on_port: ncop };
     let params = PortParams { geometry, device: "bench:publish".into(), group: None };
     let mut w = Writer::create(name, &params).expect("create port");
-    let data = chunk();
+    let data = chunk_of(nfpc);
     for _ in 0..ncop {
         w.publish(Source::Interleaved(&data), ChunkMeta::default()).expect("publish");
     }
@@ -137,12 +158,12 @@ fn ring_cell(ncop: u32, readers: usize, pace: &Pace) -> (Vec<f64>, Vec<f64>, Vec
     (times, walls, reads)
 }
 
-fn orig_cell(dir: &std::path::Path, ncop: u32, readers: usize, pace: &Pace) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+fn orig_cell(dir: &std::path::Path, nfpc: u32, ncop: u32, readers: usize, pace: &Pace) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let path: PathBuf = dir.join("bench-orig.port");
-    let port = OrigPort::create(&path, NFPC as usize, ncop as usize);
+    let port = OrigPort::create(&path, nfpc as usize, ncop as usize);
     let kids = spawn_ready(readers, "orig-reader", &[path.display().to_string()]);
     std::thread::sleep(Duration::from_millis(20));
-    let data = chunk();
+    let data = chunk_of(nfpc);
     let (times, walls) = time_publishes(pace, || {
         port.publish(&data);
     });
@@ -164,7 +185,7 @@ pub fn run(reps: usize, quick: bool) -> PublishResults {
         min_chunks: 8,
         budget: Duration::from_millis(if quick { 800 } else { 2000 }),
     };
-    let mut res = PublishResults { cells: vec![], period_ms: period.as_secs_f64() * 1e3, breakdown: breakdown(reps.max(3)) };
+    let mut res = PublishResults { cells: vec![], period_ms: period.as_secs_f64() * 1e3, breakdown: breakdown(reps.max(3)), sweep: vec![] };
     for &(window_s, _) in WINDOWS {
         for &readers in READERS {
             for design in [Design::Ring, Design::Original] {
@@ -186,8 +207,8 @@ pub fn run(reps: usize, quick: bool) -> PublishResults {
             for &readers in READERS {
                 for design in [Design::Ring, Design::Original] {
                     let (times, walls, reads) = match design {
-                        Design::Ring => ring_cell(ncop, readers, &ring_pace),
-                        Design::Original => orig_cell(&dir, ncop, readers, &orig_pace),
+                        Design::Ring => ring_cell(NFPC, ncop, readers, &ring_pace),
+                        Design::Original => orig_cell(&dir, NFPC, ncop, readers, &orig_pace),
                     };
                     let cell = res
                         .cells
@@ -214,6 +235,25 @@ pub fn run(reps: usize, quick: bool) -> PublishResults {
                 }
             }
         }
+    }
+    // Chunk-size sweep at a 10 s window, one reader: the original's cost is O(window) per
+    // chunk, the ring's O(chunk), so their ratio grows with nCOP.
+    for &nfpc in SWEEP_CHUNKS {
+        let ncop = 441_000u32.div_ceil(nfpc);
+        let mut row = SweepRow { frames_per_chunk: nfpc, ring_ns: vec![], orig_ns: vec![] };
+        for _ in 0..reps {
+            let (r, _, _) = ring_cell(nfpc, ncop, 1, &ring_pace);
+            let (o, _, _) = orig_cell(&dir, nfpc, ncop, 1, &orig_pace);
+            row.ring_ns.push(median(&r));
+            row.orig_ns.push(median(&o));
+        }
+        println!(
+            "  10 s window, {nfpc}-frame chunks, 1 reader: ring {} original {} ratio {}",
+            spread(&row.ring_ns, fmt_ns),
+            spread(&row.orig_ns, fmt_ns),
+            fmt_ratio(median(&row.orig_ns) / median(&row.ring_ns))
+        );
+        res.sweep.push(row);
     }
     for &(window_s, _) in WINDOWS {
         for &readers in READERS {

@@ -244,15 +244,29 @@ fn one_reader_side_by_side(n: usize) -> ((Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>
     let pinger = Pinger::start();
     let mut a = WakePort::start("bench-wake-a", 1, "wake-reader");
     let mut b = WakePort::start("bench-wake-b", 1, "wake-raw-waiter");
+    // Experiment hook: a fourth reader from another build, interleaved with the rest.
+    let mut alt = std::env::var_os("BASS_BENCH_ALT_EXE").map(|exe| {
+        let mut p = WakePort::start("bench-wake-c", 0, "wake-reader");
+        let mut k = Child::spawn_exe(std::path::Path::new(&exe), "wake-reader", &["bench-wake-c".into()]);
+        k.ready();
+        p.kids.push(k);
+        p
+    });
+    let ways = if alt.is_some() { 4 } else { 3 };
     std::thread::sleep(Duration::from_millis(50));
     let mut rng = Rng::new();
-    for k in 0..3 * n {
+    for k in 0..ways * n {
         std::thread::sleep(rng.gap(3000, 6000));
-        match k % 3 {
+        match k % ways {
             0 => pinger.ping(),
             1 => a.publish(),
-            _ => b.publish(),
+            2 => b.publish(),
+            _ => alt.as_mut().expect("alt").publish(),
         }
+    }
+    if let Some(p) = alt {
+        let ((v, _, _), cpu) = p.finish();
+        println!("  alternative build's reader: median {} p99 {} CPU/chunk {}", fmt_ns(median(&v)), fmt_ns(quantile(&v, 0.99)), fmt_ns(cpu));
     }
     let raw = pinger.finish();
     let ((bass, _, data), cpu_a) = a.finish();
@@ -303,16 +317,22 @@ pub fn child_raw_waiter(args: &[String]) {
     let cap = port.geometry().frames_per_chunk as usize * 8;
     let (mut l, mut r) = (vec![0i32; cap], vec![0i32; cap]);
     let mut out = String::new();
+    // Experiment knobs (not used by the harness itself).
+    let timeout_ns: u64 = std::env::var("BENCH_WAITER_TIMEOUT_MS").ok().and_then(|v| v.parse().ok()).unwrap_or(0) * 1_000_000;
+    let do_fstat = std::env::var("BENCH_WAITER_FSTAT").is_ok();
     crate::procs::say_ready();
     let cpu0 = crate::procs::process_cpu_ns();
     loop {
+        if do_fstat {
+            let _ = std::fs::metadata(port.path());
+        }
         let seq = futex.load(Acquire);
         let lfi = lfi_word.load(Acquire);
         if lfi < nfr {
             if state.load(Acquire) == State::Stopped as u32 {
                 break;
             }
-            futex_wait(futex, seq, 0);
+            futex_wait(futex, seq, timeout_ns);
             continue;
         }
         let woke = now_ns();
