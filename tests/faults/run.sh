@@ -7,7 +7,8 @@
 #   2. the corrupted-port tests again in a debug build (overflow checks on);
 #   3. the C ABI abuse program (tests/faults/c/abi_abuse.c) plain, under
 #      AddressSanitizer + UndefinedBehaviorSanitizer, and under ThreadSanitizer;
-#   4. Miri on the heap-backed ring, when the toolchain has it (optional).
+#   4. Miri on the heap-backed ring, when the toolchain has it (optional);
+#   5. opt-in (BASS_FAULTS_RUST_TSAN=1): ThreadSanitizer on the whole Rust library.
 #
 # Every test prints its measured figures as `FIGURE item N: ...`; they are collected in
 # $CARGO_TARGET_DIR/faults/figures.txt and printed at the end.
@@ -93,6 +94,18 @@ if [[ "${BASS_FAULTS_MIRI:-1}" != 0 ]] && "$cargo" +nightly miri --version >/dev
   ((last_ok)) && echo "FIGURE item 12: Miri: the heap-backed ring test ran with 0 undefined-behaviour or data-race reports" | tee -a "$log"
 else
   echo "FIGURE item 12: SKIPPED Miri: no nightly toolchain with miri here (rustup toolchain install nightly --component miri rust-src; then: cargo +nightly miri test -p bass-faults --test t12_miri_ring)" | tee -a "$log"
+fi
+
+# ThreadSanitizer on the whole Rust library (opt-in: rebuilds std with the sanitizer, a few
+# minutes on 2 cores): BASS_FAULTS_RUST_TSAN=1 with a nightly toolchain that has rust-src.
+if [[ "${BASS_FAULTS_RUST_TSAN:-0}" == 1 ]]; then
+  step "ThreadSanitizer: Rust library (nightly, -Zbuild-std)" env CARGO_TARGET_DIR="$target/tsan" \
+    RUSTFLAGS="-Zsanitizer=thread" TSAN_OPTIONS=halt_on_error=1 \
+    "$cargo" +nightly test -Zbuild-std --target "$(rustc -vV | sed -n 's/^host: //p')" \
+    -p bass-faults --test t12_miri_ring -- --nocapture
+  ((last_ok)) && echo "FIGURE item 12: ThreadSanitizer on the instrumented Rust library (heap ring + mapped port, writer and reader threads): 0 reports" | tee -a "$log"
+else
+  echo "FIGURE item 12: Rust-side ThreadSanitizer not run (opt-in: BASS_FAULTS_RUST_TSAN=1, needs nightly + rust-src)" | tee -a "$log"
 fi
 
 grep -ho 'FIGURE item .*' "$log" | sort -s -t: -k1,1V > "$out/figures.txt" || true
