@@ -26,10 +26,8 @@ use crate::stats::{fmt_ns, median, quantile};
 /// One end-to-end configuration.
 #[derive(Clone, Debug, Default)]
 pub struct E2eRow {
-    /// JACK period (frames).
+    /// JACK period = bass chunk (frames).
     pub period: u32,
-    /// bass chunk (frames).
-    pub chunk: u32,
     /// bass: delay from the start of the JACK cycle that made the chunk's last frame
     /// available to the reader having the chunk (ns).
     pub bass: Vec<f64>,
@@ -52,8 +50,6 @@ pub struct E2eRow {
 /// bassd's CPU on a simulated device.
 #[derive(Clone, Debug, Default)]
 pub struct CpuRow {
-    /// Device.
-    pub device: String,
     /// Frames per chunk.
     pub chunk: u32,
     /// bassd, share of one core.
@@ -172,7 +168,7 @@ fn read_delays(name: &str, d: Duration) -> Result<(Vec<(u64, f64)>, u32), String
 }
 
 fn e2e_row(bassd: &Path, dir: &Path, period: u32, chunk: u32, secs: f64) -> E2eRow {
-    let mut row = E2eRow { period, chunk, ..E2eRow::default() };
+    let mut row = E2eRow { period, ..E2eRow::default() };
     let server = format!("bassbench{}", std::process::id());
     let jackd = Command::new("jackd")
         .args(["-n", &server, "-d", "dummy", "-r", "48000", "-C", "2", "-P", "2", "-p"])
@@ -264,7 +260,6 @@ fn cpu_row(bassd: &Path, device: &str, chunk: u32, secs: f64) -> Result<CpuRow, 
     let lines = crate::procs::finish_all(kids);
     let wakes = lines.iter().filter_map(|l| field(l, "wakes_per_s")).fold(0.0, f64::max);
     Ok(CpuRow {
-        device: device.into(),
         chunk,
         bassd: row_cpu(b1, b0),
         reader: row_cpu(r1, r0),
@@ -330,12 +325,17 @@ pub fn run(quick: bool) -> E2eResults {
         res.skipped = Some(format!("write alsa.conf: {e}"));
         return res;
     }
-    let have_jackd = Command::new("jackd").arg("--version").stdout(Stdio::null()).stderr(Stdio::null()).status().is_ok();
+    let have_jackd =
+        Command::new("jackd").arg("--version").stdout(Stdio::null()).stderr(Stdio::null()).status().is_ok();
     for (period, chunk) in [(64u32, 64u32), (256, 256), (1024, 1024)] {
         let row = if have_jackd {
             e2e_row(&bassd, &dir, period, chunk, secs)
         } else {
-            E2eRow { period, chunk, skipped: Some("jackd not installed (scripts/install-deps.sh)".into()), ..E2eRow::default() }
+            E2eRow {
+                period,
+                skipped: Some("jackd not installed (scripts/install-deps.sh)".into()),
+                ..E2eRow::default()
+            }
         };
         match &row.skipped {
             Some(why) if row.bass.is_empty() => println!("  end to end, period {period}: skipped: {why}"),

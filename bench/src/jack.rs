@@ -6,7 +6,8 @@ use std::ffi::{c_char, c_int, c_void, CStr, CString};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 
 type ClientOpen = unsafe extern "C" fn(*const c_char, c_int, *mut c_int, ...) -> *mut c_void;
-type SetProcess = unsafe extern "C" fn(*mut c_void, extern "C" fn(u32, *mut c_void) -> c_int, *mut c_void) -> c_int;
+type SetProcess =
+    unsafe extern "C" fn(*mut c_void, extern "C" fn(u32, *mut c_void) -> c_int, *mut c_void) -> c_int;
 type PortRegister = unsafe extern "C" fn(*mut c_void, *const c_char, *const c_char, u64, u64) -> *mut c_void;
 type Activate = unsafe extern "C" fn(*mut c_void) -> c_int;
 type Connect = unsafe extern "C" fn(*mut c_void, *const c_char, *const c_char) -> c_int;
@@ -175,7 +176,8 @@ impl JackClient {
     /// spread (max − min, ns) of the measured clock offset (jack_get_time vs CLOCK_MONOTONIC).
     pub fn cycle_starts_mono(&self) -> (Vec<u64>, u64) {
         let n = self.shared.count.load(Ordering::Relaxed).min(CAP);
-        let offs: Vec<i64> = self.shared.offsets[..n].iter().map(|o| o.load(Ordering::Relaxed) as i64).collect();
+        let offs: Vec<i64> =
+            self.shared.offsets[..n].iter().map(|o| o.load(Ordering::Relaxed) as i64).collect();
         let mut sorted = offs.clone();
         sorted.sort_unstable();
         let off = sorted.get(n / 2).copied().unwrap_or(0);
@@ -183,7 +185,10 @@ impl JackClient {
             (Some(a), Some(b)) => (b - a) as u64,
             _ => 0,
         };
-        let starts = self.shared.starts[..n].iter().map(|s| (s.load(Ordering::Relaxed) as i64 * 1000 + off) as u64).collect();
+        let starts = self.shared.starts[..n]
+            .iter()
+            .map(|s| (s.load(Ordering::Relaxed) as i64 * 1000 + off) as u64)
+            .collect();
         (starts, spread)
     }
 }

@@ -20,7 +20,6 @@ mod shm;
 mod stats;
 mod wake;
 
-
 use std::path::PathBuf;
 
 /// Options of a run.

@@ -99,7 +99,8 @@ fn ticks(lo: f64, hi: f64, log: bool) -> Vec<f64> {
         let span = (hi - lo).max(1e-12);
         let raw = span / 6.0;
         let mag = 10f64.powf(raw.log10().floor());
-        let step = [1.0, 2.0, 5.0, 10.0].iter().map(|m| m * mag).find(|s| span / s <= 7.0).unwrap_or(10.0 * mag);
+        let step =
+            [1.0, 2.0, 5.0, 10.0].iter().map(|m| m * mag).find(|s| span / s <= 7.0).unwrap_or(10.0 * mag);
         let mut v = (lo / step).floor() * step;
         let mut out = Vec::new();
         while v <= hi + step * 0.5 {
@@ -126,7 +127,8 @@ fn dashed_line(c: &mut Canvas, a: Point, b: Point, style: PrimitiveStyle<Rgb888>
 fn draw_panel(c: &mut Canvas, ch: &Chart, ox: i32, oy: i32) {
     let (left, right, top, bottom) = (ox + 70, ox + PW - 15, oy + 28, oy + PH - 45);
     let title_style = MonoTextStyle::new(&FONT_7X13_BOLD, Rgb888::BLACK);
-    let _ = Text::with_alignment(&ch.title, Point::new(ox + PW / 2, oy + 16), title_style, Alignment::Center).draw(c);
+    let _ = Text::with_alignment(&ch.title, Point::new(ox + PW / 2, oy + 16), title_style, Alignment::Center)
+        .draw(c);
     let pts: Vec<(f64, f64)> = ch
         .series
         .iter()
@@ -138,7 +140,8 @@ fn draw_panel(c: &mut Canvas, ch: &Chart, ox: i32, oy: i32) {
         return;
     }
     let range = |v: Vec<f64>, log: bool| {
-        let (mut lo, mut hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+        let (mut lo, mut hi) =
+            v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
         if log {
             lo = 10f64.powf(lo.log10().floor());
             hi = 10f64.powf(hi.log10().ceil());
@@ -154,11 +157,13 @@ fn draw_panel(c: &mut Canvas, ch: &Chart, ox: i32, oy: i32) {
     let (x0, x1) = range(pts.iter().map(|p| p.0).collect(), ch.xlog);
     let (y0, y1) = range(pts.iter().map(|p| p.1).collect(), ch.ylog);
     let fx = |x: f64| {
-        let t = if ch.xlog { (x.log10() - x0.log10()) / (x1.log10() - x0.log10()) } else { (x - x0) / (x1 - x0) };
+        let t =
+            if ch.xlog { (x.log10() - x0.log10()) / (x1.log10() - x0.log10()) } else { (x - x0) / (x1 - x0) };
         left + (t * (right - left) as f64).round() as i32
     };
     let fy = |y: f64| {
-        let t = if ch.ylog { (y.log10() - y0.log10()) / (y1.log10() - y0.log10()) } else { (y - y0) / (y1 - y0) };
+        let t =
+            if ch.ylog { (y.log10() - y0.log10()) / (y1.log10() - y0.log10()) } else { (y - y0) / (y1 - y0) };
         bottom - (t * (bottom - top) as f64).round() as i32
     };
     let grid = PrimitiveStyle::with_stroke(Rgb888::new(225, 225, 225), 1);
@@ -173,7 +178,8 @@ fn draw_panel(c: &mut Canvas, ch: &Chart, ox: i32, oy: i32) {
         let _ = Line::new(Point::new(left, y), Point::new(right, y)).into_styled(grid).draw(c);
         text(c, &(ch.yfmt)(t), left - 4, y + 3, Alignment::Right);
     }
-    let _ = Rectangle::with_corners(Point::new(left, top), Point::new(right, bottom)).into_styled(axis).draw(c);
+    let _ =
+        Rectangle::with_corners(Point::new(left, top), Point::new(right, bottom)).into_styled(axis).draw(c);
     text(c, &ch.xlabel, (left + right) / 2, bottom + 30, Alignment::Center);
     text(c, &ch.ylabel, ox + 4, top - 6, Alignment::Left);
     for s in &ch.series {
@@ -181,7 +187,9 @@ fn draw_panel(c: &mut Canvas, ch: &Chart, ox: i32, oy: i32) {
         let p: Vec<Point> = s
             .points
             .iter()
-            .filter(|&&(x, y)| x.is_finite() && y.is_finite() && (!ch.xlog || x > 0.0) && (!ch.ylog || y > 0.0))
+            .filter(|&&(x, y)| {
+                x.is_finite() && y.is_finite() && (!ch.xlog || x > 0.0) && (!ch.ylog || y > 0.0)
+            })
             .map(|&(x, y)| Point::new(fx(x), fy(y)))
             .collect();
         for w in p.windows(2) {

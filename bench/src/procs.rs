@@ -17,7 +17,8 @@ pub struct Scratch {
 impl Scratch {
     /// Creates `/dev/shm/bass-bench.PID` (or under $TMPDIR if /dev/shm is missing).
     pub fn new() -> Scratch {
-        let base = if Path::new("/dev/shm").is_dir() { PathBuf::from("/dev/shm") } else { std::env::temp_dir() };
+        let base =
+            if Path::new("/dev/shm").is_dir() { PathBuf::from("/dev/shm") } else { std::env::temp_dir() };
         let dir = base.join(format!("bass-bench.{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).expect("create the scratch directory");
@@ -47,7 +48,9 @@ impl Child {
         let alt = std::env::var_os("BASS_BENCH_READER_EXE")
             .filter(|v| !v.is_empty())
             .filter(|_| matches!(role, "wake-reader" | "ring-reader" | "cpu-reader" | "poll-reader"));
-        let exe = alt.map(std::path::PathBuf::from).unwrap_or_else(|| std::env::current_exe().expect("own executable"));
+        let exe = alt
+            .map(std::path::PathBuf::from)
+            .unwrap_or_else(|| std::env::current_exe().expect("own executable"));
         Child::spawn_exe(&exe, role, args)
     }
 
@@ -96,12 +99,6 @@ impl Child {
         let _ = self.proc.wait();
         lines
     }
-
-    /// Kills the child (for cleanup after errors).
-    pub fn kill(mut self) {
-        let _ = self.proc.kill();
-        let _ = self.proc.wait();
-    }
 }
 
 /// Starts `n` children of one role and waits until each said `ready`.
@@ -122,7 +119,8 @@ pub fn say_ready() {
 
 /// Parses `key=value` words of a result line into f64 values.
 pub fn field(line: &str, key: &str) -> Option<f64> {
-    line.split_whitespace().find_map(|w| w.strip_prefix(key).and_then(|r| r.strip_prefix('=')).and_then(|v| v.parse().ok()))
+    line.split_whitespace()
+        .find_map(|w| w.strip_prefix(key).and_then(|r| r.strip_prefix('=')).and_then(|v| v.parse().ok()))
 }
 
 /// Lines of several finished children, concatenated.
@@ -169,7 +167,10 @@ pub fn rss_of(pid: &str) -> Rss {
 impl Rss {
     /// As `key=value` words.
     pub fn words(&self) -> String {
-        format!("rss={} anon={} file={} shmem={} pss={}", self.rss, self.anon, self.file, self.shmem, self.pss)
+        format!(
+            "rss={} anon={} file={} shmem={} pss={}",
+            self.rss, self.anon, self.file, self.shmem, self.pss
+        )
     }
 
     /// From `key=value` words.

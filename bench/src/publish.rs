@@ -15,7 +15,6 @@ use crate::original::{self, OrigPort};
 use crate::procs::{field, finish_all, spawn_ready};
 use crate::stats::{fmt_ns, fmt_ratio, median, quantile, spread};
 
-
 /// Frames per chunk (the seed's default).
 pub const NFPC: u32 = 2205;
 /// Windows measured: (seconds, chunks on port).
@@ -158,7 +157,13 @@ fn ring_cell(nfpc: u32, ncop: u32, readers: usize, pace: &Pace) -> (Vec<f64>, Ve
     (times, walls, reads)
 }
 
-fn orig_cell(dir: &std::path::Path, nfpc: u32, ncop: u32, readers: usize, pace: &Pace) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+fn orig_cell(
+    dir: &std::path::Path,
+    nfpc: u32,
+    ncop: u32,
+    readers: usize,
+    pace: &Pace,
+) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let path: PathBuf = dir.join("bench-orig.port");
     let port = OrigPort::create(&path, nfpc as usize, ncop as usize);
     let kids = spawn_ready(readers, "orig-reader", &[path.display().to_string()]);
@@ -178,14 +183,24 @@ fn orig_cell(dir: &std::path::Path, nfpc: u32, ncop: u32, readers: usize, pace: 
 pub fn run(reps: usize, quick: bool) -> PublishResults {
     let dir = bassclient::paths::runtime_dir();
     let period = Duration::from_millis(4);
-    let ring_pace = Pace { period, max_chunks: if quick { 50 } else { 150 }, min_chunks: 10, budget: Duration::from_secs(2) };
+    let ring_pace = Pace {
+        period,
+        max_chunks: if quick { 50 } else { 150 },
+        min_chunks: 10,
+        budget: Duration::from_secs(2),
+    };
     let orig_pace = Pace {
         period,
         max_chunks: if quick { 50 } else { 150 },
         min_chunks: 8,
         budget: Duration::from_millis(if quick { 800 } else { 2000 }),
     };
-    let mut res = PublishResults { cells: vec![], period_ms: period.as_secs_f64() * 1e3, breakdown: breakdown(reps.max(3)), sweep: vec![] };
+    let mut res = PublishResults {
+        cells: vec![],
+        period_ms: period.as_secs_f64() * 1e3,
+        breakdown: breakdown(reps.max(3)),
+        sweep: vec![],
+    };
     for &(window_s, _) in WINDOWS {
         for &readers in READERS {
             for design in [Design::Ring, Design::Original] {
@@ -349,7 +364,12 @@ pub fn breakdown(reps: usize) -> Breakdown {
     let data = chunk();
     let heap: Vec<AtomicI32> = (0..2 * nfop).map(|_| AtomicI32::new(0)).collect();
     let (lfi, intent) = (AtomicU64::new(0), AtomicU64::new(0));
-    let ring = bassclient::ring::Ring { last_frame_index: &lfi, write_intent: &intent, samples: &heap, frames_on_port: nfop as u64 };
+    let ring = bassclient::ring::Ring {
+        last_frame_index: &lfi,
+        write_intent: &intent,
+        samples: &heap,
+        frames_on_port: nfop as u64,
+    };
     let mut plain = vec![0i32; 2 * nfop];
     let word = AtomicU32::new(0);
     let mut heap_lfi = 0u64;

@@ -72,14 +72,24 @@ fn goals(r: &Results) -> Vec<Goal> {
         g.push(Goal {
             part: "2 publish",
             goal: "flat in window size (60 s vs 0.1 s, 1 reader)".into(),
-            measured: format!("{} ({} vs {} CPU per chunk)", fmt_ratio(flat_w), fmt_ns(ring(60.0, 1)), fmt_ns(ring(0.1, 1))),
+            measured: format!(
+                "{} ({} vs {} CPU per chunk)",
+                fmt_ratio(flat_w),
+                fmt_ns(ring(60.0, 1)),
+                fmt_ns(ring(0.1, 1))
+            ),
             met: Some(flat_w <= 1.1),
         });
         let flat_r = ring(10.0, 64) / ring(10.0, 1);
         g.push(Goal {
             part: "2 publish",
             goal: "flat in readers: 64 readers ≤ 1.1× one reader (10 s window)".into(),
-            measured: format!("{} ({} vs {})", fmt_ratio(flat_r), fmt_ns(ring(10.0, 64)), fmt_ns(ring(10.0, 1))),
+            measured: format!(
+                "{} ({} vs {})",
+                fmt_ratio(flat_r),
+                fmt_ns(ring(10.0, 64)),
+                fmt_ns(ring(10.0, 1))
+            ),
             met: Some(flat_r <= 1.1),
         });
         let vs = |k: usize| p.publish_median(Design::Original, 10.0, k) / ring(10.0, k);
@@ -147,7 +157,10 @@ fn goals(r: &Results) -> Vec<Goal> {
             goal: "jackd → ALSA jack PCM → bassd → reader, vs a direct JACK client".into(),
             measured: format!(
                 "not measured: {}",
-                e.skipped.clone().or_else(|| e.e2e.iter().find_map(|x| x.skipped.clone())).unwrap_or_default()
+                e.skipped
+                    .clone()
+                    .or_else(|| e.e2e.iter().find_map(|x| x.skipped.clone()))
+                    .unwrap_or_default()
             ),
             met: None,
         }),
@@ -159,7 +172,8 @@ fn goals(r: &Results) -> Vec<Goal> {
         let worst_wait = e.cpu.iter().map(|c| c.waiter).fold(0.0, f64::max);
         g.push(Goal {
             part: "5 CPU",
-            goal: "bassd's share of one core at 48 kHz stereo (sim device), 32/64/256/2205-frame chunks".into(),
+            goal: "bassd's share of one core at 48 kHz stereo (sim device), 32/64/256/2205-frame chunks"
+                .into(),
             measured: format!("{} of one core (no numeric goal)", cpu.join(", ")),
             met: None,
         });
@@ -176,7 +190,10 @@ fn goals(r: &Results) -> Vec<Goal> {
         });
     }
     if let Some(m) = &r.memory {
-        let exact = m.iter().all(|x| x.file_bytes == x.window_bytes + x.overhead_bytes && x.overhead_bytes <= 4096 + (x.window_s as u64 * 20 * 32).div_ceil(4096) * 4096);
+        let exact = m.iter().all(|x| {
+            x.file_bytes == x.window_bytes + x.overhead_bytes
+                && x.overhead_bytes <= 4096 + (x.window_s as u64 * 20 * 32).div_ceil(4096) * 4096
+        });
         let worst = m.iter().map(|x| x.overhead_bytes).max().unwrap_or(0);
         g.push(Goal {
             part: "6 memory",
@@ -261,7 +278,9 @@ fn publish_section(r: &Results, md: &mut String) {
     let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for &(w, _) in crate::publish::WINDOWS {
         for &k in crate::publish::READERS {
-            let (Some(a), Some(b)) = (p.cell(Design::Ring, w, k), p.cell(Design::Original, w, k)) else { continue };
+            let (Some(a), Some(b)) = (p.cell(Design::Ring, w, k), p.cell(Design::Original, w, k)) else {
+                continue;
+            };
             let ratio: Vec<f64> = b.publish_ns.iter().zip(&a.publish_ns).map(|(x, y)| x / y).collect();
             let _ = writeln!(
                 md,
@@ -394,7 +413,12 @@ fn e2e_section(r: &Results, md: &mut String) {
     let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for x in &e.e2e {
         if x.bass.is_empty() {
-            let _ = writeln!(md, "| {} | skipped: {} | | | | | | | | | |", x.period, x.skipped.as_deref().unwrap_or("no data"));
+            let _ = writeln!(
+                md,
+                "| {} | skipped: {} | | | | | | | | | |",
+                x.period,
+                x.skipped.as_deref().unwrap_or("no data")
+            );
             continue;
         }
         let _ = writeln!(
@@ -520,11 +544,16 @@ fn plots(r: &Results, docs: &Path) -> Vec<String> {
     if let Some(p) = &r.publish {
         let mut series = Vec::new();
         for (i, &k) in [0usize, 1, 8, 64].iter().enumerate() {
-            for (design, dashed, name) in [(Design::Ring, false, "ring"), (Design::Original, true, "original")] {
+            for (design, dashed, name) in
+                [(Design::Ring, false, "ring"), (Design::Original, true, "original")]
+            {
                 series.push(Series {
                     name: format!("{name}, {k} readers"),
                     color: COLORS[i],
-                    points: crate::publish::WINDOWS.iter().map(|&(w, _)| (w, p.publish_median(design, w, k))).collect(),
+                    points: crate::publish::WINDOWS
+                        .iter()
+                        .map(|&(w, _)| (w, p.publish_median(design, w, k)))
+                        .collect(),
                     dashed,
                 });
             }
@@ -552,7 +581,12 @@ fn plots(r: &Results, docs: &Path) -> Vec<String> {
             Series {
                 name,
                 color,
-                points: s.iter().enumerate().step_by(step).map(|(i, &v)| (v.max(1.0), (i + 1) as f64 / n)).collect(),
+                points: s
+                    .iter()
+                    .enumerate()
+                    .step_by(step)
+                    .map(|(i, &v)| (v.max(1.0), (i + 1) as f64 / n))
+                    .collect(),
                 dashed,
             }
         };
@@ -594,9 +628,19 @@ pub fn write(r: &Results, docs: &Path) {
         if r.quick { " in **--quick** mode (fewer repetitions: development numbers only)" } else { "" }
     );
     let _ = writeln!(md, "## Machine\n");
-    let _ = writeln!(md, "- CPU: {} — {} cores online{}", m.cpu, m.cores, if m.virtualized { ", virtual machine (hypervisor flag set)" } else { "" });
+    let _ = writeln!(
+        md,
+        "- CPU: {} — {} cores online{}",
+        m.cpu,
+        m.cores,
+        if m.virtualized { ", virtual machine (hypervisor flag set)" } else { "" }
+    );
     let _ = writeln!(md, "- Kernel: Linux {}; memory {:.0} GiB; {}", m.kernel, m.mem_gib, m.rustc);
-    let _ = writeln!(md, "- Load average (1/5/15 min) at the start: {}; at the end: {}; run took {:.0} s", m.load_start, r.load_end, r.elapsed_s);
+    let _ = writeln!(
+        md,
+        "- Load average (1/5/15 min) at the start: {}; at the end: {}; run took {:.0} s",
+        m.load_start, r.load_end, r.elapsed_s
+    );
     let _ = writeln!(
         md,
         "- Noise: this machine is shared (other builds and test suites run on the same 2 cores during the run), \

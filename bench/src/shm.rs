@@ -13,7 +13,8 @@ pub struct Region {
 impl Region {
     /// Creates (or truncates) `path` to `len` zero bytes and maps it.
     pub fn create(path: &Path, len: usize) -> Region {
-        let f = OpenOptions::new().read(true).write(true).create(true).truncate(true).open(path).expect("create");
+        let f =
+            OpenOptions::new().read(true).write(true).create(true).truncate(true).open(path).expect("create");
         f.set_len(len as u64).expect("set_len");
         Region::map(&f, len)
     }
@@ -37,16 +38,7 @@ impl Region {
     fn map_prot(f: &std::fs::File, len: usize, prot: libc::c_int) -> Region {
         // SAFETY: a fresh shared mapping of an open file descriptor with a length the file
         // has; no existing memory is affected. The result is checked against MAP_FAILED.
-        let ptr = unsafe {
-            libc::mmap(
-                std::ptr::null_mut(),
-                len,
-                prot,
-                libc::MAP_SHARED,
-                f.as_raw_fd(),
-                0,
-            )
-        };
+        let ptr = unsafe { libc::mmap(std::ptr::null_mut(), len, prot, libc::MAP_SHARED, f.as_raw_fd(), 0) };
         assert!(ptr != libc::MAP_FAILED, "mmap: {}", std::io::Error::last_os_error());
         Region { ptr: ptr as *mut u8, len }
     }
@@ -54,11 +46,6 @@ impl Region {
     /// Start of the mapping (page aligned).
     pub fn ptr(&self) -> *mut u8 {
         self.ptr
-    }
-
-    /// Length in bytes.
-    pub fn len(&self) -> usize {
-        self.len
     }
 }
 
@@ -85,7 +72,9 @@ pub fn futex_wait(word: &std::sync::atomic::AtomicU32, expected: u32, timeout_ns
 /// Wakes every waiter on `word`.
 pub fn futex_wake(word: &std::sync::atomic::AtomicU32) {
     // SAFETY: `word` is a valid aligned u32; FUTEX_WAKE only uses its address as a key.
-    unsafe { libc::syscall(libc::SYS_futex, word.as_ptr(), libc::FUTEX_WAKE, i32::MAX, 0usize, 0usize, 0u32) };
+    unsafe {
+        libc::syscall(libc::SYS_futex, word.as_ptr(), libc::FUTEX_WAKE, i32::MAX, 0usize, 0usize, 0u32)
+    };
 }
 
 /// CLOCK_MONOTONIC in nanoseconds.

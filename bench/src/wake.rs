@@ -173,6 +173,25 @@ pub fn child_futex_pong(args: &[String]) {
 /// Frames per chunk of the wake-latency port (small: the copy is not what is measured).
 const WAKE_NFPC: u32 = 64;
 
+/// Latencies (ns) of one bass configuration.
+struct Samples {
+    /// Every reader's wake latency.
+    each: Vec<f64>,
+    /// Per publish, the latency of the last reader to run.
+    last: Vec<f64>,
+    /// Wake + `get_audio_data` (data in hand).
+    data: Vec<f64>,
+    /// The readers' median CPU per chunk (ns).
+    cpu: f64,
+}
+
+/// The 1-reader interleaved comparison.
+struct OneReader {
+    raw: Vec<f64>,
+    bass: Samples,
+    bare: Samples,
+}
+
 /// A bass port with wake-latency readers attached.
 struct WakePort {
     w: Writer,
@@ -182,7 +201,8 @@ struct WakePort {
 
 impl WakePort {
     fn start(name: &str, readers: usize, role: &str) -> WakePort {
-        let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: WAKE_NFPC, chunks_on_port: 64 };
+        let geometry =
+            Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: WAKE_NFPC, chunks_on_port: 64 };
         let params = PortParams { geometry, device: "bench:wake".into(), group: None };
         let mut w = Writer::create(name, &params).expect("create port");
         let data = vec![7i32; WAKE_NFPC as usize * 2];
@@ -199,9 +219,8 @@ impl WakePort {
         self.w.publish(Source::Interleaved(&self.data), meta).expect("publish");
     }
 
-    /// Stops; returns (every reader's latency, per publish the last reader's, data in hand)
-    /// and the readers' median CPU time per chunk (wake, read, wait again).
-    fn finish(self) -> ((Vec<f64>, Vec<f64>, Vec<f64>), f64) {
+    /// Stops; returns the readers' latencies and their median CPU time per chunk.
+    fn finish(self) -> Samples {
         self.w.stop();
         let lines = finish_all(self.kids);
         let _ = self.w.remove();
@@ -209,7 +228,9 @@ impl WakePort {
         let mut last: BTreeMap<u64, f64> = BTreeMap::new();
         let cpu: Vec<f64> = lines
             .iter()
-            .filter_map(|l| Some(crate::procs::field(l, "cpu_ns")? / crate::procs::field(l, "chunks")?.max(1.0)))
+            .filter_map(|l| {
+                Some(crate::procs::field(l, "cpu_ns")? / crate::procs::field(l, "chunks")?.max(1.0))
+            })
             .collect();
         for l in &lines {
             let v: Vec<u64> = l.split_whitespace().filter_map(|x| x.parse().ok()).collect();
@@ -220,12 +241,12 @@ impl WakePort {
                 *e = e.max(lat as f64);
             }
         }
-        ((each, last.into_values().collect(), data_in_hand), median(&cpu))
+        Samples { each, last: last.into_values().collect(), data: data_in_hand, cpu: median(&cpu) }
     }
 }
 
 /// Many readers on one port, `n` publishes.
-fn bass_wake(readers: usize, n: usize) -> ((Vec<f64>, Vec<f64>, Vec<f64>), f64) {
+fn bass_wake(readers: usize, n: usize) -> Samples {
     let mut p = WakePort::start("bench-wake-n", readers, "wake-reader");
     std::thread::sleep(Duration::from_millis(50));
     let mut rng = Rng::new();
@@ -238,9 +259,8 @@ fn bass_wake(readers: usize, n: usize) -> ((Vec<f64>, Vec<f64>, Vec<f64>), f64) 
 
 /// The one-reader comparison, interleaved publish by publish so that all three see the
 /// same machine: raw futex ping, bass publish to a `Port::wait` reader, bass publish to a
-/// bare-futex reader. Returns (raw, bass, bass with bare waiter, bass data in hand) and the
-/// CPU per chunk of the `Port::wait` reader and of the bare-futex reader.
-fn one_reader_side_by_side(n: usize) -> ((Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>), (f64, f64)) {
+/// bare-futex reader.
+fn one_reader_side_by_side(n: usize) -> OneReader {
     let pinger = Pinger::start();
     let mut a = WakePort::start("bench-wake-a", 1, "wake-reader");
     let mut b = WakePort::start("bench-wake-b", 1, "wake-raw-waiter");
@@ -265,13 +285,15 @@ fn one_reader_side_by_side(n: usize) -> ((Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>
         }
     }
     if let Some(p) = alt {
-        let ((v, _, _), cpu) = p.finish();
-        println!("  alternative build's reader: median {} p99 {} CPU/chunk {}", fmt_ns(median(&v)), fmt_ns(quantile(&v, 0.99)), fmt_ns(cpu));
+        let v = p.finish();
+        println!(
+            "  alternative build's reader: median {} p99 {} CPU/chunk {}",
+            fmt_ns(median(&v.each)),
+            fmt_ns(quantile(&v.each, 0.99)),
+            fmt_ns(v.cpu)
+        );
     }
-    let raw = pinger.finish();
-    let ((bass, _, data), cpu_a) = a.finish();
-    let ((bare, _, _), cpu_b) = b.finish();
-    ((raw, bass, bare, data), (cpu_a, cpu_b))
+    OneReader { raw: pinger.finish(), bass: a.finish(), bare: b.finish() }
 }
 
 /// Child: a reader blocked in `Port::wait`; prints `lfi wake_ns data_ns` per chunk.
@@ -292,22 +314,30 @@ pub fn child_wake_reader(args: &[String]) {
                 let read = now_ns();
                 let published = port.chunk_info(lfi).map(|c| c.mono_ns).unwrap_or(0);
                 if published > 0 {
-                    out.push_str(&format!("{lfi} {} {}\n", woke.saturating_sub(published), read.saturating_sub(published)));
+                    out.push_str(&format!(
+                        "{lfi} {} {}\n",
+                        woke.saturating_sub(published),
+                        read.saturating_sub(published)
+                    ));
                 }
             }
             Err(Error::Stopped { .. }) => break,
             Err(e) => panic!("wake reader: {e}"),
         }
     }
-    out.push_str(&format!("cpu_ns={} chunks={}\n", crate::procs::process_cpu_ns() - cpu0, out.lines().count()));
+    out.push_str(&format!(
+        "cpu_ns={} chunks={}\n",
+        crate::procs::process_cpu_ns() - cpu0,
+        out.lines().count()
+    ));
     print!("{out}");
 }
 
 /// Child: like `wake-reader`, but blocks with a bare FUTEX_WAIT on the port header's futex
 /// word (read-only mapping) instead of `Port::wait`.
 pub fn child_raw_waiter(args: &[String]) {
-    use std::mem::offset_of;
     use bassclient::format::Header;
+    use std::mem::offset_of;
     let port = Port::open(&args[0]).expect("open port");
     let map = Region::open_ro(port.path(), 4096);
     let futex = map.u32_at(offset_of!(Header, futex));
@@ -318,7 +348,8 @@ pub fn child_raw_waiter(args: &[String]) {
     let (mut l, mut r) = (vec![0i32; cap], vec![0i32; cap]);
     let mut out = String::new();
     // Experiment knobs (not used by the harness itself).
-    let timeout_ns: u64 = std::env::var("BENCH_WAITER_TIMEOUT_MS").ok().and_then(|v| v.parse().ok()).unwrap_or(0) * 1_000_000;
+    let timeout_ns: u64 =
+        std::env::var("BENCH_WAITER_TIMEOUT_MS").ok().and_then(|v| v.parse().ok()).unwrap_or(0) * 1_000_000;
     let do_fstat = std::env::var("BENCH_WAITER_FSTAT").is_ok();
     crate::procs::say_ready();
     let cpu0 = crate::procs::process_cpu_ns();
@@ -341,10 +372,18 @@ pub fn child_raw_waiter(args: &[String]) {
         let read = now_ns();
         let published = port.chunk_info(lfi).map(|c| c.mono_ns).unwrap_or(0);
         if published > 0 {
-            out.push_str(&format!("{lfi} {} {}\n", woke.saturating_sub(published), read.saturating_sub(published)));
+            out.push_str(&format!(
+                "{lfi} {} {}\n",
+                woke.saturating_sub(published),
+                read.saturating_sub(published)
+            ));
         }
     }
-    out.push_str(&format!("cpu_ns={} chunks={}\n", crate::procs::process_cpu_ns() - cpu0, out.lines().count()));
+    out.push_str(&format!(
+        "cpu_ns={} chunks={}\n",
+        crate::procs::process_cpu_ns() - cpu0,
+        out.lines().count()
+    ));
     print!("{out}");
 }
 
@@ -401,7 +440,11 @@ pub fn child_poll_reader(args: &[String]) {
             }
             f += nfpc;
         }
-        if port.info().map(|i| i.state != Some(State::Capturing) && i.state != Some(State::Idle)).unwrap_or(true) {
+        if port
+            .info()
+            .map(|i| i.state != Some(State::Capturing) && i.state != Some(State::Idle))
+            .unwrap_or(true)
+        {
             break;
         }
     }
@@ -413,7 +456,9 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
     let n = if quick { 80 } else { 250 };
     let mut res = WakeResults { publishes: n, ..WakeResults::default() };
     for rep in 0..reps {
-        let ((raw, one, bare, data), (cpu_one, cpu_bare)) = one_reader_side_by_side(n);
+        let OneReader { raw, bass, bare } = one_reader_side_by_side(n);
+        let (one, data, cpu_one) = (bass.each, bass.data, bass.cpu);
+        let (cpu_bare, bare) = (bare.cpu, bare.each);
         res.reader_cpu.entry(1).or_default().push(cpu_one);
         res.bare_reader_cpu.push(cpu_bare);
         let (raw_med, one_med) = (median(&raw), median(&one));
@@ -437,7 +482,7 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
         res.bass_last.entry(1).or_default().add_rep(one);
         res.bass_data.entry(1).or_default().add_rep(data);
         for &k in READERS.iter().filter(|&&k| k > 1) {
-            let ((each, last, data), cpu) = bass_wake(k, n);
+            let Samples { each, last, data, cpu } = bass_wake(k, n);
             res.reader_cpu.entry(k).or_default().push(cpu);
             println!(
                 "  rep {} bass {k:>2} readers: median {} p99 {} max {}; last reader median {}; data in hand median {}; reader CPU/chunk {}",
@@ -455,11 +500,12 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
         }
     }
     let poll = polling(4, Duration::from_secs(if quick { 2 } else { 6 }));
-    println!("  250 ms polling client: median {} p99 {}", fmt_ns(median(&poll)), fmt_ns(quantile(&poll, 0.99)));
-    res.poll.add_rep(poll);
     println!(
-        "  bass (1 reader) / raw futex, median per repetition: {}",
-        spread(&res.ratio_1, fmt_ratio)
+        "  250 ms polling client: median {} p99 {}",
+        fmt_ns(median(&poll)),
+        fmt_ns(quantile(&poll, 0.99))
     );
+    res.poll.add_rep(poll);
+    println!("  bass (1 reader) / raw futex, median per repetition: {}", spread(&res.ratio_1, fmt_ratio));
     res
 }
