@@ -46,6 +46,8 @@ step() { # name, command...
   fi
 }
 
+# The library (its cdylib for the C programs), bassd and bass, the agent and the tests.
+"$cargo" build --release -p bassclient -p bass-broker
 "$cargo" build --release -p bass-faults --bins --tests
 step "rust fault tests (release)" \
   "$cargo" test --release -p bass-faults -- --include-ignored --nocapture --test-threads=1
