@@ -119,6 +119,7 @@ fn time_publishes(pace: &Pace, mut publish: impl FnMut()) -> (Vec<f64>, Vec<f64>
     let start = Instant::now();
     let mut times = Vec::with_capacity(pace.max_chunks);
     let mut walls = Vec::with_capacity(pace.max_chunks);
+    let mut clock = Vec::with_capacity(pace.max_chunks);
     let mut next = Instant::now();
     while times.len() < pace.max_chunks && (times.len() < pace.min_chunks || start.elapsed() < pace.budget) {
         next += pace.period;
@@ -128,13 +129,19 @@ fn time_publishes(pace: &Pace, mut publish: impl FnMut()) -> (Vec<f64>, Vec<f64>
         } else {
             next = now;
         }
-        let c = thread_cpu_ns();
+        // Three clock reads: the first absorbs the cold first syscall after the sleep, the
+        // warm pair (c1, c2) measures the clock's own cost, subtracted below.
+        let _ = thread_cpu_ns();
+        let c1 = thread_cpu_ns();
+        let c2 = thread_cpu_ns();
         let t = Instant::now();
         publish();
         walls.push(t.elapsed().as_nanos() as f64);
-        times.push((thread_cpu_ns() - c) as f64);
+        times.push((thread_cpu_ns() - c2) as f64);
+        clock.push((c2 - c1) as f64);
     }
-    (times, walls)
+    let overhead = median(&clock);
+    (times.into_iter().map(|t| (t - overhead).max(0.0)).collect(), walls)
 }
 
 fn ring_cell(nfpc: u32, ncop: u32, readers: usize, pace: &Pace) -> (Vec<f64>, Vec<f64>, Vec<f64>) {

@@ -266,7 +266,7 @@ fn publish_section(r: &Results, md: &mut String) {
         md,
         "44.1 kHz stereo, 2205-frame chunks (the seed's Acquire defaults); the window is filled first. A chunk is \
          published every {:.0} ms; reader *processes* are blocked in a wait and read every chunk. **CPU** = CPU time of \
-         the writer thread inside the publish call (`CLOCK_THREAD_CPUTIME_ID`); **wall** = elapsed time of the call \
+         the writer thread inside the publish call (`CLOCK_THREAD_CPUTIME_ID`, minus the median cost of reading that clock); **wall** = elapsed time of the call \
          (includes being preempted by the readers it woke, and, for the original design, waiting for the port lock). \
          *Original*: the model of the seed's port (`bench/src/original.rs`): both arrays memmoved by one chunk for every \
          chunk, readers copy the whole port under a process-shared rwlock, then run getAudioData on their copy. \
