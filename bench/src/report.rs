@@ -41,11 +41,12 @@ struct Goal {
     met: Option<bool>,
 }
 
-fn verdict(m: Option<bool>) -> &'static str {
-    match m {
+fn verdict(g: &Goal) -> &'static str {
+    match g.met {
         Some(true) => "**met**",
         Some(false) => "**missed**",
-        None => "not measured",
+        None if g.measured.starts_with("not measured") => "not measured",
+        None => "measured (no numeric goal)",
     }
 }
 
@@ -651,7 +652,7 @@ pub fn write(r: &Results, docs: &Path) {
     let _ = writeln!(md, "| part | goal | measured | verdict |");
     let _ = writeln!(md, "|---|---|---|---|");
     for g in goals(r) {
-        let _ = writeln!(md, "| {} | {} | {} | {} |", g.part, g.goal, g.measured, verdict(g.met));
+        let _ = writeln!(md, "| {} | {} | {} | {} |", g.part, g.goal, g.measured, verdict(&g));
     }
     md.push('\n');
     read_section(r, &mut md);
