@@ -58,7 +58,7 @@ pub struct CpuRow {
     pub reader: f64,
     /// A reader blocked in `wait` for a frame one second ahead, share of one core.
     pub waiter: f64,
-    /// Wake-ups of the waiting reader per second.
+    /// Times per second the waiting reader went to sleep (voluntary context switches).
     pub waiter_wakes: f64,
     /// bassd resident memory (KiB) at the end.
     pub bassd_rss: crate::procs::Rss,
@@ -257,8 +257,10 @@ fn cpu_row(bassd: &Path, device: &str, chunk: u32, secs: f64) -> Result<CpuRow, 
     let (b1, r1, w1) = (cpu_ns(d.0.id()), cpu_ns(pids[0]), cpu_ns(pids[1]));
     let rss = crate::procs::rss_of(&d.0.id().to_string());
     drop(d);
-    let lines = crate::procs::finish_all(kids);
-    let wakes = lines.iter().filter_map(|l| field(l, "wakes_per_s")).fold(0.0, f64::max);
+    // The second reader (1 s blocks): its voluntary context switches = times it slept.
+    let lines: Vec<Vec<String>> = kids.into_iter().map(Child::finish).collect();
+    let wakes =
+        lines.get(1).and_then(|l| l.iter().find_map(|x| field(x, "sleeps_per_s"))).unwrap_or(f64::NAN);
     Ok(CpuRow {
         chunk,
         bassd: row_cpu(b1, b0),
@@ -279,6 +281,7 @@ pub fn child_cpu_reader(args: &[String]) {
     let (mut l, mut r) = (vec![0i32; cap], vec![0i32; cap]);
     let mut nfr = port.info().expect("info").last_frame_index + 1;
     let (mut wakes, start) = (0u64, Instant::now());
+    let sleeps0 = voluntary_switches();
     crate::procs::say_ready();
     loop {
         let target = if every { nfr } else { nfr + rate - 1 };
@@ -291,7 +294,25 @@ pub fn child_cpu_reader(args: &[String]) {
             Err(_) => break,
         }
     }
-    println!("wakes_per_s={}", wakes as f64 / start.elapsed().as_secs_f64());
+    let secs = start.elapsed().as_secs_f64();
+    println!(
+        "wakes_per_s={} sleeps_per_s={}",
+        wakes as f64 / secs,
+        (voluntary_switches() - sleeps0) as f64 / secs
+    );
+}
+
+/// Voluntary context switches of this process so far (each blocking wait is one).
+fn voluntary_switches() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("voluntary_ctxt_switches:"))
+                .and_then(|l| l.split_whitespace().nth(1))
+                .and_then(|v| v.parse().ok())
+        })
+        .unwrap_or(0)
 }
 
 /// Runs parts 4 and 5.
@@ -307,7 +328,7 @@ pub fn run(quick: bool) -> E2eResults {
         match cpu_row(&bassd, "sim:silence", chunk, secs) {
             Ok(c) => {
                 println!(
-                    "  bassd on sim:silence, 48 kHz stereo, {chunk:>4}-frame chunks: bassd {:.2}% of a core, RSS {} KiB; reader of every chunk {:.2}%; reader waiting 1 s blocks {:.3}% ({:.0} wake-ups/s)",
+                    "  bassd on sim:silence, 48 kHz stereo, {chunk:>4}-frame chunks: bassd {:.2}% of a core, RSS {} KiB; reader of every chunk {:.2}%; reader waiting 1 s blocks {:.3}% ({:.0} sleeps/s)",
                     c.bassd * 100.0,
                     c.bassd_rss.rss,
                     c.reader * 100.0,

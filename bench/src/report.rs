@@ -182,7 +182,7 @@ fn goals(r: &Results) -> Vec<Goal> {
             part: "5 CPU",
             goal: "a reader blocked in a wait uses ~0 CPU".into(),
             measured: format!(
-                "a reader waiting for 1 s blocks is woken at every chunk: up to {:.2} % of a core ({:.0} wake-ups/s at 32-frame chunks); {:.3} % at 2205",
+                "a reader waiting for 1 s blocks is woken at every chunk: up to {:.2} % of a core ({:.0} sleeps/s at 32-frame chunks); {:.3} % at 2205",
                 worst_wait * 100.0,
                 e.cpu.first().map(|c| c.waiter_wakes).unwrap_or(0.0),
                 e.cpu.last().map(|c| c.waiter * 100.0).unwrap_or(0.0)
@@ -458,7 +458,7 @@ fn e2e_section(r: &Results, md: &mut String) {
          give bassd's CPU through ALSA.\n",
         e.seconds
     );
-    let _ = writeln!(md, "| chunk | chunks/s | bassd | bassd RSS (KiB) | reader, every chunk | reader waiting for 1 s blocks | its wake-ups/s |");
+    let _ = writeln!(md, "| chunk | chunks/s | bassd | bassd RSS (KiB) | reader, every chunk | reader waiting for 1 s blocks | its sleeps/s (voluntary context switches) |");
     let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|");
     for c in &e.cpu {
         let _ = writeln!(
