@@ -10,7 +10,6 @@
 pub mod control;
 pub mod error;
 pub mod ffi;
-mod ffi_control;
 pub mod format;
 pub mod paths;
 pub mod reader;

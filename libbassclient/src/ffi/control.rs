@@ -11,8 +11,8 @@
 
 use std::ffi::c_char;
 
+use super::{bass_result, boundary, c_str, nonnull_mut, Failure, BASS_DEVICE_LEN, BASS_MESSAGE_LEN};
 use crate::control::{AcquireRequest, Client, Status, DEFAULT_CHANNELS};
-use crate::ffi::{bass_result, boundary, c_str, nonnull_mut, Failure, BASS_DEVICE_LEN, BASS_MESSAGE_LEN};
 use crate::paths::DEFAULT_NAME;
 
 /// The state of a broker and of its current port, as returned by `bass_status()`.
