@@ -39,10 +39,14 @@ struct Goal {
     goal: String,
     measured: String,
     met: Option<bool>,
+    /// The repetitions fall on both sides of the threshold.
+    borderline: bool,
 }
 
 fn verdict(g: &Goal) -> &'static str {
     match g.met {
+        Some(true) if g.borderline => "**met** (borderline: repetitions on both sides)",
+        Some(false) if g.borderline => "**missed** (borderline: repetitions on both sides)",
         Some(true) => "**met**",
         Some(false) => "**missed**",
         None if g.measured.starts_with("not measured") => "not measured",
@@ -64,6 +68,7 @@ fn goals(r: &Results) -> Vec<Goal> {
                 fmt_ratio(worst),
                 fmt_ratio(worst_stream)
             ),
+            borderline: false,
             met: Some(worst >= 0.5),
         });
     }
@@ -79,6 +84,7 @@ fn goals(r: &Results) -> Vec<Goal> {
                 fmt_ns(ring(60.0, 1)),
                 fmt_ns(ring(0.1, 1))
             ),
+            borderline: false,
             met: Some(flat_w <= 1.1),
         });
         let flat_r = ring(10.0, 64) / ring(10.0, 1);
@@ -91,6 +97,7 @@ fn goals(r: &Results) -> Vec<Goal> {
                 fmt_ns(ring(10.0, 64)),
                 fmt_ns(ring(10.0, 1))
             ),
+            borderline: false,
             met: Some(flat_r <= 1.1),
         });
         let vs = |k: usize| p.publish_median(Design::Original, 10.0, k) / ring(10.0, k);
@@ -112,6 +119,7 @@ fn goals(r: &Results) -> Vec<Goal> {
                     ))
                     .collect::<String>()
             ),
+            borderline: false,
             met: Some(vs(1) >= 100.0),
         });
     }
@@ -128,6 +136,10 @@ fn goals(r: &Results) -> Vec<Goal> {
                 fmt_ns(w.raw.median())
             ),
             met: Some(ratio <= 1.5),
+            borderline: {
+                let (lo, hi) = min_max(&w.ratio_1);
+                lo <= 1.5 && hi > 1.5
+            },
         });
     }
     match r.e2e.as_ref() {
@@ -150,7 +162,8 @@ fn goals(r: &Results) -> Vec<Goal> {
                 part: "4 end to end",
                 goal: "jackd (dummy) → ALSA jack PCM → bassd → reader, vs a direct JACK client (no numeric goal)".into(),
                 measured: format!("median delay from the JACK cycle start, bass reader vs JACK client: {}", parts.join("; ")),
-                met: None,
+                borderline: false,
+            met: None,
             });
         }
         Some(e) => g.push(Goal {
@@ -163,6 +176,7 @@ fn goals(r: &Results) -> Vec<Goal> {
                     .or_else(|| e.e2e.iter().find_map(|x| x.skipped.clone()))
                     .unwrap_or_default()
             ),
+            borderline: false,
             met: None,
         }),
         None => {}
@@ -176,6 +190,7 @@ fn goals(r: &Results) -> Vec<Goal> {
             goal: "bassd's share of one core at 48 kHz stereo (sim device), 32/64/256/2205-frame chunks"
                 .into(),
             measured: format!("{} of one core (no numeric goal)", cpu.join(", ")),
+            borderline: false,
             met: None,
         });
         g.push(Goal {
@@ -187,6 +202,7 @@ fn goals(r: &Results) -> Vec<Goal> {
                 e.cpu.first().map(|c| c.waiter_wakes).unwrap_or(0.0),
                 e.cpu.last().map(|c| c.waiter * 100.0).unwrap_or(0.0)
             ),
+            borderline: false,
             met: Some(worst_wait < 0.001),
         });
     }
@@ -203,6 +219,7 @@ fn goals(r: &Results) -> Vec<Goal> {
                 "file = window + 4 KiB header + chunk table (32 B per chunk, page-rounded): at most {} over the window",
                 fmt_bytes(worst as f64)
             ),
+            borderline: false,
             met: Some(exact),
         });
     }
