@@ -305,7 +305,14 @@ impl Port {
                 }
                 return Err(Error::Timeout { frame, last: lfi });
             }
-            match sys::futex_wait(&h.futex, seq, remaining.min(fresh_for.unwrap_or(LIVENESS_SLICE))) {
+            let nfpc = u64::from(self.geometry.frames_per_chunk.max(1));
+            let bits = sys::chunk_bit(frame.saturating_sub(1) / nfpc);
+            match sys::futex_wait_bits(
+                &h.futex,
+                seq,
+                remaining.min(fresh_for.unwrap_or(LIVENESS_SLICE)),
+                bits,
+            ) {
                 FutexWait::Woken => check_writer = false,
                 FutexWait::TimedOut => check_writer = true,
                 FutexWait::Interrupted => return Err(Error::Interrupted),

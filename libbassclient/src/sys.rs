@@ -45,6 +45,59 @@ pub fn futex_wait(word: &AtomicU32, expected: u32, timeout: Duration) -> FutexWa
     }
 }
 
+/// The futex bit of chunk `chunk` (0-based): waiters for a frame of that chunk wait on it,
+/// its publish wakes it (FUTEX_WAIT_BITSET / FUTEX_WAKE_BITSET). 31 bits: a waiter sees at
+/// most one spurious wake-up every 31 chunks. Plain FUTEX_WAIT/FUTEX_WAKE match every bit.
+pub fn chunk_bit(chunk: u64) -> u32 {
+    1 << (chunk % 31)
+}
+
+/// Like [`futex_wait`], but only woken by wakes whose bits intersect `bits`.
+pub fn futex_wait_bits(word: &AtomicU32, expected: u32, timeout: Duration, bits: u32) -> FutexWait {
+    // FUTEX_WAIT_BITSET takes an absolute CLOCK_MONOTONIC deadline.
+    let deadline = monotonic_ns().saturating_add(u64::try_from(timeout.as_nanos()).unwrap_or(u64::MAX));
+    let ts = libc::timespec {
+        tv_sec: (deadline / 1_000_000_000).min(i64::MAX as u64) as libc::time_t,
+        tv_nsec: (deadline % 1_000_000_000) as libc::c_long,
+    };
+    // SAFETY: as in `futex_wait`; `bits` is non-zero by construction of the callers.
+    let r = unsafe {
+        libc::syscall(
+            libc::SYS_futex,
+            word.as_ptr(),
+            libc::FUTEX_WAIT_BITSET,
+            expected,
+            &ts as *const libc::timespec,
+            std::ptr::null::<u32>(),
+            bits,
+        )
+    };
+    if r == 0 {
+        return FutexWait::Woken;
+    }
+    match std::io::Error::last_os_error().raw_os_error() {
+        Some(libc::ETIMEDOUT) => FutexWait::TimedOut,
+        Some(libc::EINTR) => FutexWait::Interrupted,
+        _ => FutexWait::Woken,
+    }
+}
+
+/// Wakes the processes waiting on `word` whose bits intersect `bits`.
+pub fn futex_wake_bits(word: &AtomicU32, bits: u32) {
+    // SAFETY: as in `futex_wake_all`.
+    unsafe {
+        libc::syscall(
+            libc::SYS_futex,
+            word.as_ptr(),
+            libc::FUTEX_WAKE_BITSET,
+            i32::MAX,
+            std::ptr::null::<libc::timespec>(),
+            std::ptr::null::<u32>(),
+            bits,
+        );
+    }
+}
+
 /// Wakes every process waiting on `word`.
 pub fn futex_wake_all(word: &AtomicU32) {
     // SAFETY: `word` is a valid, aligned u32 in a shared mapping; FUTEX_WAKE does not

@@ -182,10 +182,14 @@ impl Writer {
             h.gap_frames.fetch_add(nfpc as u64, Relaxed);
         }
         h.heartbeat_mono_ns.store(now_mono, Relaxed);
-        if h.state.load(Relaxed) == State::Idle as u32 {
+        let bits = if h.state.load(Relaxed) == State::Idle as u32 {
             h.state.store(State::Capturing as u32, Release);
-        }
-        wake(h);
+            u32::MAX
+        } else {
+            sys::chunk_bit(lfi / nfpc as u64)
+        };
+        h.futex.fetch_add(1, Release);
+        sys::futex_wake_bits(&h.futex, bits);
         Ok(new_lfi)
     }
 
