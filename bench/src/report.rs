@@ -197,7 +197,7 @@ fn goals(r: &Results) -> Vec<Goal> {
             part: "5 CPU",
             goal: "a reader blocked in a wait uses ~0 CPU".into(),
             measured: format!(
-                "a reader waiting for 1 s blocks is woken at every chunk: up to {:.2} % of a core ({:.0} sleeps/s at 32-frame chunks); {:.3} % at 2205",
+                "a reader waiting for 1 s blocks: up to {:.2} % of a core ({:.0} sleeps/s at 32-frame chunks); {:.3} % at 2205",
                 worst_wait * 100.0,
                 e.cpu.first().map(|c| c.waiter_wakes).unwrap_or(0.0),
                 e.cpu.last().map(|c| c.waiter * 100.0).unwrap_or(0.0)
