@@ -203,24 +203,15 @@ pub unsafe extern "C" fn bass_get_audio_data(
             ))
             .into());
         }
-        // Only min(N, nFOP) frames can ever be written: view no more than that.
-        let len = (n_frames as u64).min(p.frames_on_port()) as usize;
+        let len = output_len(&p, n_frames);
         check_disjoint(&[left, right], len)?;
         // SAFETY: the caller guarantees `n_frames` writable samples behind each pointer and
-        // len <= n_frames; the two buffers must not overlap (documented).
+        // len <= n_frames; check_disjoint above refused overlapping buffers.
         let mut out = unsafe {
             [std::slice::from_raw_parts_mut(left, len), std::slice::from_raw_parts_mut(right, len)]
         };
-        // SAFETY: checked non-null; caller guarantees validity.
-        let mut next = unsafe { nfr.read() };
-        let r = p.get_audio_data(n_frames, &mut next, &mut out)?;
-        // SAFETY: checked non-null; caller guarantees validity.
-        unsafe {
-            put(nfr, next);
-            put(out_n, r.frames);
-            put(out_loss, r.loss);
-        }
-        Ok(())
+        // SAFETY: the three pointers were checked non-null; the caller guarantees validity.
+        unsafe { read_and_report(&p, n_frames, nfr, &mut out, out_n, out_loss) }
     })
 }
 
@@ -252,7 +243,7 @@ pub unsafe extern "C" fn bass_get_audio_data_multi(
             ))
             .into());
         }
-        let len = (n_frames as u64).min(p.frames_on_port()) as usize;
+        let len = output_len(&p, n_frames);
         // SAFETY: the caller guarantees `n_channels` readable pointers.
         let ptrs = unsafe { std::slice::from_raw_parts(channels, n_channels) };
         check_disjoint(ptrs, len)?;
@@ -264,17 +255,40 @@ pub unsafe extern "C" fn bass_get_audio_data_multi(
             // SAFETY: the caller guarantees `n_frames` >= len writable, non-overlapping samples.
             out.push(unsafe { std::slice::from_raw_parts_mut(ptr, len) });
         }
-        // SAFETY: checked non-null; caller guarantees validity.
-        let mut next = unsafe { nfr.read() };
-        let r = p.get_audio_data(n_frames, &mut next, &mut out)?;
-        // SAFETY: checked non-null; caller guarantees validity.
-        unsafe {
-            put(nfr, next);
-            put(out_n, r.frames);
-            put(out_loss, r.loss);
-        }
-        Ok(())
+        // SAFETY: the three pointers were checked non-null; the caller guarantees validity.
+        unsafe { read_and_report(&p, n_frames, nfr, &mut out, out_n, out_loss) }
     })
+}
+
+/// Samples of each output buffer the library may write: only min(N, nFOP) frames can ever
+/// be delivered, so the slices made from the caller's buffers are no longer than that.
+fn output_len(p: &Port, n_frames: usize) -> usize {
+    (n_frames as u64).min(p.frames_on_port()) as usize
+}
+
+/// The shared tail of the getAudioData exports: reads `*nfr`, runs the algorithm into `out`,
+/// and writes `*nfr`, `*out_n` and `*out_loss` only on success.
+///
+/// # Safety
+/// `nfr`, `out_n` and `out_loss` must be non-null and valid for a read/write.
+unsafe fn read_and_report(
+    p: &Port,
+    n_frames: usize,
+    nfr: *mut u64,
+    out: &mut [&mut [i32]],
+    out_n: *mut usize,
+    out_loss: *mut u64,
+) -> Result<(), Failure> {
+    // SAFETY: guaranteed by the caller.
+    let mut next = unsafe { nfr.read() };
+    let r = p.get_audio_data(n_frames, &mut next, out)?;
+    // SAFETY: guaranteed by the caller.
+    unsafe {
+        put(nfr, next);
+        put(out_n, r.frames);
+        put(out_loss, r.loss);
+    }
+    Ok(())
 }
 
 fn copy_text(dst: &mut [c_char], s: &str) {
