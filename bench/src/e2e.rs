@@ -169,7 +169,9 @@ fn read_delays(name: &str, d: Duration) -> Result<(Vec<(u64, f64)>, u32), String
 
 fn e2e_row(bassd: &Path, dir: &Path, period: u32, chunk: u32, secs: f64) -> E2eRow {
     let mut row = E2eRow { period, ..E2eRow::default() };
-    let server = format!("bassbench{}", std::process::id());
+    // A fixed name: JACK frees a killed server's slot (8 per machine) only on a restart of
+    // the same name.
+    let server = "bass-bench".to_string();
     let jackd = Command::new("jackd")
         .args(["-n", &server, "-d", "dummy", "-r", "48000", "-C", "2", "-P", "2", "-p"])
         .arg(period.to_string())

@@ -114,7 +114,10 @@ fn killed_jackd_is_an_error_readers_see_and_a_new_acquire_resumes_in_a_new_epoch
         return;
     }
     let dir = TempDir::new("jack");
-    let jack_name = format!("bass-faults-{}", std::process::id());
+    // A fixed server name: JACK keeps 8 server slots per machine and frees a SIGKILLed
+    // server's slot only when a server of the same name starts again, so a per-run name
+    // would use up the slots after a few runs.
+    let jack_name = "bass-faults-t10".to_string();
     let rc = dir.join("asoundrc");
     std::fs::write(
         &rc,
