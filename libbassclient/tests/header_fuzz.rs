@@ -31,14 +31,24 @@ fn exercise(bytes: &[u8]) {
         for start in [0u64, 1, 50, 95, 96, 97, u64::MAX / 2, u64::MAX] {
             let mut nfr = start;
             let channels = port.geometry().channels as usize;
-            if channels >= 2 {
-                let _ = port.get_audio_data(256, &mut nfr, &mut [&mut l, &mut r]);
+            let read = if channels >= 2 {
+                port.get_audio_data(256, &mut nfr, &mut [&mut l, &mut r])
             } else {
-                let _ = port.get_audio_data(256, &mut nfr, &mut [&mut l]);
+                port.get_audio_data(256, &mut nfr, &mut [&mut l])
+            };
+            // Whatever the header says, a read that succeeds keeps the algorithm's invariants.
+            if let Ok(got) = read {
+                assert!(got.frames <= 256 && got.frames as u64 <= port.frames_on_port());
+                assert_eq!(nfr - start, got.frames as u64 + got.loss, "accounting");
+            } else {
+                assert_eq!(nfr, start, "nfr must not move on an error");
             }
             let _ = port.chunk_info(start);
             let mut nfr = start;
-            let _ = port.view(1000, &mut nfr).map(|v| port.view_overwritten(&v));
+            if let Ok(v) = port.view(1000, &mut nfr) {
+                assert!(v.frames <= 1000 && v.segments[0].1 + v.segments[1].1 == v.frames);
+                assert!(port.view_overwritten(&v) <= v.frames as u64);
+            }
         }
         let _ = port.info();
         let _ = port.wait(u64::MAX, Duration::ZERO);
