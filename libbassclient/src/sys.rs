@@ -17,32 +17,8 @@ pub enum FutexWait {
 /// Waits while `*word == expected`, at most `timeout`. Works on a read-only shared mapping
 /// (the kernel only reads the word for FUTEX_WAIT), across processes (no FUTEX_PRIVATE_FLAG).
 pub fn futex_wait(word: &AtomicU32, expected: u32, timeout: Duration) -> FutexWait {
-    let ts = libc::timespec {
-        tv_sec: timeout.as_secs().min(i64::MAX as u64) as libc::time_t,
-        tv_nsec: timeout.subsec_nanos() as libc::c_long,
-    };
-    // SAFETY: `word` is a valid, aligned u32 for the duration of the call; the kernel
-    // only reads it for FUTEX_WAIT; `ts` outlives the call; unused arguments are null/0.
-    let r = unsafe {
-        libc::syscall(
-            libc::SYS_futex,
-            word.as_ptr(),
-            libc::FUTEX_WAIT,
-            expected,
-            &ts as *const libc::timespec,
-            std::ptr::null::<u32>(),
-            0u32,
-        )
-    };
-    if r == 0 {
-        return FutexWait::Woken;
-    }
-    match std::io::Error::last_os_error().raw_os_error() {
-        Some(libc::ETIMEDOUT) => FutexWait::TimedOut,
-        Some(libc::EINTR) => FutexWait::Interrupted,
-        // EAGAIN: the value already changed.
-        _ => FutexWait::Woken,
-    }
+    // All bits: woken by every FUTEX_WAKE and FUTEX_WAKE_BITSET on the word.
+    futex_wait_bits(word, expected, timeout, u32::MAX)
 }
 
 /// The futex bit of chunk `chunk` (0-based): waiters for a frame of that chunk wait on it,
@@ -60,7 +36,9 @@ pub fn futex_wait_bits(word: &AtomicU32, expected: u32, timeout: Duration, bits:
         tv_sec: (deadline / 1_000_000_000).min(i64::MAX as u64) as libc::time_t,
         tv_nsec: (deadline % 1_000_000_000) as libc::c_long,
     };
-    // SAFETY: as in `futex_wait`; `bits` is non-zero by construction of the callers.
+    // SAFETY: `word` is a valid, aligned u32 for the duration of the call; the kernel only
+    // reads it for FUTEX_WAIT_BITSET; `ts` outlives the call; `bits` is non-zero by
+    // construction of the callers; the unused argument is null.
     let r = unsafe {
         libc::syscall(
             libc::SYS_futex,
@@ -78,6 +56,7 @@ pub fn futex_wait_bits(word: &AtomicU32, expected: u32, timeout: Duration, bits:
     match std::io::Error::last_os_error().raw_os_error() {
         Some(libc::ETIMEDOUT) => FutexWait::TimedOut,
         Some(libc::EINTR) => FutexWait::Interrupted,
+        // EAGAIN: the value already changed.
         _ => FutexWait::Woken,
     }
 }

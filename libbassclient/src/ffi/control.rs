@@ -11,7 +11,9 @@
 
 use std::ffi::c_char;
 
-use super::{bass_result, boundary, c_str, nonnull_mut, Failure, BASS_DEVICE_LEN, BASS_MESSAGE_LEN};
+use super::{
+    bass_result, boundary, c_str, copy_text, nonnull_mut, Failure, BASS_DEVICE_LEN, BASS_MESSAGE_LEN,
+};
 use crate::control::{AcquireRequest, Client, Status, DEFAULT_CHANNELS};
 use crate::paths::DEFAULT_NAME;
 
@@ -58,14 +60,6 @@ unsafe fn connect(broker: *const c_char) -> Result<Client, Failure> {
         unsafe { c_str(broker, "broker") }?
     };
     Ok(Client::connect(name)?)
-}
-
-fn copy_text(dst: &mut [c_char], s: &str) {
-    let n = s.len().min(dst.len() - 1);
-    for (d, b) in dst.iter_mut().zip(&s.as_bytes()[..n]) {
-        *d = *b as c_char;
-    }
-    dst[n..].fill(0);
 }
 
 /// Starts an acquisition on broker `broker` (NULL = "default"), interrupting a running one.

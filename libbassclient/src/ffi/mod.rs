@@ -244,6 +244,15 @@ pub(crate) fn nonnull_mut<T>(p: *mut T, name: &'static str) -> Result<*mut T, Fa
     }
 }
 
+/// Copies `s` into a fixed C text field, cut to fit, NUL terminated and NUL padded.
+pub(crate) fn copy_text(dst: &mut [c_char], s: &str) {
+    let n = s.len().min(dst.len() - 1);
+    for (d, b) in dst.iter_mut().zip(&s.as_bytes()[..n]) {
+        *d = *b as c_char;
+    }
+    dst[n..].fill(0);
+}
+
 /// Reads a C string argument as UTF-8.
 ///
 /// # Safety

@@ -7,8 +7,8 @@ use std::time::Duration;
 
 use super::bass_result;
 use super::{
-    boundary, c_str, nonnull, nonnull_mut, put, Failure, Registry, BASS_DEVICE_LEN, BASS_MESSAGE_LEN,
-    BASS_WAIT_FOREVER,
+    boundary, c_str, copy_text, nonnull, nonnull_mut, put, Failure, Registry, BASS_DEVICE_LEN,
+    BASS_MESSAGE_LEN, BASS_WAIT_FOREVER,
 };
 use crate::error::Error;
 use crate::reader::{ChunkInfo, Port, PortInfo, View};
@@ -289,14 +289,6 @@ unsafe fn read_and_report(
         put(out_loss, r.loss);
     }
     Ok(())
-}
-
-fn copy_text(dst: &mut [c_char], s: &str) {
-    let n = s.len().min(dst.len() - 1);
-    for (d, b) in dst.iter_mut().zip(&s.as_bytes()[..n]) {
-        *d = *b as c_char;
-    }
-    dst[n..].fill(0);
 }
 
 fn info_to_c(i: &PortInfo) -> bass_port_info {
