@@ -21,7 +21,7 @@
 /* Frames are numbered from 1; lastFrameIndex = 0 means nothing published yet. */
 
 // Major version of the port format this library reads.
-#define BASS_PORT_FORMAT_MAJOR 1
+#define BASS_PORT_FORMAT_MAJOR 2
 
 // Bytes of `bass_port_info.device`.
 #define BASS_DEVICE_LEN 128

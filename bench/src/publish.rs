@@ -362,14 +362,14 @@ pub struct Breakdown {
 
 /// Measures the parts of a publish, interleaved, `reps` times; medians.
 pub fn breakdown(reps: usize) -> Breakdown {
-    use std::sync::atomic::{AtomicI32, AtomicU32, AtomicU64};
+    use std::sync::atomic::{AtomicU32, AtomicU64};
     let ncop = 200u32;
     let nfop = (NFPC * ncop) as usize;
     let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: NFPC, chunks_on_port: ncop };
     let params = PortParams { geometry, device: "bench:breakdown".into(), group: None };
     let mut w = Writer::create("bench-breakdown", &params).expect("create port");
     let data = chunk();
-    let heap: Vec<AtomicI32> = (0..2 * nfop).map(|_| AtomicI32::new(0)).collect();
+    let heap: Vec<AtomicU64> = (0..nfop).map(|_| AtomicU64::new(0)).collect();
     let (lfi, intent) = (AtomicU64::new(0), AtomicU64::new(0));
     let ring = bassclient::ring::Ring {
         last_frame_index: &lfi,

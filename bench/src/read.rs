@@ -152,8 +152,7 @@ pub fn run(reps: usize) -> Vec<ReadRow> {
     // SAFETY: a valid C string and a valid out-pointer.
     let rc = unsafe { bassclient::ffi::bass_port_open(cname.as_ptr(), &mut handle) };
     assert_eq!(rc as i32, 0, "bass_port_open");
-    let rings: Vec<*const i32> =
-        (0..2).map(|c| port.channel_ring(c).expect("channel").as_ptr() as *const i32).collect();
+    let rings: Vec<*const i32> = (0..2).map(|c| port.channel_ring(c).expect("channel").as_ptr()).collect();
 
     let max = BLOCKS.iter().map(|b| b.0).max().unwrap_or(1);
     let mut left = vec![0i32; max];

@@ -30,7 +30,7 @@ use crate::error::Error;
 /// `b"BASSPORT"` read as a little-endian u64.
 pub const MAGIC: u64 = u64::from_le_bytes(*b"BASSPORT");
 /// Major version: readers refuse any other major.
-pub const VERSION_MAJOR: u32 = 1;
+pub const VERSION_MAJOR: u32 = 2;
 /// Minor version: additions that old readers may ignore.
 pub const VERSION_MINOR: u32 = 0;
 /// Size of the header, one page.
@@ -259,9 +259,11 @@ impl Geometry {
         let chunk_table_offset = HEADER_SIZE as u64;
         let table_end = chunk_table_offset + u64::from(self.chunks_on_port) * CHUNK_ENTRY_SIZE as u64;
         let samples_offset = table_end.div_ceil(SAMPLES_ALIGN) * SAMPLES_ALIGN;
+        // Samples are stored two per 8-byte word (see `ring`): an odd sample count is
+        // padded to a whole word.
         let ring_bytes = frames_on_port
-            .checked_mul(4)
-            .and_then(|b| b.checked_mul(u64::from(self.channels)))
+            .checked_mul(u64::from(self.channels))
+            .and_then(|n| n.div_ceil(2).checked_mul(8))
             .ok_or_else(too_big)?;
         let total_size = samples_offset.checked_add(ring_bytes).ok_or_else(too_big)?;
         if total_size > MAX_TOTAL_SIZE || usize::try_from(total_size).is_err() {

@@ -17,6 +17,7 @@ pub mod ring;
 mod shm;
 pub mod sys;
 pub mod testsignal;
+pub mod waker;
 pub mod writer;
 
 /// The atomics the protocol is written against (std here; loom in the loom model).

@@ -7,13 +7,13 @@
 use std::fs::{File, OpenOptions};
 use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{fence, AtomicI32, Ordering::Acquire, Ordering::Relaxed};
+use std::sync::atomic::{fence, Ordering::Acquire, Ordering::Relaxed};
 use std::time::{Duration, Instant};
 
 use crate::error::{Error, Result};
 use crate::format::{self, Geometry, Header, Layout, State};
 use crate::paths;
-use crate::ring::{Plan, Ring};
+use crate::ring::{ChannelRing, Plan, Ring};
 use crate::shm::Mapping;
 use crate::sys::{self, FutexWait};
 
@@ -251,7 +251,7 @@ impl Port {
     }
 
     /// Channel `c`'s ring (nFOP samples), for reading a [`View`] in place.
-    pub fn channel_ring(&self, c: usize) -> Option<&[AtomicI32]> {
+    pub fn channel_ring(&self, c: usize) -> Option<ChannelRing<'_>> {
         (c < self.geometry.channels as usize).then(|| self.ring().channel(c))
     }
 

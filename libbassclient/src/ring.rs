@@ -11,10 +11,138 @@
 //! writing during the copy: it is dropped and counted as loss. So a reader never
 //! delivers a torn frame, and always `delivered + loss = nfr_out - nfr_in`.
 //!
+//! Samples are stored in 8-byte words, two samples per word, and every access to a
+//! sample word, by the writer and by every reader, is a 64-bit Relaxed atomic of that same
+//! aligned word: the sample area is one array of `AtomicU64`, never also accessed as 32-bit
+//! atomics, so no mixed-size atomic access exists (which the memory model does not define).
+//! The byte layout is unchanged from an `i32` array: sample `g` of the area (channel-planar,
+//! `g = c * nFOP + slot`) occupies bytes `4g..4g + 4`, i.e. one half of word `g / 2`. A
+//! write that covers only one half of a word (a run starting or ending at an odd sample)
+//! loads the word, replaces its half and stores it whole: the writer is the only process
+//! that stores, so the other half is written back with the value it already had. Readers
+//! copy the aligned middle of a run a word at a time, which is what makes them fast (see
+//! docs/port-format.md, "Copy width").
+//!
 //! This file only uses `crate::sync::atomic`, so the loom model in
 //! `tests/loom_ring.rs` compiles it against loom's atomics unchanged.
 
-use crate::sync::atomic::{fence, AtomicI32, AtomicU64, Ordering};
+use crate::sync::atomic::{fence, AtomicU64, Ordering};
+
+/// The two samples of a word, in memory order.
+#[inline(always)]
+fn split(w: u64) -> [i32; 2] {
+    let b = w.to_ne_bytes();
+    [i32::from_ne_bytes([b[0], b[1], b[2], b[3]]), i32::from_ne_bytes([b[4], b[5], b[6], b[7]])]
+}
+
+/// The word holding samples `a` (lower address) and `b`.
+#[inline(always)]
+fn join(a: i32, b: i32) -> u64 {
+    let (x, y) = (a.to_ne_bytes(), b.to_ne_bytes());
+    u64::from_ne_bytes([x[0], x[1], x[2], x[3], y[0], y[1], y[2], y[3]])
+}
+
+/// Number of words holding `samples` samples.
+#[inline]
+pub const fn words_for(samples: u64) -> u64 {
+    samples.div_ceil(2)
+}
+
+/// Stores `len` samples at sample positions `g0..g0 + len` of `words`, sample `i` being
+/// `get(i)` (writer only: the half-word edges are read back from the writer's own stores).
+#[inline(always)]
+fn store_run(words: &[AtomicU64], g0: usize, len: usize, get: impl Fn(usize) -> i32) {
+    let mut i = 0;
+    if g0 & 1 == 1 && len > 0 {
+        let w = &words[g0 >> 1];
+        let [keep, _] = split(w.load(Ordering::Relaxed));
+        w.store(join(keep, get(0)), Ordering::Relaxed);
+        i = 1;
+    }
+    while i + 1 < len {
+        words[(g0 + i) >> 1].store(join(get(i), get(i + 1)), Ordering::Relaxed);
+        i += 2;
+    }
+    if i < len {
+        let w = &words[(g0 + i) >> 1];
+        let [_, keep] = split(w.load(Ordering::Relaxed));
+        w.store(join(get(i), keep), Ordering::Relaxed);
+    }
+}
+
+/// Loads the samples at positions `g0..g0 + dst.len()` of `words` into `dst`.
+#[inline(always)]
+fn load_run(words: &[AtomicU64], g0: usize, dst: &mut [i32]) {
+    let len = dst.len();
+    let mut i = 0;
+    if g0 & 1 == 1 && len > 0 {
+        dst[0] = split(words[g0 >> 1].load(Ordering::Relaxed))[1];
+        i = 1;
+    }
+    let pairs = (len - i) / 2;
+    let first = (g0 + i) >> 1;
+    for (d, w) in dst[i..i + 2 * pairs].chunks_exact_mut(2).zip(&words[first..first + pairs]) {
+        let [a, b] = split(w.load(Ordering::Relaxed));
+        d[0] = a;
+        d[1] = b;
+    }
+    i += 2 * pairs;
+    if i < len {
+        dst[i] = split(words[(g0 + i) >> 1].load(Ordering::Relaxed))[0];
+    }
+}
+
+/// One channel's ring of nFOP samples inside the shared sample words.
+#[derive(Clone, Copy)]
+pub struct ChannelRing<'a> {
+    words: &'a [AtomicU64],
+    base: usize,
+    len: usize,
+}
+
+impl<'a> ChannelRing<'a> {
+    /// Samples in the ring (nFOP).
+    #[inline]
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether the ring is empty (never, for a valid port).
+    #[inline]
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The sample in `slot` (a Relaxed load of its word). Panics if `slot >= len()`.
+    #[inline]
+    pub fn load(&self, slot: usize) -> i32 {
+        assert!(slot < self.len, "slot {slot} outside a ring of {}", self.len);
+        let g = self.base + slot;
+        split(self.words[g >> 1].load(Ordering::Relaxed))[g & 1]
+    }
+
+    /// Copies the samples of slots `start..start + dst.len()`. Panics past the ring's end.
+    #[inline]
+    pub fn copy_to(&self, start: usize, dst: &mut [i32]) {
+        assert!(start <= self.len && dst.len() <= self.len - start, "copy outside the ring");
+        load_run(self.words, self.base + start, dst);
+    }
+
+    /// Address of slot 0, for zero-copy readers in C (the samples are an `i32` array in
+    /// memory; C reads them in place and checks the view afterwards).
+    #[inline]
+    pub fn as_ptr(&self) -> *const i32 {
+        // The words are 8-byte aligned and samples are 4 bytes: sample `base` starts at
+        // byte 4 * base of the word array.
+        (self.words.as_ptr() as *const i32).wrapping_add(self.base)
+    }
+
+    /// The word holding `slot` (for tests that probe the mapping's protection).
+    pub fn word_of(&self, slot: usize) -> &'a AtomicU64 {
+        assert!(slot < self.len, "slot {slot} outside a ring of {}", self.len);
+        &self.words[(self.base + slot) >> 1]
+    }
+}
 
 /// Views of the shared window's protocol words and samples.
 pub struct Ring<'a> {
@@ -22,8 +150,9 @@ pub struct Ring<'a> {
     pub last_frame_index: &'a AtomicU64,
     /// Newest frame the writer may be writing.
     pub write_intent: &'a AtomicU64,
-    /// Channel-planar rings, `channels * frames_on_port` samples.
-    pub samples: &'a [AtomicI32],
+    /// Channel-planar rings, `channels * frames_on_port` samples, two per word
+    /// ([`words_for`]).
+    pub samples: &'a [AtomicU64],
     /// nFOP.
     pub frames_on_port: u64,
 }
@@ -63,9 +192,13 @@ pub struct Plan {
 impl<'a> Ring<'a> {
     /// Channel `c`'s ring.
     #[inline]
-    pub fn channel(&self, c: usize) -> &'a [AtomicI32] {
+    pub fn channel(&self, c: usize) -> ChannelRing<'a> {
         let n = self.frames_on_port as usize;
-        &self.samples[c * n..(c + 1) * n]
+        assert!(
+            words_for(((c + 1) * n) as u64) as usize <= self.samples.len(),
+            "channel {c} outside the rings"
+        );
+        ChannelRing { words: self.samples, base: c * n, len: n }
     }
 
     /// Ring slot of `frame`.
@@ -97,23 +230,16 @@ impl<'a> Ring<'a> {
             let start = self.slot(lfi + 1 + done as u64);
             let len = (count - done).min(self.frames_on_port as usize - start);
             for c in 0..channels {
-                let dst = &self.channel(c)[start..start + len];
+                let g0 = self.channel(c).base + start;
                 match src {
                     Source::Interleaved(s) => {
-                        for (i, d) in dst.iter().enumerate() {
-                            d.store(s[(done + i) * channels + c], Ordering::Relaxed);
-                        }
+                        store_run(self.samples, g0, len, |i| s[(done + i) * channels + c]);
                     }
                     Source::Planar(p) => {
-                        for (d, v) in dst.iter().zip(&p[c][done..done + len]) {
-                            d.store(*v, Ordering::Relaxed);
-                        }
+                        let p = &p[c][done..done + len];
+                        store_run(self.samples, g0, len, |i| p[i]);
                     }
-                    Source::Zeros => {
-                        for d in dst {
-                            d.store(0, Ordering::Relaxed);
-                        }
-                    }
+                    Source::Zeros => store_run(self.samples, g0, len, |_| 0),
                 }
             }
             done += len;
@@ -152,9 +278,7 @@ impl<'a> Ring<'a> {
         while done < frames {
             let start = self.slot(first + done as u64);
             let len = (frames - done).min(self.frames_on_port as usize - start);
-            for (d, s) in dst[done..done + len].iter_mut().zip(&ring[start..start + len]) {
-                *d = s.load(Ordering::Relaxed);
-            }
+            ring.copy_to(start, &mut dst[done..done + len]);
             done += len;
         }
     }

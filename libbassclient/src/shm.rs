@@ -4,7 +4,7 @@
 //! bounds-checked against the mapping length first.
 
 use std::fs::File;
-use std::sync::atomic::AtomicI32;
+use std::sync::atomic::AtomicU64;
 
 use memmap2::{MmapOptions, MmapRaw};
 
@@ -56,13 +56,13 @@ impl Mapping {
         unsafe { std::slice::from_raw_parts(self.raw.as_ptr().add(start) as *const ChunkEntry, count) }
     }
 
-    /// The sample rings of a validated layout (`channels * nFOP` samples).
-    pub fn samples(&self, layout: &Layout, channels: u32) -> &[AtomicI32] {
+    /// The sample words of a validated layout (`channels * nFOP` samples, two per word).
+    pub fn samples(&self, layout: &Layout, channels: u32) -> &[AtomicU64] {
         let start = layout.samples_offset as usize;
-        let count = layout.frames_on_port as usize * channels as usize;
-        assert!(start % 4 == 0 && start + count * 4 <= self.len, "layout checked against mapping");
-        // SAFETY: bounds and alignment asserted above; AtomicI32 is valid for any bit
-        // pattern; the memory lives as long as `self`.
-        unsafe { std::slice::from_raw_parts(self.raw.as_ptr().add(start) as *const AtomicI32, count) }
+        let count = crate::ring::words_for(layout.frames_on_port * u64::from(channels)) as usize;
+        assert!(start % 8 == 0 && start + count * 8 <= self.len, "layout checked against mapping");
+        // SAFETY: bounds and alignment asserted above (the mapping is page aligned); AtomicU64
+        // is valid for any bit pattern; the memory lives as long as `self`.
+        unsafe { std::slice::from_raw_parts(self.raw.as_ptr().add(start) as *const AtomicU64, count) }
     }
 }

@@ -62,9 +62,9 @@ pub fn futex_wait_bits(word: &AtomicU32, expected: u32, timeout: Duration, bits:
 }
 
 /// Wakes the processes waiting on `word` whose bits intersect `bits`.
-pub fn futex_wake_bits(word: &AtomicU32, bits: u32) {
+pub fn futex_wake_bits(word: &AtomicU32, bits: u32) -> u32 {
     // SAFETY: as in `futex_wake_all`.
-    unsafe {
+    let r = unsafe {
         libc::syscall(
             libc::SYS_futex,
             word.as_ptr(),
@@ -73,8 +73,10 @@ pub fn futex_wake_bits(word: &AtomicU32, bits: u32) {
             std::ptr::null::<libc::timespec>(),
             std::ptr::null::<u32>(),
             bits,
-        );
-    }
+        )
+    };
+    // The number of processes woken (an error, impossible with these arguments, counts as 0).
+    u32::try_from(r).unwrap_or(0)
 }
 
 /// Wakes every process waiting on `word`.

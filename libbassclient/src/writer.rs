@@ -6,6 +6,7 @@ use std::fs::{File, OpenOptions};
 use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering::{Relaxed, Release};
+use std::sync::Arc;
 
 use crate::error::{Error, Result};
 use crate::format::{self, ChunkEntry, Geometry, Header, Layout, State};
@@ -13,6 +14,7 @@ use crate::paths;
 use crate::ring::{Ring, Source};
 use crate::shm::Mapping;
 use crate::sys;
+use crate::waker::Waker;
 
 /// Parameters of a new port.
 #[derive(Clone, Debug)]
@@ -38,7 +40,8 @@ pub struct ChunkMeta {
 
 /// Writes one port. One writer per port; not shareable between threads without a lock.
 pub struct Writer {
-    mapping: Mapping,
+    mapping: Arc<Mapping>,
+    waker: Waker,
     _file: File,
     path: PathBuf,
     geometry: Geometry,
@@ -98,7 +101,9 @@ impl Writer {
         if let Some(p) = previous {
             p.supersede();
         }
-        Ok(Writer { mapping, _file: file, path: path.to_owned(), geometry, layout, epoch })
+        let mapping = Arc::new(mapping);
+        let waker = Waker::new(mapping.clone());
+        Ok(Writer { mapping, waker, _file: file, path: path.to_owned(), geometry, layout, epoch })
     }
 
     /// Path of the port file.
@@ -189,8 +194,14 @@ impl Writer {
             sys::chunk_bit(lfi / nfpc as u64)
         };
         h.futex.fetch_add(1, Release);
-        sys::futex_wake_bits(&h.futex, bits);
+        self.waker.wake(bits);
         Ok(new_lfi)
+    }
+
+    /// Whether the last wake of the readers was handed to the wake thread (many readers
+    /// waiting) rather than made by the writer itself; see [`crate::waker`].
+    pub fn wakes_through_helper(&self) -> bool {
+        !self.waker.is_direct()
     }
 
     /// Sets the state (with an error code and message for [`State::Error`]) and wakes readers.

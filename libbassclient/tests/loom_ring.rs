@@ -15,7 +15,7 @@ mod sync {
 #[path = "../src/ring.rs"]
 mod ring;
 
-use loom::sync::atomic::{AtomicI32, AtomicU64, Ordering};
+use loom::sync::atomic::{AtomicU64, Ordering};
 use loom::sync::Arc;
 use ring::{ReadOutcome, Ring, Source};
 
@@ -25,7 +25,7 @@ const FRAMES: u64 = 3;
 struct Shared {
     lfi: AtomicU64,
     intent: AtomicU64,
-    samples: Vec<AtomicI32>,
+    samples: Vec<AtomicU64>,
 }
 
 impl Shared {
@@ -55,7 +55,7 @@ fn model(read: fn(&Ring<'_>, u64, usize, u64, &mut [&mut [i32]]) -> ReadOutcome)
         let shared = Arc::new(Shared {
             lfi: AtomicU64::new(0),
             intent: AtomicU64::new(0),
-            samples: (0..NFOP).map(|_| AtomicI32::new(0)).collect(),
+            samples: (0..NFOP.div_ceil(2)).map(|_| AtomicU64::new(0)).collect(),
         });
         let w = shared.clone();
         let writer = loom::thread::spawn(move || {

@@ -86,7 +86,7 @@ pub enum bass_result {
 use bass_result::*;
 
 /// Major version of the port format this library reads.
-pub const BASS_PORT_FORMAT_MAJOR: u32 = 1;
+pub const BASS_PORT_FORMAT_MAJOR: u32 = 2;
 /// Bytes of `bass_port_info.device`.
 pub const BASS_DEVICE_LEN: usize = 128;
 /// Bytes of `bass_port_info.message`.

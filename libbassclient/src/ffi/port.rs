@@ -392,10 +392,9 @@ pub unsafe extern "C" fn bass_port_chunk_info(
 fn view_to_c(p: &Port, v: &View) -> bass_view {
     let seg = |c: usize| -> [*const i32; 2] {
         match p.channel_ring(c) {
-            Some(ring) => [
-                ring[v.segments[0].0..].as_ptr() as *const i32,
-                ring[v.segments[1].0..].as_ptr() as *const i32,
-            ],
+            Some(ring) => {
+                [ring.as_ptr().wrapping_add(v.segments[0].0), ring.as_ptr().wrapping_add(v.segments[1].0)]
+            }
             None => [std::ptr::null(); 2],
         }
     };
@@ -468,8 +467,8 @@ pub unsafe extern "C" fn bass_port_view_channel(
         })?;
         // SAFETY: checked non-null; caller guarantees validity.
         unsafe {
-            put(o0, ring[v.seg_offset[0]..].as_ptr() as *const i32);
-            put(o1, ring[v.seg_offset[1]..].as_ptr() as *const i32);
+            put(o0, ring.as_ptr().wrapping_add(v.seg_offset[0]));
+            put(o1, ring.as_ptr().wrapping_add(v.seg_offset[1]));
         }
         Ok(())
     })

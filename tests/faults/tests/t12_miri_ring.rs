@@ -8,7 +8,7 @@
 //! races and out-of-bounds accesses, with Miri's weak-memory emulation exploring stale
 //! loads. Also runs as a plain test (more chunks) in `cargo test`.
 
-use std::sync::atomic::{AtomicI32, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use bassclient::ring::{Ring, Source};
 use bassclient::testsignal::{fill_pattern_interleaved, pattern_expected};
@@ -23,7 +23,7 @@ fn heap_ring_readers_never_see_torn_frames_and_account_every_frame() {
     let chunks: u64 = if cfg!(miri) { 60 } else { 20_000 };
     let lfi = AtomicU64::new(0);
     let intent = AtomicU64::new(0);
-    let samples: Vec<AtomicI32> = (0..CH * NFOP).map(|_| AtomicI32::new(0)).collect();
+    let samples: Vec<AtomicU64> = (0..(CH * NFOP).div_ceil(2)).map(|_| AtomicU64::new(0)).collect();
     let ring = Ring {
         last_frame_index: &lfi,
         write_intent: &intent,

@@ -245,12 +245,8 @@ fn reader(a: &Args) {
                 let ring = port.channel_ring(c).expect("channel");
                 let (s0, l0) = v.segments[0];
                 let (s1, l1) = v.segments[1];
-                for i in 0..l0 {
-                    buf[i] = ring[s0 + i].load(Ordering::Relaxed);
-                }
-                for i in 0..l1 {
-                    buf[l0 + i] = ring[s1 + i].load(Ordering::Relaxed);
-                }
+                ring.copy_to(s0, &mut buf[..l0]);
+                ring.copy_to(s1, &mut buf[l0..l0 + l1]);
             }
             let over = port.view_overwritten(&v) as usize;
             view_overwritten += over as u64;
@@ -370,7 +366,7 @@ fn poke(a: &Args) {
     }
     println!("MAPPING perms={} open_flags={}", perms.join(","), flags.join(","));
     let ring = port.channel_ring(0).expect("channel 0");
-    ring[0].store(0x5a5a_5a5a, Ordering::Relaxed);
+    ring.word_of(0).store(0x5a5a_5a5a_5a5a_5a5a, Ordering::Relaxed);
     println!("SURVIVED");
 }
 

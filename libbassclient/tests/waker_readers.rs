@@ -1,0 +1,94 @@
+//! Many readers waiting on one port: the writer hands its wakes to the wake thread while more
+//! than `DIRECT_MAX` (2) readers are woken per publish, and takes them back when they are gone.
+//! Every reader still gets every frame with its exact samples and exact accounting; no reader
+//! is left sleeping (the waits have a 20 s guard, far above the run's length).
+
+mod common;
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use bassclient::testsignal::{fill_pattern_interleaved, pattern_expected};
+use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+
+const NFPC: u32 = 64;
+const CHUNKS: u64 = 600;
+const READERS: usize = 8;
+
+#[test]
+fn many_waiting_readers_get_every_frame_through_the_wake_thread_and_few_get_direct_wakes() {
+    let geometry = Geometry { channels: 2, sample_rate: 48000, frames_per_chunk: NFPC, chunks_on_port: 4096 };
+    let params = PortParams { geometry, device: "waker-test".into(), group: None };
+    let mut w = Writer::create_at(&common::temp_port_path("waker"), &params).unwrap();
+    let path = w.path().to_owned();
+    let last = CHUNKS * u64::from(NFPC);
+    let start = Arc::new(std::sync::Barrier::new(READERS + 1));
+    let readers: Vec<_> = (0..READERS)
+        .map(|_| {
+            let (path, start) = (path.clone(), start.clone());
+            std::thread::spawn(move || {
+                let port = Port::open_path(&path).unwrap();
+                start.wait();
+                let (mut nfr, mut delivered, mut lost, mut wrong) = (1u64, 0u64, 0u64, 0u64);
+                let mut bufs = vec![vec![0i32; NFPC as usize]; 2];
+                while nfr <= last {
+                    let chunk_end = nfr.div_ceil(u64::from(NFPC)) * u64::from(NFPC);
+                    port.wait(chunk_end, Duration::from_secs(20))
+                        .expect("a published chunk wakes its waiters");
+                    let before = nfr;
+                    let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| b.as_mut_slice()).collect();
+                    let r = port.get_audio_data(NFPC as usize, &mut nfr, &mut outs).unwrap();
+                    let first = before + r.loss;
+                    for (c, b) in bufs.iter().enumerate() {
+                        for (i, &v) in b[..r.frames].iter().enumerate() {
+                            if v != pattern_expected(first + i as u64, c as u32) {
+                                wrong += 1;
+                            }
+                        }
+                    }
+                    delivered += r.frames as u64;
+                    lost += r.loss;
+                }
+                (delivered, lost, wrong, nfr)
+            })
+        })
+        .collect();
+    start.wait();
+    let mut chunk = vec![0i32; 2 * NFPC as usize];
+    let saw_helper = Arc::new(AtomicBool::new(false));
+    for k in 0..CHUNKS {
+        fill_pattern_interleaved(&mut chunk, 2, k * u64::from(NFPC) + 1);
+        w.publish(Source::Interleaved(&chunk), ChunkMeta::default()).unwrap();
+        if w.wakes_through_helper() {
+            saw_helper.store(true, Ordering::Relaxed);
+        }
+        // Paced so that the readers are asleep again when most chunks are published.
+        std::thread::sleep(Duration::from_micros(500));
+    }
+    for r in readers {
+        let (delivered, lost, wrong, nfr) = r.join().unwrap();
+        assert_eq!(wrong, 0, "samples that do not belong to their frame");
+        assert_eq!(delivered + lost, last, "accounting: delivered {delivered} + lost {lost}");
+        assert_eq!(lost, 0, "a 4096-chunk window loses nothing in this run");
+        assert_eq!(nfr, last + 1);
+    }
+    assert!(
+        saw_helper.load(Ordering::Relaxed),
+        "{READERS} waiting readers never moved the wakes to the wake thread"
+    );
+    // The readers are gone: a publish wakes nobody (<= DIRECT_MAX), the helper reports it and
+    // the writer takes the wakes back within a few publishes.
+    let mut back = false;
+    for k in CHUNKS..CHUNKS + 200 {
+        fill_pattern_interleaved(&mut chunk, 2, k * u64::from(NFPC) + 1);
+        w.publish(Source::Interleaved(&chunk), ChunkMeta::default()).unwrap();
+        if !w.wakes_through_helper() {
+            back = true;
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    assert!(back, "with no reader left the writer never took the wakes back");
+    w.remove().unwrap();
+}
