@@ -106,6 +106,7 @@ fn child(role: &str, args: &[String]) {
         "wake-reader" => wake::child_wake_reader(args),
         "poll-reader" => wake::child_poll_reader(args),
         "wake-raw-waiter" => wake::child_raw_waiter(args),
+        "futex-waiter" => wake::child_futex_waiter(args),
         "mem-reader" => memory::child_reader(args),
         "cpu-reader" => e2e::child_cpu_reader(args),
         "mem-writer" => memory::child_writer(args),

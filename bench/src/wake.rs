@@ -68,6 +68,14 @@ pub struct WakeResults {
     pub bass_data: BTreeMap<usize, Dist>,
     /// Per repetition: bass (1 reader) median / raw futex median.
     pub ratio_1: Vec<f64>,
+    /// Raw futex, per waiter count (> 1): every waiter's wake latency.
+    pub raw_n: BTreeMap<usize, Dist>,
+    /// Raw futex, per waiter count: per wake, the latency of the last waiter to run.
+    pub raw_n_last: BTreeMap<usize, Dist>,
+    /// Per waiter count, per repetition: bass median / raw futex median (each reader).
+    pub ratio_n: BTreeMap<usize, Vec<f64>>,
+    /// Per waiter count, per repetition: the same for the last reader of each publish.
+    pub ratio_n_last: BTreeMap<usize, Vec<f64>>,
     /// Diagnostic: bass writer, a reader doing a bare FUTEX_WAIT on the port's futex word
     /// instead of `Port::wait` (separates writer-side from reader-side overhead).
     pub bass_raw_waiter: Dist,
@@ -167,6 +175,59 @@ pub fn child_futex_pong(args: &[String]) {
         futex_wake(r.u32_at(PONG));
     }
     let out: String = lats.iter().map(|l| format!("lat {l}\n")).collect();
+    print!("{out}");
+}
+
+/// Raw-futex baseline for many waiters: `readers` processes blocked in FUTEX_WAIT on one
+/// shared word; per wake the parent stamps CLOCK_MONOTONIC, bumps the word and issues one
+/// FUTEX_WAKE of all of them, exactly the system calls a bass publish makes, without bass.
+fn raw_broadcast(readers: usize, n: usize) -> Samples {
+    let path = bassclient::paths::runtime_dir().join("bench-futex-n");
+    let region = Region::create(&path, 4096);
+    let kids = spawn_ready(readers, "futex-waiter", &[path.display().to_string()]);
+    std::thread::sleep(Duration::from_millis(50));
+    let mut rng = Rng::new();
+    for _ in 0..n {
+        std::thread::sleep(rng.gap(3000, 6000));
+        region.u64_at(PING_T).store(now_ns(), Relaxed);
+        region.u32_at(PING).fetch_add(1, Release);
+        futex_wake(region.u32_at(PING));
+    }
+    region.u32_at(STOP).store(1, Release);
+    region.u32_at(PING).fetch_add(1, Release);
+    futex_wake(region.u32_at(PING));
+    let lines = finish_all(kids);
+    let _ = std::fs::remove_file(&path);
+    let mut each = Vec::new();
+    let mut last: BTreeMap<u64, f64> = BTreeMap::new();
+    for l in &lines {
+        let v: Vec<u64> = l.split_whitespace().filter_map(|x| x.parse().ok()).collect();
+        if let [seq, lat] = v[..] {
+            each.push(lat as f64);
+            let e = last.entry(seq).or_insert(0.0);
+            *e = e.max(lat as f64);
+        }
+    }
+    Samples { each, last: last.into_values().collect(), data: Vec::new(), cpu: f64::NAN }
+}
+
+/// Child: one waiter of the raw-futex broadcast baseline; prints `seq latency_ns` per wake.
+pub fn child_futex_waiter(args: &[String]) {
+    let r = Region::open(std::path::Path::new(&args[0]), 4096);
+    let mut seq = r.u32_at(PING).load(Acquire);
+    let mut out = String::new();
+    crate::procs::say_ready();
+    loop {
+        while r.u32_at(PING).load(Acquire) == seq {
+            futex_wait(r.u32_at(PING), seq, 0);
+        }
+        let t = now_ns();
+        seq = r.u32_at(PING).load(Acquire);
+        if r.u32_at(STOP).load(Acquire) != 0 {
+            break;
+        }
+        out.push_str(&format!("{seq} {}\n", t.saturating_sub(r.u64_at(PING_T).load(Relaxed))));
+    }
     print!("{out}");
 }
 
@@ -494,6 +555,20 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
                 fmt_ns(median(&data)),
                 fmt_ns(cpu)
             );
+            let raw_k = raw_broadcast(k, n);
+            println!(
+                "  rep {} raw futex, {k:>2} waiters: median {} p99 {}; last waiter median {} | bass / raw: each {}, last {}",
+                rep + 1,
+                fmt_ns(median(&raw_k.each)),
+                fmt_ns(quantile(&raw_k.each, 0.99)),
+                fmt_ns(median(&raw_k.last)),
+                fmt_ratio(median(&each) / median(&raw_k.each)),
+                fmt_ratio(median(&last) / median(&raw_k.last))
+            );
+            res.ratio_n.entry(k).or_default().push(median(&each) / median(&raw_k.each));
+            res.ratio_n_last.entry(k).or_default().push(median(&last) / median(&raw_k.last));
+            res.raw_n.entry(k).or_default().add_rep(raw_k.each);
+            res.raw_n_last.entry(k).or_default().add_rep(raw_k.last);
             res.bass.entry(k).or_default().add_rep(each);
             res.bass_last.entry(k).or_default().add_rep(last);
             res.bass_data.entry(k).or_default().add_rep(data);
