@@ -713,7 +713,7 @@ pub fn write(r: &Results, docs: &Path) {
     std::fs::write(docs.join("performance.md"), md).expect("write performance.md");
 }
 
-const ANALYSIS: &str = include_str!("analysis.md");
+const ANALYSIS: &str = include_str!("../analysis.md");
 
 const HOWTO: &str = "
 ## How to run

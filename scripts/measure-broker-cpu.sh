@@ -5,7 +5,7 @@
 #  - the time from an Acquire request to the first published chunk (client side: request
 #    sent -> frame nFramesPerChunk visible in the port), from a stopped broker, N times;
 #  - the rate estimate's error against the simulated device's nominal rate.
-# Usage: broker/measure.sh [SECONDS (default 10)] [N (default 20)]
+# Usage: scripts/measure-broker-cpu.sh [SECONDS (default 10)] [N (default 20)]
 set -euo pipefail
 top=$(cd "$(dirname "$0")/.." && pwd)
 bin="${CARGO_TARGET_DIR:-$top/target}/release"
