@@ -315,7 +315,7 @@ static void test_bad_files(void) {
     copy_port(good, bad, 0, -1, NULL, 0);
     EXPECT(bass_port_open("empty", &p), BASS_ERR_CORRUPT);
     /* Wrong major version (offset 8). */
-    uint32_t major = 2;
+    uint32_t major = BASS_PORT_FORMAT_MAJOR + 1;
     path_of(bad, sizeof bad, "bass-major.port");
     copy_port(good, bad, -1, 8, &major, 4);
     EXPECT(bass_port_open("major", &p), BASS_ERR_INCOMPATIBLE);
