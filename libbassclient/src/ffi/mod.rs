@@ -300,12 +300,24 @@ impl<T> Registry<T> {
     }
 }
 
-static VERSION: &CStr = c"bass 0.1.0 (port format 1.0)";
+/// The version text, built once from the crate version and the format's constants.
+static VERSION: std::sync::OnceLock<std::ffi::CString> = std::sync::OnceLock::new();
 
 /// The library's version string (static; never NULL).
 #[no_mangle]
 pub extern "C" fn bass_version() -> *const c_char {
-    VERSION.as_ptr()
+    VERSION
+        .get_or_init(|| {
+            let text = format!(
+                "bass {} (port format {}.{})",
+                env!("CARGO_PKG_VERSION"),
+                format::VERSION_MAJOR,
+                format::VERSION_MINOR
+            );
+            // The text has no NUL byte; the fallback only keeps this path free of panics.
+            std::ffi::CString::new(text).unwrap_or_default()
+        })
+        .as_ptr()
 }
 
 /// A static description of a result code (never NULL; unknown codes give "unknown result code").
