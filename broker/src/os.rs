@@ -287,3 +287,16 @@ pub fn drain(fd: RawFd) {
     // SAFETY: `buf` is valid for writes of its length; MSG_DONTWAIT never blocks.
     while unsafe { libc::recv(fd, buf.as_mut_ptr().cast(), buf.len(), libc::MSG_DONTWAIT) } > 0 {}
 }
+
+/// Whether an `accept` error means the process or the system ran out of descriptors (or
+/// of the memory behind them): EMFILE, ENFILE, ENOBUFS, ENOMEM.
+pub fn is_out_of_fds(e: &io::Error) -> bool {
+    matches!(e.raw_os_error(), Some(libc::EMFILE | libc::ENFILE | libc::ENOBUFS | libc::ENOMEM))
+}
+
+/// A descriptor held in reserve (`/dev/null`, close-on-exec), given up when descriptors run
+/// out so that one more connection can be accepted and told why it is refused.
+pub fn spare_fd() -> io::Result<OwnedFd> {
+    use rustix::fs::{Mode, OFlags};
+    Ok(rustix::fs::open("/dev/null", OFlags::RDONLY | OFlags::CLOEXEC, Mode::empty())?)
+}
