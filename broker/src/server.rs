@@ -5,7 +5,7 @@
 //! the client connections; the capture runs on its own thread (see [`crate::capture`]).
 
 use std::fs::File;
-use std::io::Write;
+use std::io::{Read, Write};
 use std::os::fd::{AsFd, AsRawFd, BorrowedFd, OwnedFd};
 use std::path::PathBuf;
 use std::time::Duration;
@@ -262,42 +262,71 @@ pub fn peer_allowed(peer: &os::Peer, own_uid: u32, group: Option<u32>) -> bool {
     peer.uid == own_uid || peer.uid == 0 || group.is_some_and(|g| peer.gid == g || peer.groups.contains(&g))
 }
 
-/// The running daemon's files: lock, socket.
+/// The running daemon's files: lock, socket, both anchored to the runtime directory's fd.
 struct Files {
+    dir: OwnedFd,
     _lock: File,
     socket: PathBuf,
+    socket_name: String,
 }
 
 impl Drop for Files {
     fn drop(&mut self) {
-        let _ = std::fs::remove_file(&self.socket);
+        os::remove_own_socket_at(&self.dir, &self.socket_name);
     }
 }
 
+/// Takes the instance lock and clears what a dead broker of ours left.
+///
+/// Every file here is opened relative to the runtime directory's fd without following
+/// symlinks, created with O_EXCL where new, and refused if it belongs to another user
+/// (docs/reliability.md, threat model). The system runtime directory (`/run/bass`, root) is
+/// created 0755 if absent and must be ours and not writable by others.
 fn take_instance(cfg: &Config) -> anyhow::Result<Files> {
-    let dir = paths::runtime_dir();
-    let socket = paths::socket_path(&cfg.name)?;
-    let lock_path = dir.join(format!("bass-{}.lock", cfg.name));
-    let Some(mut lock) =
-        os::try_lock(&lock_path).with_context(|| format!("opening {}", lock_path.display()))?
-    else {
-        let pid = std::fs::read_to_string(&lock_path).unwrap_or_default();
+    let dir_path = paths::runtime_dir();
+    let env_dir = std::env::var_os(paths::RUNTIME_DIR_ENV).is_some_and(|d| !d.is_empty());
+    if !env_dir && dir_path == std::path::Path::new(paths::SYSTEM_RUNTIME_DIR) {
+        os::ensure_private_dir(&dir_path).context("the system runtime directory")?;
+    } else if !env_dir {
+        // A per-user broker must not take a name the system broker serves: clients look there first.
+        let sys = std::path::Path::new(paths::SYSTEM_RUNTIME_DIR).join(format!("bass-{}.sock", cfg.name));
+        if sys.exists() {
+            bail!(
+                "a system broker named {:?} serves {}; clients would find it before this one: \
+                 start this broker with --name OTHER",
+                cfg.name,
+                sys.display()
+            );
+        }
+    }
+    let dir = os::open_dir(&dir_path)
+        .with_context(|| format!("opening the runtime directory {}", dir_path.display()))?;
+    let socket_name = format!("bass-{}.sock", cfg.name);
+    let socket = dir_path.join(&socket_name);
+    let lock_name = format!("bass-{}.lock", cfg.name);
+    let (mut lock, locked) = os::try_lock_at(&dir, &lock_name)
+        .with_context(|| format!("opening {}", dir_path.join(&lock_name).display()))?;
+    if !locked {
+        // Only a number is ever shown from the file: its text is not echoed.
+        let mut text = String::new();
+        let _ = std::io::Read::read_to_string(&mut (&lock).take(32), &mut text);
+        let pid = text.trim().parse::<u32>().map_or_else(|_| "unknown".to_owned(), |p| p.to_string());
         bail!(
-            "a broker named {:?} is already running (pid {}, control socket {}); \
+            "a broker named {:?} is already running (pid {pid}, control socket {}); \
              stop it first or start this one with --name OTHER",
             cfg.name,
-            pid.trim(),
             socket.display()
         );
-    };
+    }
     lock.set_len(0)?;
     writeln!(lock, "{}", std::process::id())?;
-    // We hold the lock, so any socket there was left by a broker that died: replace it.
-    if socket.exists() {
-        tracing::warn!("removing the stale control socket {} left by a previous broker", socket.display());
-        std::fs::remove_file(&socket).with_context(|| format!("removing stale {}", socket.display()))?;
+    // We hold the lock, so any socket of ours there was left by a broker that died: replace it.
+    if os::remove_stale_socket_at(&dir, &socket_name)
+        .with_context(|| format!("checking {}", socket.display()))?
+    {
+        tracing::warn!("removed the stale control socket {} left by a previous broker", socket.display());
     }
-    let port = paths::port_path(&cfg.name)?;
+    let port = dir_path.join(format!("bass-{}.port", cfg.name));
     if let Ok(p) = Port::open_path(&port) {
         if let Ok(i) = p.info() {
             if !i.writer_alive {
@@ -310,7 +339,7 @@ fn take_instance(cfg: &Config) -> anyhow::Result<Files> {
             }
         }
     }
-    Ok(Files { _lock: lock, socket })
+    Ok(Files { dir, _lock: lock, socket, socket_name })
 }
 
 /// Runs the broker until SIGTERM / SIGINT.
@@ -319,7 +348,7 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
     let sigfd = os::signalfd_for_termination().context("setting up the signal handling")?;
     let files = take_instance(&cfg)?;
     let mode = if cfg.group.is_some() { 0o660 } else { 0o600 };
-    let listener = os::listen_seqpacket(&files.socket, mode, cfg.group)
+    let listener = os::listen_seqpacket_at(&files.dir, &files.socket_name, &files.socket, mode, cfg.group)
         .with_context(|| format!("listening on {}", files.socket.display()))?;
     tracing::info!(name = %cfg.name, socket = %files.socket.display(), pid = std::process::id(), "bassd ready");
     let own_uid = os::euid();
