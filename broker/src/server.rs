@@ -288,9 +288,14 @@ fn take_instance(cfg: &Config) -> anyhow::Result<Files> {
     if !env_dir && dir_path == std::path::Path::new(paths::SYSTEM_RUNTIME_DIR) {
         os::ensure_private_dir(&dir_path).context("the system runtime directory")?;
     } else if !env_dir {
-        // A per-user broker must not take a name the system broker serves: clients look there first.
-        let sys = std::path::Path::new(paths::SYSTEM_RUNTIME_DIR).join(format!("bass-{}.sock", cfg.name));
-        if sys.exists() {
+        // A per-user broker must not take a name the system broker serves (or served: its
+        // port is still there): clients look there first.
+        let sys = std::path::Path::new(paths::SYSTEM_RUNTIME_DIR);
+        let sys = ["sock", "port"]
+            .map(|ext| sys.join(format!("bass-{}.{ext}", cfg.name)))
+            .into_iter()
+            .find(|p| p.symlink_metadata().is_ok());
+        if let Some(sys) = sys {
             bail!(
                 "a system broker named {:?} serves {}; clients would find it before this one: \
                  start this broker with --name OTHER",
