@@ -455,6 +455,10 @@ impl Acceptor {
         own_uid: u32,
         group: Option<u32>,
     ) {
+        if self.spare.is_none() {
+            // Lost while descriptors were short: take it again as soon as one is free.
+            self.spare = os::spare_fd().ok();
+        }
         loop {
             match os::accept(listener.as_raw_fd()) {
                 Ok(Some(c)) => {
