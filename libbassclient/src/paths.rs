@@ -95,3 +95,18 @@ pub fn socket_path(name: &str) -> Result<PathBuf> {
     check_name(name)?;
     Ok(lookup_dir(name).join(format!("bass-{name}.sock")))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn root_and_the_own_user_are_trusted_others_only_when_named() {
+        assert!(expected_owner_ok(0));
+        assert!(expected_owner_ok(rustix::process::geteuid().as_raw()));
+        let named = std::env::var(BROKER_UID_ENV).ok();
+        if named.as_deref() != Some("4000000001") {
+            assert!(!expected_owner_ok(4_000_000_001));
+        }
+    }
+}

@@ -12,7 +12,8 @@ usage: bassd [--name NAME] [--group GROUP] [--max-port-bytes N] [--rt-priority P
              [--acquire DEVICE [--rate HZ] [--frames N] [--chunks N] [--channels N] [--format F]]
 
   --name NAME          broker name: port bass-NAME.port, socket bass-NAME.sock in
-                       $BASS_RUNTIME_DIR (default /dev/shm); default \"default\"
+                       $BASS_RUNTIME_DIR (default /run/bass as root, else /dev/shm);
+                       default \"default\"
   --group GROUP        also let members of GROUP control the broker and read its port
   --max-port-bytes N   memory cap of one port (default 536870912 = 512 MiB)
   --rt-priority P      SCHED_FIFO priority of the capture thread; 0 = none (default 70)
