@@ -111,7 +111,17 @@ impl Drop for Proc {
 
 fn start_bassd(bassd: &Path, name: &str, device: &str, chunk: u32, chunks: u32) -> Result<Proc, String> {
     let child = Command::new(bassd)
-        .args(["--name", name, "--acquire", device, "--rate", "48000", "--frames"])
+        .args([
+            "--name",
+            name,
+            "--allow-device",
+            "bassjack",
+            "--acquire",
+            device,
+            "--rate",
+            "48000",
+            "--frames",
+        ])
         .arg(chunk.to_string())
         .args(["--chunks", &chunks.to_string()])
         .env("BASS_LOG", "warn")

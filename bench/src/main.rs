@@ -58,6 +58,12 @@ fn parse_args(args: &[String]) -> Opts {
 }
 
 fn main() {
+    // The bench's scratch files, ports and brokers live in /dev/shm as before, also when run
+    // as root (whose brokers default to /run/bass): children and bassd inherit this.
+    // Set at the very start, before any thread exists.
+    if std::env::var_os(bassclient::paths::RUNTIME_DIR_ENV).map_or(true, |d| d.is_empty()) {
+        std::env::set_var(bassclient::paths::RUNTIME_DIR_ENV, bassclient::paths::USER_RUNTIME_DIR);
+    }
     let args: Vec<String> = std::env::args().skip(1).collect();
     if args.first().map(String::as_str) == Some("child") {
         let role = args.get(1).expect("child ROLE").clone();

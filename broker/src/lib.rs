@@ -4,7 +4,8 @@
 //! - [`server`]: the control loop (socket, peer checks, requests, watchdog, signals);
 //! - [`capture`]: one acquisition — the capture thread, chunk assembly, gap filling;
 //! - [`device`]: ALSA PCMs and simulated devices;
-//! - [`request`]: checks an Acquire before anything running is touched;
+//! - [`request`]: checks an Acquire before anything running is touched (and the operator's bounds);
+//! - [`policy`]: which device names a client may make the broker open;
 //! - [`convert`]: device sample formats to left-justified S32;
 //! - [`dll`]: the device-clock rate estimator;
 //! - [`os`]: the Linux edge (eventfd, signalfd, sleeps, scheduling, credentials, lock);
@@ -16,6 +17,7 @@ pub mod convert;
 pub mod device;
 pub mod dll;
 pub mod os;
+pub mod policy;
 pub mod request;
 pub mod server;
 

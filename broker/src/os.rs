@@ -189,44 +189,147 @@ pub fn group_id(name: &str) -> io::Result<u32> {
     Ok(unsafe { (*g).gr_gid })
 }
 
-/// Takes an exclusive, non-blocking `flock` on `path` (created mode 0644); `Ok(None)` if
-/// another process holds it. The lock lives as long as the returned file.
-pub fn try_lock(path: &Path) -> io::Result<Option<File>> {
-    use std::os::unix::fs::OpenOptionsExt;
-    let f = std::fs::OpenOptions::new()
-        .read(true)
-        .write(true)
-        .create(true)
-        .truncate(false)
-        .mode(0o644)
-        .custom_flags(libc::O_CLOEXEC)
-        .open(path)?;
+/// Opens the runtime directory (its fd anchors every file the broker makes there).
+pub fn open_dir(dir: &Path) -> io::Result<OwnedFd> {
+    use rustix::fs::{Mode, OFlags};
+    Ok(rustix::fs::open(dir, OFlags::DIRECTORY | OFlags::RDONLY | OFlags::CLOEXEC, Mode::empty())?)
+}
+
+/// Creates the system runtime directory `dir` (mode 0755, owned by us) if absent, and checks
+/// that it is a real directory (not a symlink) owned by us and writable by nobody else.
+pub fn ensure_private_dir(dir: &Path) -> io::Result<()> {
+    use rustix::fs::{FileType, Mode};
+    match rustix::fs::mkdir(dir, Mode::from_raw_mode(0o755)) {
+        Ok(()) | Err(rustix::io::Errno::EXIST) => {}
+        Err(e) => return Err(e.into()),
+    }
+    let st = rustix::fs::lstat(dir)?;
+    let (uid, mode) = (st.st_uid, st.st_mode);
+    let problem = if FileType::from_raw_mode(mode) != FileType::Directory {
+        Some("it is not a directory (a symbolic link?)".to_owned())
+    } else if uid != euid() {
+        Some(format!("it is owned by uid {uid}, not by this broker's user ({})", euid()))
+    } else if mode & 0o022 != 0 {
+        Some(format!("it is writable by others (mode {:o})", mode & 0o7777))
+    } else {
+        None
+    };
+    match problem {
+        Some(p) => Err(io::Error::new(io::ErrorKind::PermissionDenied, format!("{}: {p}", dir.display()))),
+        None => Ok(()),
+    }
+}
+
+/// Refuses a file the broker is about to use in its runtime directory unless it is of kind
+/// `kind`, owned by this process's user and not a hard link to something else.
+fn check_own(name: &str, st: &rustix::fs::Stat, kind: rustix::fs::FileType) -> io::Result<()> {
+    let found = rustix::fs::FileType::from_raw_mode(st.st_mode);
+    let problem = if found != kind {
+        Some(format!("it is a {found:?}, not a {kind:?}"))
+    } else if st.st_uid != euid() {
+        Some(format!(
+            "it is owned by uid {}, not by this broker's user ({}): another user may have planted it",
+            st.st_uid,
+            euid()
+        ))
+    } else if kind == rustix::fs::FileType::RegularFile && st.st_nlink != 1 {
+        Some(format!("it has {} hard links", st.st_nlink))
+    } else {
+        None
+    };
+    match problem {
+        Some(p) => Err(io::Error::new(io::ErrorKind::PermissionDenied, format!("refusing {name}: {p}"))),
+        None => Ok(()),
+    }
+}
+
+/// Opens (or creates, O_EXCL, mode 0644) the instance lock `name` in directory `dir` without
+/// following symlinks, checks it is our own regular file, and takes an exclusive,
+/// non-blocking `flock`; `Ok(None)` if another process holds it (the file is returned for
+/// reading the holder's pid). The lock lives as long as the returned file.
+pub fn try_lock_at(dir: &OwnedFd, name: &str) -> io::Result<(File, bool)> {
+    use rustix::fs::{FileType, FlockOperation, Mode, OFlags};
+    let flags = OFlags::RDWR | OFlags::NOFOLLOW | OFlags::CLOEXEC | OFlags::NONBLOCK;
+    let fd = match rustix::fs::openat(
+        dir,
+        name,
+        flags | OFlags::CREATE | OFlags::EXCL,
+        Mode::from_raw_mode(0o644),
+    ) {
+        Ok(fd) => fd,
+        Err(rustix::io::Errno::EXIST) => match rustix::fs::openat(dir, name, flags, Mode::empty()) {
+            Ok(fd) => fd,
+            Err(rustix::io::Errno::LOOP) => {
+                return Err(io::Error::new(
+                    io::ErrorKind::PermissionDenied,
+                    format!("refusing {name}: it is a symbolic link (remove it; nothing was written)"),
+                ))
+            }
+            Err(e) => return Err(e.into()),
+        },
+        Err(e) => return Err(e.into()),
+    };
+    check_own(name, &rustix::fs::fstat(&fd)?, FileType::RegularFile)?;
+    let f = File::from(fd);
     loop {
-        // SAFETY: flock on an open descriptor.
-        let r = unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
-        if r == 0 {
-            return Ok(Some(f));
-        }
-        let e = io::Error::last_os_error();
-        match e.raw_os_error() {
-            Some(libc::EWOULDBLOCK) => return Ok(None),
-            Some(libc::EINTR) => continue,
-            _ => return Err(e),
+        match rustix::fs::flock(&f, FlockOperation::NonBlockingLockExclusive) {
+            Ok(()) => return Ok((f, true)),
+            Err(rustix::io::Errno::WOULDBLOCK) => return Ok((f, false)),
+            Err(rustix::io::Errno::INTR) => continue,
+            Err(e) => return Err(e.into()),
         }
     }
 }
 
-/// Binds and listens on a SEQPACKET socket at `path` with file mode `mode`.
-pub fn listen_seqpacket(path: &Path, mode: u32, group: Option<u32>) -> io::Result<OwnedFd> {
-    use std::os::unix::fs::PermissionsExt;
+/// Removes a control socket `name` left in `dir` by a broker of ours that died; refuses
+/// anything else there (a symlink, another user's file). Absent is fine.
+pub fn remove_stale_socket_at(dir: &OwnedFd, name: &str) -> io::Result<bool> {
+    use rustix::fs::{AtFlags, FileType};
+    match rustix::fs::statat(dir, name, AtFlags::SYMLINK_NOFOLLOW) {
+        Ok(st) => {
+            check_own(name, &st, FileType::Socket)?;
+            rustix::fs::unlinkat(dir, name, AtFlags::empty())?;
+            Ok(true)
+        }
+        Err(rustix::io::Errno::NOENT) => Ok(false),
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// Removes our control socket `name` from `dir` at exit, if it is still ours.
+pub fn remove_own_socket_at(dir: &OwnedFd, name: &str) {
+    use rustix::fs::{AtFlags, FileType};
+    if let Ok(st) = rustix::fs::statat(dir, name, AtFlags::SYMLINK_NOFOLLOW) {
+        if check_own(name, &st, FileType::Socket).is_ok() {
+            let _ = rustix::fs::unlinkat(dir, name, AtFlags::empty());
+        }
+    }
+}
+
+/// Binds and listens on a SEQPACKET socket `name` in `dir` (path `path`) created with mode
+/// `mode` (through the umask: no window with looser modes, no chmod through a path), then
+/// gives it to `group` without following symlinks.
+pub fn listen_seqpacket_at(
+    dir: &OwnedFd,
+    name: &str,
+    path: &Path,
+    mode: u32,
+    group: Option<u32>,
+) -> io::Result<OwnedFd> {
+    use rustix::fs::{AtFlags, FileType, Mode};
     let fd = bassclient::control::seqpacket_socket()?;
     let (addr, len) = bassclient::control::sockaddr(path)?;
+    // Called at start-up, before any other thread exists: the process-wide umask is ours.
+    let old = rustix::process::umask(Mode::from_raw_mode(!mode & 0o777));
     // SAFETY: `addr` is a valid sockaddr_un of `len` bytes; `fd` is open.
-    check(unsafe { libc::bind(fd.as_raw_fd(), (&addr as *const libc::sockaddr_un).cast(), len) })?;
-    std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode))?;
+    let r = check(unsafe { libc::bind(fd.as_raw_fd(), (&addr as *const libc::sockaddr_un).cast(), len) });
+    rustix::process::umask(old);
+    r?;
     if let Some(gid) = group {
-        std::os::unix::fs::chown(path, None, Some(gid))?;
+        let gid = rustix::fs::Gid::from_raw(gid);
+        rustix::fs::chownat(dir, name, None, Some(gid), AtFlags::SYMLINK_NOFOLLOW)?;
     }
+    check_own(name, &rustix::fs::statat(dir, name, AtFlags::SYMLINK_NOFOLLOW)?, FileType::Socket)?;
     // SAFETY: listen on a bound socket.
     check(unsafe { libc::listen(fd.as_raw_fd(), 64) })?;
     set_nonblocking(fd.as_raw_fd())?;
@@ -286,4 +389,17 @@ pub fn drain(fd: RawFd) {
     let mut buf = [0u8; 512];
     // SAFETY: `buf` is valid for writes of its length; MSG_DONTWAIT never blocks.
     while unsafe { libc::recv(fd, buf.as_mut_ptr().cast(), buf.len(), libc::MSG_DONTWAIT) } > 0 {}
+}
+
+/// Whether an `accept` error means the process or the system ran out of descriptors (or
+/// of the memory behind them): EMFILE, ENFILE, ENOBUFS, ENOMEM.
+pub fn is_out_of_fds(e: &io::Error) -> bool {
+    matches!(e.raw_os_error(), Some(libc::EMFILE | libc::ENFILE | libc::ENOBUFS | libc::ENOMEM))
+}
+
+/// A descriptor held in reserve (`/dev/null`, close-on-exec), given up when descriptors run
+/// out so that one more connection can be accepted and told why it is refused.
+pub fn spare_fd() -> io::Result<OwnedFd> {
+    use rustix::fs::{Mode, OFlags};
+    Ok(rustix::fs::open("/dev/null", OFlags::RDONLY | OFlags::CLOEXEC, Mode::empty())?)
 }

@@ -5,8 +5,8 @@
 //! the client connections; the capture runs on its own thread (see [`crate::capture`]).
 
 use std::fs::File;
-use std::io::Write;
-use std::os::fd::{AsFd, AsRawFd, OwnedFd};
+use std::io::{Read, Write};
+use std::os::fd::{AsFd, AsRawFd, BorrowedFd, OwnedFd};
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -21,7 +21,8 @@ use bassclient::{PortParams, Writer};
 use crate::capture::{Acquisition, CaptureParams};
 use crate::device::{self, alsa, sim::SimDevice, Capture};
 use crate::os;
-use crate::request::{self, DeviceKind};
+use crate::policy::DevicePolicy;
+use crate::request::{self, DeviceKind, Limits};
 
 /// Broker configuration (command line of `bassd`).
 #[derive(Clone, Debug)]
@@ -38,6 +39,13 @@ pub struct Config {
     pub stall_ms: u64,
     /// An Acquire to run at start-up.
     pub acquire: Option<AcquireRequest>,
+    // --- issue 9/14 hardening (h-server): device policy, bounds, connection limits ---
+    /// Which devices clients may name (default policy + `--allow-device` patterns).
+    pub policy: DevicePolicy,
+    /// Operator bounds on Acquire requests (`--min-chunk-us`, `--max-rate`, ...).
+    pub limits: Limits,
+    /// A control connection with no request for this long is closed (`--idle-timeout-ms`).
+    pub idle_timeout: Duration,
 }
 
 impl Default for Config {
@@ -49,6 +57,9 @@ impl Default for Config {
             rt_priority: 70,
             stall_ms: 0,
             acquire: None,
+            policy: DevicePolicy::default(),
+            limits: Limits::default(),
+            idle_timeout: DEFAULT_IDLE_TIMEOUT,
         }
     }
 }
@@ -62,7 +73,16 @@ const TICK: Duration = Duration::from_millis(25);
 /// A gap between two watchdog ticks longer than this means the broker was frozen.
 const FROZEN_NS: u64 = 200_000_000;
 /// Most control connections open at once.
-const MAX_CLIENTS: usize = 128;
+pub const MAX_CLIENTS: usize = 128;
+/// Of those, how many only the broker's own user and root may take: members of `--group`
+/// can hold at most `MAX_CLIENTS - RESERVED_CLIENTS`, so the operator can always get in.
+pub const RESERVED_CLIENTS: usize = 8;
+/// Default idle timeout of a control connection.
+pub const DEFAULT_IDLE_TIMEOUT: Duration = Duration::from_secs(30);
+/// How long the broker stops accepting after running out of descriptors.
+const ACCEPT_BACKOFF: Duration = Duration::from_millis(250);
+/// Shortest interval between two "out of descriptors" log lines.
+const EMFILE_LOG_EVERY_NS: u64 = 10_000_000_000;
 
 /// The broker's state.
 pub struct Broker {
@@ -134,13 +154,17 @@ impl Broker {
 
     fn acquire(&mut self, r: &AcquireRequest) -> Message {
         let requested_ns = monotonic_ns();
-        let checked = match request::check(r, self.cfg.max_port_bytes) {
+        let checked = match request::check(r, self.cfg.max_port_bytes, &self.cfg.limits) {
             Ok(c) => c,
             Err(msg) => {
                 tracing::warn!("Acquire refused (nothing changed): {msg}");
                 return Message::error(ErrorKind::InvalidArgument, &msg);
             }
         };
+        if let Err(msg) = self.cfg.policy.check(&r.device, device::list) {
+            tracing::warn!("Acquire refused by the device policy (nothing changed): {msg}");
+            return Message::error(ErrorKind::Permission, &msg);
+        }
         // From here on the running acquisition is replaced, whatever happens.
         if let Some(mut old) = self.current.take() {
             old.stop(STOP_TIMEOUT);
@@ -238,42 +262,76 @@ pub fn peer_allowed(peer: &os::Peer, own_uid: u32, group: Option<u32>) -> bool {
     peer.uid == own_uid || peer.uid == 0 || group.is_some_and(|g| peer.gid == g || peer.groups.contains(&g))
 }
 
-/// The running daemon's files: lock, socket.
+/// The running daemon's files: lock, socket, both anchored to the runtime directory's fd.
 struct Files {
+    dir: OwnedFd,
     _lock: File,
     socket: PathBuf,
+    socket_name: String,
 }
 
 impl Drop for Files {
     fn drop(&mut self) {
-        let _ = std::fs::remove_file(&self.socket);
+        os::remove_own_socket_at(&self.dir, &self.socket_name);
     }
 }
 
+/// Takes the instance lock and clears what a dead broker of ours left.
+///
+/// Every file here is opened relative to the runtime directory's fd without following
+/// symlinks, created with O_EXCL where new, and refused if it belongs to another user
+/// (docs/reliability.md, threat model). The system runtime directory (`/run/bass`, root) is
+/// created 0755 if absent and must be ours and not writable by others.
 fn take_instance(cfg: &Config) -> anyhow::Result<Files> {
-    let dir = paths::runtime_dir();
-    let socket = paths::socket_path(&cfg.name)?;
-    let lock_path = dir.join(format!("bass-{}.lock", cfg.name));
-    let Some(mut lock) =
-        os::try_lock(&lock_path).with_context(|| format!("opening {}", lock_path.display()))?
-    else {
-        let pid = std::fs::read_to_string(&lock_path).unwrap_or_default();
+    let dir_path = paths::runtime_dir();
+    let env_dir = std::env::var_os(paths::RUNTIME_DIR_ENV).is_some_and(|d| !d.is_empty());
+    if !env_dir && dir_path == std::path::Path::new(paths::SYSTEM_RUNTIME_DIR) {
+        os::ensure_private_dir(&dir_path).context("the system runtime directory")?;
+    } else if !env_dir {
+        // A per-user broker must not take a name the system broker serves (or served: its
+        // port is still there): clients look there first.
+        let sys = std::path::Path::new(paths::SYSTEM_RUNTIME_DIR);
+        let sys = ["sock", "port"]
+            .map(|ext| sys.join(format!("bass-{}.{ext}", cfg.name)))
+            .into_iter()
+            .find(|p| p.symlink_metadata().is_ok());
+        if let Some(sys) = sys {
+            bail!(
+                "a system broker named {:?} serves {}; clients would find it before this one: \
+                 start this broker with --name OTHER",
+                cfg.name,
+                sys.display()
+            );
+        }
+    }
+    let dir = os::open_dir(&dir_path)
+        .with_context(|| format!("opening the runtime directory {}", dir_path.display()))?;
+    let socket_name = format!("bass-{}.sock", cfg.name);
+    let socket = dir_path.join(&socket_name);
+    let lock_name = format!("bass-{}.lock", cfg.name);
+    let (mut lock, locked) = os::try_lock_at(&dir, &lock_name)
+        .with_context(|| format!("opening {}", dir_path.join(&lock_name).display()))?;
+    if !locked {
+        // Only a number is ever shown from the file: its text is not echoed.
+        let mut text = String::new();
+        let _ = std::io::Read::read_to_string(&mut (&lock).take(32), &mut text);
+        let pid = text.trim().parse::<u32>().map_or_else(|_| "unknown".to_owned(), |p| p.to_string());
         bail!(
-            "a broker named {:?} is already running (pid {}, control socket {}); \
+            "a broker named {:?} is already running (pid {pid}, control socket {}); \
              stop it first or start this one with --name OTHER",
             cfg.name,
-            pid.trim(),
             socket.display()
         );
-    };
+    }
     lock.set_len(0)?;
     writeln!(lock, "{}", std::process::id())?;
-    // We hold the lock, so any socket there was left by a broker that died: replace it.
-    if socket.exists() {
-        tracing::warn!("removing the stale control socket {} left by a previous broker", socket.display());
-        std::fs::remove_file(&socket).with_context(|| format!("removing stale {}", socket.display()))?;
+    // We hold the lock, so any socket of ours there was left by a broker that died: replace it.
+    if os::remove_stale_socket_at(&dir, &socket_name)
+        .with_context(|| format!("checking {}", socket.display()))?
+    {
+        tracing::warn!("removed the stale control socket {} left by a previous broker", socket.display());
     }
-    let port = paths::port_path(&cfg.name)?;
+    let port = dir_path.join(format!("bass-{}.port", cfg.name));
     if let Ok(p) = Port::open_path(&port) {
         if let Ok(i) = p.info() {
             if !i.writer_alive {
@@ -286,7 +344,7 @@ fn take_instance(cfg: &Config) -> anyhow::Result<Files> {
             }
         }
     }
-    Ok(Files { _lock: lock, socket })
+    Ok(Files { dir, _lock: lock, socket, socket_name })
 }
 
 /// Runs the broker until SIGTERM / SIGINT.
@@ -295,7 +353,7 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
     let sigfd = os::signalfd_for_termination().context("setting up the signal handling")?;
     let files = take_instance(&cfg)?;
     let mode = if cfg.group.is_some() { 0o660 } else { 0o600 };
-    let listener = os::listen_seqpacket(&files.socket, mode, cfg.group)
+    let listener = os::listen_seqpacket_at(&files.dir, &files.socket_name, &files.socket, mode, cfg.group)
         .with_context(|| format!("listening on {}", files.socket.display()))?;
     tracing::info!(name = %cfg.name, socket = %files.socket.display(), pid = std::process::id(), "bassd ready");
     let own_uid = os::euid();
@@ -306,10 +364,15 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
             tracing::error!("start-up Acquire failed: {}", reply.get("message").unwrap_or(""));
         }
     }
-    let mut clients: Vec<OwnedFd> = Vec::new();
+    let mut clients: Vec<Conn> = Vec::new();
+    let mut acceptor = Acceptor::new();
+    let idle_ns = u64::try_from(cfg.idle_timeout.as_nanos()).unwrap_or(u64::MAX).max(1);
     loop {
-        let mut fds = vec![os::pollin(listener.as_raw_fd()), os::pollin(sigfd.as_raw_fd())];
-        fds.extend(clients.iter().map(|c| os::pollin(c.as_raw_fd())));
+        let listening = monotonic_ns() >= acceptor.paused_until_ns;
+        // A negative descriptor is ignored by poll: while backing off, the listener is not watched.
+        let lfd = if listening { listener.as_raw_fd() } else { -1 };
+        let mut fds = vec![os::pollin(lfd), os::pollin(sigfd.as_raw_fd())];
+        fds.extend(clients.iter().map(|c| os::pollin(c.fd.as_raw_fd())));
         os::poll(&mut fds, Some(TICK)).context("poll")?;
         broker.tick();
         if fds[1].revents != 0 {
@@ -320,14 +383,24 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
                 return Ok(());
             }
         }
-        // Client requests, then drop closed connections (indices from the back).
+        // Client requests, then drop closed and idle connections (indices from the back).
+        let now = monotonic_ns();
         let mut closed = Vec::new();
-        for (i, c) in clients.iter().enumerate() {
+        for (i, c) in clients.iter_mut().enumerate() {
             let rev = fds[2 + i].revents;
             if rev == 0 {
+                if now.saturating_sub(c.last_ns) >= idle_ns {
+                    tracing::debug!(
+                        pid = c.pid,
+                        "closing a control connection idle for {:?}",
+                        cfg.idle_timeout
+                    );
+                    closed.push(i);
+                }
                 continue;
             }
-            if !serve_one(&mut broker, c) {
+            c.last_ns = now;
+            if !serve_one(&mut broker, &c.fd) {
                 closed.push(i);
             }
         }
@@ -335,41 +408,170 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
             clients.swap_remove(i);
         }
         if fds[0].revents != 0 {
-            while let Some(c) = os::accept(listener.as_raw_fd()).context("accept")? {
-                let fd = c.as_raw_fd();
-                let _ = os::set_send_timeout(fd, Duration::from_secs(1));
-                let allowed = match os::peer_credentials(fd) {
-                    Ok(p) if peer_allowed(&p, own_uid, cfg.group) => true,
-                    Ok(p) => {
-                        tracing::warn!(
-                            pid = p.pid,
-                            uid = p.uid,
-                            "refused a control connection (not our user or group)"
+            acceptor.accept_all(listener.as_fd(), &mut clients, own_uid, cfg.group);
+        }
+    }
+}
+
+/// One open control connection.
+struct Conn {
+    fd: OwnedFd,
+    /// Peer process (for the logs).
+    pid: i32,
+    /// CLOCK_MONOTONIC (ns) of the accept or of the last request.
+    last_ns: u64,
+}
+
+/// Accepts control connections, and keeps the broker alive when descriptors run out.
+///
+/// A spare descriptor is held in reserve: when `accept` fails with EMFILE/ENFILE, the
+/// spare is given up to accept the waiting connection and refuse it with a message (so the
+/// client learns why instead of hanging), then taken again. If even that fails, the
+/// listener is not polled for [`ACCEPT_BACKOFF`]; the condition is logged at most once per
+/// 10 s with the number of refusals, and accepting resumes by itself once descriptors free up.
+struct Acceptor {
+    spare: Option<OwnedFd>,
+    paused_until_ns: u64,
+    out_of_fds: bool,
+    refused_since_log: u64,
+    last_log_ns: u64,
+}
+
+impl Acceptor {
+    fn new() -> Acceptor {
+        Acceptor {
+            spare: os::spare_fd().ok(),
+            paused_until_ns: 0,
+            out_of_fds: false,
+            refused_since_log: 0,
+            last_log_ns: 0,
+        }
+    }
+
+    fn accept_all(
+        &mut self,
+        listener: BorrowedFd<'_>,
+        clients: &mut Vec<Conn>,
+        own_uid: u32,
+        group: Option<u32>,
+    ) {
+        if self.spare.is_none() {
+            // Lost while descriptors were short: take it again as soon as one is free.
+            self.spare = os::spare_fd().ok();
+        }
+        loop {
+            match os::accept(listener.as_raw_fd()) {
+                Ok(Some(c)) => {
+                    if self.out_of_fds && self.spare.is_some() {
+                        self.out_of_fds = false;
+                        tracing::info!(
+                            refused = self.refused_since_log,
+                            "control connections are accepted again (file descriptors freed up)"
                         );
-                        false
+                        self.refused_since_log = 0;
                     }
-                    Err(e) => {
-                        tracing::warn!("refused a control connection: SO_PEERCRED: {e}");
-                        false
-                    }
-                };
-                if !allowed {
-                    let m = Message::error(
-                        ErrorKind::Permission,
-                        "permission denied: not the broker's user or group",
-                    );
-                    let _ = control::send_message(c.as_fd(), &m);
-                    os::drain(fd);
-                } else if clients.len() >= MAX_CLIENTS {
-                    let m = Message::error(ErrorKind::Internal, "too many control connections");
-                    let _ = control::send_message(c.as_fd(), &m);
-                    os::drain(fd);
-                } else {
-                    clients.push(c);
+                    admit(c, clients, own_uid, group);
+                }
+                Ok(None) => return,
+                Err(e) if os::is_out_of_fds(&e) => {
+                    self.on_out_of_fds(listener, &e);
+                    return;
+                }
+                Err(e) => {
+                    // ECONNABORTED, EPROTO and the like concern one connection: go on later.
+                    tracing::debug!("accept: {e}");
+                    self.paused_until_ns = monotonic_ns() + ACCEPT_BACKOFF.as_nanos() as u64;
+                    return;
                 }
             }
         }
     }
+
+    fn on_out_of_fds(&mut self, listener: BorrowedFd<'_>, e: &std::io::Error) {
+        let now = monotonic_ns();
+        self.out_of_fds = true;
+        // Refuse what waits, one connection per spare descriptor round.
+        let mut refused_now = 0;
+        while refused_now < 64 {
+            let Some(spare) = self.spare.take() else { break };
+            drop(spare);
+            let accepted = os::accept(listener.as_raw_fd());
+            let got_one = matches!(accepted, Ok(Some(_)));
+            if let Ok(Some(c)) = &accepted {
+                let m = Message::error(
+                    ErrorKind::Internal,
+                    "the broker is out of file descriptors; try again later",
+                );
+                let _ = control::send_message(c.as_fd(), &m);
+                os::drain(c.as_raw_fd());
+                refused_now += 1;
+            }
+            drop(accepted);
+            self.spare = os::spare_fd().ok();
+            if !got_one || self.spare.is_none() {
+                break;
+            }
+        }
+        self.refused_since_log += refused_now.max(1);
+        // Still out of descriptors (no spare to give up): stop watching the listener a while.
+        if self.spare.is_none() || refused_now == 0 {
+            self.paused_until_ns = now + ACCEPT_BACKOFF.as_nanos() as u64;
+        }
+        if self.last_log_ns == 0 || now.saturating_sub(self.last_log_ns) >= EMFILE_LOG_EVERY_NS {
+            self.last_log_ns = now;
+            tracing::warn!(
+                refused = self.refused_since_log,
+                "accept: {e}: out of file descriptors; refusing new control connections until some \
+                 close (capture goes on; idle connections close after the idle timeout)"
+            );
+            self.refused_since_log = 0;
+        }
+    }
+}
+
+/// Checks a new connection's peer and the connection limits; keeps it or refuses it with a reply.
+fn admit(c: OwnedFd, clients: &mut Vec<Conn>, own_uid: u32, group: Option<u32>) {
+    let fd = c.as_raw_fd();
+    let _ = os::set_send_timeout(fd, Duration::from_secs(1));
+    let peer = match os::peer_credentials(fd) {
+        Ok(p) if peer_allowed(&p, own_uid, group) => Some(p),
+        Ok(p) => {
+            tracing::warn!(pid = p.pid, uid = p.uid, "refused a control connection (not our user or group)");
+            None
+        }
+        Err(e) => {
+            tracing::warn!("refused a control connection: SO_PEERCRED: {e}");
+            None
+        }
+    };
+    let refuse = |kind, text: &str| {
+        let _ = control::send_message(c.as_fd(), &Message::error(kind, text));
+        os::drain(fd);
+    };
+    let Some(peer) = peer else {
+        refuse(ErrorKind::Permission, "permission denied: not the broker's user or group");
+        return;
+    };
+    let privileged = peer.uid == own_uid || peer.uid == 0;
+    let limit = if privileged { MAX_CLIENTS } else { MAX_CLIENTS - RESERVED_CLIENTS };
+    if clients.len() >= limit {
+        tracing::warn!(
+            pid = peer.pid,
+            uid = peer.uid,
+            open = clients.len(),
+            "refused a control connection: too many"
+        );
+        refuse(
+            ErrorKind::Internal,
+            &format!(
+                "too many control connections ({} open; {RESERVED_CLIENTS} of {MAX_CLIENTS} are kept for the \
+                 broker's own user and root)",
+                clients.len()
+            ),
+        );
+        return;
+    }
+    clients.push(Conn { fd: c, pid: peer.pid, last_ns: monotonic_ns() });
 }
 
 /// Reads one request from `c` and answers it; false when the connection is finished.

@@ -78,7 +78,13 @@ fn capture_through_file_plugin(format: Option<&str>, expect_format: &str) {
     )
     .unwrap();
     let alsa_path = format!("/usr/share/alsa/alsa.conf:{}", rc.display());
-    let b = Bassd::start(dir.path(), "default", &[], &[("ALSA_CONFIG_PATH", &alsa_path)]);
+    // The rig's own PCM is an inline-configured file plugin: the operator allows it by name.
+    let b = Bassd::start(
+        dir.path(),
+        "default",
+        &["--allow-device", "bass_file"],
+        &[("ALSA_CONFIG_PATH", &alsa_path)],
+    );
 
     // The FIFO holds exactly FRAMES frames (O_RDWR: opening does not wait for a reader).
     let mut w = std::fs::OpenOptions::new().read(true).write(true).open(&fifo).unwrap();
@@ -145,4 +151,55 @@ fn file_plugin_float_le_samples_arrive_exactly() {
 #[test]
 fn the_broker_prefers_s32_when_the_device_offers_every_format() {
     capture_through_file_plugin(None, "S32_LE");
+}
+
+/// Issue 9 item 3: ALSA plugin strings from a control client are refused by the device
+/// policy before `snd_pcm_open` sees them: the `file` plugin's pipe (`|cmd`, a command run as
+/// the broker's user) and its output file are never touched; an operator's
+/// `--allow-device` pattern is what lets a PCM that ListDevices does not show through.
+/// (Before the policy, the pipe ran `touch` and the refusal came from ALSA, if at all.)
+#[test]
+fn plugin_strings_from_clients_are_refused_and_run_or_write_nothing() {
+    let dir = TempDir::new("policy");
+    let infile = dir.path().join("in.raw");
+    std::fs::write(&infile, vec![0u8; 441 * 8 * 40]).unwrap();
+    let rc = dir.path().join("asoundrc");
+    std::fs::write(
+        &rc,
+        format!(
+            "pcm.bass_hidden {{\n  type file\n  slave.pcm \"null\"\n  file \"/dev/null\"\n  infile \"{}\"\n  format \"raw\"\n  hint.show off\n}}\n",
+            infile.display()
+        ),
+    )
+    .unwrap();
+    let alsa_path = format!("/usr/share/alsa/alsa.conf:{}", rc.display());
+    let env = [("ALSA_CONFIG_PATH", alsa_path.as_str())];
+    let b = Bassd::start(dir.path(), "default", &[], &env);
+    let mut c = b.client();
+    let pwned = dir.path().join("pwned");
+    let written = dir.path().join("x.raw");
+    let attacks = [
+        (format!("file:'|touch {}',raw", pwned.display()), "pipe"),
+        (format!("file:'{}',raw", written.display()), "names a file"),
+        (format!("tee:null,'{}',raw", written.display()), "names a file"),
+        ("plug:{ type null }".to_owned(), "inline plugin"),
+        // Configured but not listed in ListDevices (hint.show off): only a pattern lets it in.
+        ("bass_hidden".to_owned(), "not a card reference"),
+    ];
+    for (dev, why) in &attacks {
+        let e = c.acquire(&req(dev, 44100, 441, 10, 2)).expect_err(dev).to_string();
+        assert!(e.contains("device policy") && e.contains(why) && e.contains("[permission]"), "{dev}: {e}");
+    }
+    assert!(!pwned.exists(), "the pipe command ran");
+    assert!(!written.exists(), "the output file was created");
+    assert_eq!(c.status().unwrap().epoch, 0, "a refused Acquire touched the port");
+    drop(c);
+    drop(b);
+
+    // Widened by the operator: the configured PCM opens and captures.
+    let b = Bassd::start(dir.path(), "wide", &["--allow-device", "bass_*"], &env);
+    let a = b.client().acquire(&req("bass_hidden", 44100, 441, 10, 2)).unwrap();
+    assert_eq!(a.epoch, 1);
+    wait_frame(&b.port(), 441);
+    assert!(!pwned.exists() && !written.exists());
 }

@@ -128,7 +128,8 @@ impl Rig {
         Bassd::start(
             self.path(),
             "default",
-            &[],
+            // The rig's own PCM: not a card reference, so the operator allows it.
+            &["--allow-device", "bass_jack"],
             &[
                 ("ALSA_CONFIG_PATH", &self.alsa_path),
                 ("JACK_DEFAULT_SERVER", &self.jack_name),
@@ -291,7 +292,7 @@ fn an_alsa_reported_overrun_is_recovered_and_the_data_resume_exactly() {
     let b = Bassd::start(
         rig.path(),
         "default",
-        &["--stall-ms", "10000"],
+        &["--stall-ms", "10000", "--allow-device", "bass_*"],
         &[
             ("ALSA_CONFIG_PATH", &rig.alsa_path),
             ("JACK_DEFAULT_SERVER", &rig.jack_name),

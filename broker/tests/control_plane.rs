@@ -109,7 +109,8 @@ fn bad_requests_are_refused_and_the_running_acquisition_continues() {
 #[test]
 fn an_unknown_alsa_device_leaves_the_port_in_error_and_a_later_acquire_works() {
     let dir = TempDir::new("nodev");
-    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    // Not a card reference: the device policy would refuse it before ALSA sees it.
+    let b = Bassd::start(dir.path(), "default", &["--allow-device", "bass_no_such_pcm"], &[]);
     let mut c = b.client();
     c.acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
     let old = b.port();
@@ -297,4 +298,66 @@ fn members_of_the_configured_group_are_served() {
     let port = std::fs::metadata(b.port_path()).unwrap();
     assert_eq!((port.mode() & 0o777, port.gid()), (0o640, 65534));
     assert_eq!(b.client().status().unwrap().epoch, 1);
+}
+
+/// Issue 14 item 3: the request that starved a core (768 kHz, 1-frame chunks, 64 channels)
+/// is refused by the default bounds, each bound named with the option that widens it; a
+/// broker started with wider bounds accepts it. Nothing changes on a refusal.
+#[test]
+fn operator_bounds_refuse_a_starving_request_until_widened() {
+    let dir = TempDir::new("bounds");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    let mut c = b.client();
+    c.acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+    let cases = [
+        (
+            req("sim:pattern", 768_000, 1, 4096, 64),
+            "above this broker's limit of 192000 Hz (bassd --max-rate)",
+        ),
+        (req("sim:pattern", 192_000, 1, 4096, 64), "above this broker's limit of 32 (bassd --max-channels)"),
+        (req("sim:pattern", 192_000, 1, 4096, 2), "minimum chunk duration of 500 µs (bassd --min-chunk-us)"),
+        (
+            req("sim:pattern", 8000, 8000, 3601, 1),
+            "above this broker's limit of 3600 s (bassd --max-window-s)",
+        ),
+    ];
+    for (r, want) in &cases {
+        let e = c.acquire(r).unwrap_err().to_string();
+        assert!(e.contains(want) && e.ends_with("[invalid-argument]"), "{r:?}: {e}");
+    }
+    assert_eq!(c.status().unwrap().epoch, 1, "a refused request changed the acquisition");
+    drop(c);
+    drop(b);
+    let wide = ["--max-rate", "768000", "--max-channels", "64", "--min-chunk-us", "0"];
+    let b = Bassd::start(dir.path(), "wide", &wide, &[]);
+    let mut c = b.client();
+    let a = c.acquire(&req("sim:pattern", 768_000, 1, 4096, 64)).unwrap();
+    assert_eq!(a.epoch, 1);
+    c.stop().unwrap();
+}
+
+/// Issue 9 item 2: a control connection with no request for the idle timeout is closed
+/// (128 idle connections no longer lock everyone out), and the library's client reconnects
+/// transparently when its own idle connection was closed.
+#[test]
+fn idle_control_connections_are_closed_and_clients_reconnect() {
+    let dir = TempDir::new("idle");
+    let b = Bassd::start(dir.path(), "default", &["--idle-timeout-ms", "200"], &[]);
+    let mut c = b.client();
+    c.status().unwrap();
+    let raw = control::seqpacket_socket().unwrap();
+    rustix::net::connect(&raw, &rustix::net::SocketAddrUnix::new(b.socket()).unwrap()).unwrap();
+    // The broker closes the idle connection: its next read sees the end (bounded wait).
+    let slice = Some(std::time::Duration::from_millis(100));
+    rustix::net::sockopt::set_socket_timeout(&raw, rustix::net::sockopt::Timeout::Recv, slice).unwrap();
+    let closed =
+        eventually("the idle connection to be closed", || match control::recv_message(raw.as_fd()) {
+            Ok(None) => Some(true),
+            Ok(Some(m)) => panic!("unexpected message {m:?}"),
+            Err(_) => None,
+        });
+    assert!(closed);
+    // `c` was idle as long: its next request goes through a fresh connection.
+    assert_eq!(c.status().unwrap().state, State::Idle as u32);
+    assert_eq!(c.acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap().epoch, 1);
 }

@@ -539,10 +539,18 @@ pub fn sockaddr(path: &Path) -> std::io::Result<(libc::sockaddr_un, libc::sockle
 
 // ---------------------------------------------------------------------------------------
 
+/// Whether a send failed because the broker had closed the connection (EPIPE, ECONNRESET).
+fn peer_closed(e: &Error) -> bool {
+    matches!(e, Error::Io { source, .. }
+        if matches!(source.kind(), std::io::ErrorKind::BrokenPipe | std::io::ErrorKind::ConnectionReset))
+}
+
 /// A connection to a broker's control socket.
 pub struct Client {
     fd: OwnedFd,
     name: String,
+    path: std::path::PathBuf,
+    timeout: Duration,
 }
 
 impl Client {
@@ -568,13 +576,29 @@ impl Client {
                 return Err(no_broker(e));
             }
         }
-        let c = Client { fd, name: name.to_owned() };
+        // Who serves this socket? The peer credentials are those of the process that called
+        // listen(): a socket planted by another user is refused before anything is sent.
+        let peer = rustix::net::sockopt::socket_peercred(&fd).map_err(|e| no_broker(e.into()))?;
+        let owner = peer.uid.as_raw();
+        if !paths::expected_owner_ok(owner) {
+            return Err(no_broker(std::io::Error::new(
+                std::io::ErrorKind::PermissionDenied,
+                format!(
+                    "the socket is served by uid {owner} (pid {}), not by root or this user; \
+                     set {}={owner} to trust that broker",
+                    peer.pid.as_raw_nonzero().get(),
+                    paths::BROKER_UID_ENV
+                ),
+            )));
+        }
+        let mut c = Client { fd, name: name.to_owned(), path: path.to_owned(), timeout: DEFAULT_TIMEOUT };
         c.set_timeout(DEFAULT_TIMEOUT)?;
         Ok(c)
     }
 
     /// Sets how long to wait for a reply.
-    pub fn set_timeout(&self, timeout: Duration) -> Result<()> {
+    pub fn set_timeout(&mut self, timeout: Duration) -> Result<()> {
+        self.timeout = timeout;
         let tv = libc::timeval {
             tv_sec: timeout.as_secs().min(i32::MAX as u64) as libc::time_t,
             tv_usec: timeout.subsec_micros() as libc::suseconds_t,
@@ -606,6 +630,20 @@ impl Client {
             // A broker that refuses a connection answers before closing it: read that reply.
             return match recv_message(self.fd.as_fd_borrowed()) {
                 Ok(Some(r)) => Ok(r),
+                // Closed without a word: the broker closed this connection as idle before the
+                // request reached it (it never saw it). Reconnect once and send it again.
+                Ok(None) if peer_closed(&e) => {
+                    let mut fresh = Client::connect_path(&self.path, &self.name)?;
+                    fresh.set_timeout(self.timeout)?;
+                    *self = fresh;
+                    send_message(self.fd.as_fd_borrowed(), m)?;
+                    match recv_message(self.fd.as_fd_borrowed())? {
+                        Some(r) => Ok(r),
+                        None => {
+                            Err(Error::Protocol("the broker closed the connection without a reply".into()))
+                        }
+                    }
+                }
                 _ => Err(e),
             };
         }

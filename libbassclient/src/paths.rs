@@ -1,4 +1,16 @@
-//! Where ports and control sockets live, and which names are valid.
+//! Where ports and control sockets live, which names are valid, and whose files a client
+//! trusts.
+//!
+//! Runtime directory (docs/broker.md, "Runtime directory"):
+//! - `$BASS_RUNTIME_DIR` if set (tests, several private brokers);
+//! - else a broker run as root uses [`SYSTEM_RUNTIME_DIR`] (`/run/bass`, created 0755 and
+//!   owned by root, so nobody else can plant or squat files there);
+//! - else a per-user broker uses [`USER_RUNTIME_DIR`] (`/dev/shm`).
+//!
+//! A client looks for broker `name` in `/run/bass` first (a system broker), then in `/dev/shm`
+//! (its own per-user broker), so a name squatted in the world-writable `/dev/shm` cannot
+//! shadow the system broker. Whatever it finds must belong to an expected owner
+//! ([`expected_owner_ok`]).
 
 use std::path::PathBuf;
 
@@ -7,6 +19,13 @@ use crate::error::{Error, Result};
 /// Environment variable overriding the runtime directory of port files and control
 /// sockets (default `/dev/shm`).
 pub const RUNTIME_DIR_ENV: &str = "BASS_RUNTIME_DIR";
+/// The system broker's runtime directory (brokers run as root).
+pub const SYSTEM_RUNTIME_DIR: &str = "/run/bass";
+/// The per-user brokers' runtime directory.
+pub const USER_RUNTIME_DIR: &str = "/dev/shm";
+/// Environment variable naming one more uid whose broker a client trusts (besides root and
+/// the client's own uid).
+pub const BROKER_UID_ENV: &str = "BASS_BROKER_UID";
 /// The default broker (and port) name.
 pub const DEFAULT_NAME: &str = "default";
 
@@ -25,22 +44,69 @@ pub fn check_name(name: &str) -> Result<()> {
     }
 }
 
-/// The runtime directory: `$BASS_RUNTIME_DIR`, else `/dev/shm`.
+fn env_runtime_dir() -> Option<PathBuf> {
+    std::env::var_os(RUNTIME_DIR_ENV).filter(|d| !d.is_empty()).map(PathBuf::from)
+}
+
+/// The runtime directory of a broker run by this process: `$BASS_RUNTIME_DIR`, else
+/// `/run/bass` for root, else `/dev/shm`.
 pub fn runtime_dir() -> PathBuf {
-    std::env::var_os(RUNTIME_DIR_ENV)
-        .filter(|d| !d.is_empty())
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from("/dev/shm"))
+    env_runtime_dir().unwrap_or_else(|| {
+        PathBuf::from(if rustix::process::geteuid().is_root() {
+            SYSTEM_RUNTIME_DIR
+        } else {
+            USER_RUNTIME_DIR
+        })
+    })
+}
+
+/// Where a client finds broker `name`: `$BASS_RUNTIME_DIR`, else `/run/bass` if the system
+/// broker of that name is there (its socket or port exists) or the client is root, else
+/// `/dev/shm`.
+pub fn lookup_dir(name: &str) -> PathBuf {
+    if let Some(d) = env_runtime_dir() {
+        return d;
+    }
+    let sys = PathBuf::from(SYSTEM_RUNTIME_DIR);
+    let has = |ext: &str| std::fs::symlink_metadata(sys.join(format!("bass-{name}.{ext}"))).is_ok();
+    if rustix::process::geteuid().is_root() || has("sock") || has("port") {
+        sys
+    } else {
+        PathBuf::from(USER_RUNTIME_DIR)
+    }
+}
+
+/// Whether a client trusts a broker, port or socket owned by `uid`: root, the client's own
+/// user, or the uid in `$BASS_BROKER_UID`.
+pub fn expected_owner_ok(uid: u32) -> bool {
+    uid == 0
+        || uid == rustix::process::geteuid().as_raw()
+        || std::env::var(BROKER_UID_ENV).ok().and_then(|v| v.trim().parse::<u32>().ok()) == Some(uid)
 }
 
 /// Path of the port file of `name`.
 pub fn port_path(name: &str) -> Result<PathBuf> {
     check_name(name)?;
-    Ok(runtime_dir().join(format!("bass-{name}.port")))
+    Ok(lookup_dir(name).join(format!("bass-{name}.port")))
 }
 
 /// Path of the control socket of broker `name`.
 pub fn socket_path(name: &str) -> Result<PathBuf> {
     check_name(name)?;
-    Ok(runtime_dir().join(format!("bass-{name}.sock")))
+    Ok(lookup_dir(name).join(format!("bass-{name}.sock")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn root_and_the_own_user_are_trusted_others_only_when_named() {
+        assert!(expected_owner_ok(0));
+        assert!(expected_owner_ok(rustix::process::geteuid().as_raw()));
+        let named = std::env::var(BROKER_UID_ENV).ok();
+        if named.as_deref() != Some("4000000001") {
+            assert!(!expected_owner_ok(4_000_000_001));
+        }
+    }
 }

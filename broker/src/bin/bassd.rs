@@ -12,13 +12,22 @@ usage: bassd [--name NAME] [--group GROUP] [--max-port-bytes N] [--rt-priority P
              [--acquire DEVICE [--rate HZ] [--frames N] [--chunks N] [--channels N] [--format F]]
 
   --name NAME          broker name: port bass-NAME.port, socket bass-NAME.sock in
-                       $BASS_RUNTIME_DIR (default /dev/shm); default \"default\"
+                       $BASS_RUNTIME_DIR (default /run/bass as root, else /dev/shm);
+                       default \"default\"
   --group GROUP        also let members of GROUP control the broker and read its port
   --max-port-bytes N   memory cap of one port (default 536870912 = 512 MiB)
   --rt-priority P      SCHED_FIFO priority of the capture thread; 0 = none (default 70)
   --stall-ms MS        no data for MS ms = device stalled (default 0 = max(4 chunks, 250 ms))
   --acquire DEVICE     start capturing at start-up (defaults: --rate 44100 --frames 2205
                        --chunks 20 --channels 2)
+Hardening (docs/broker.md, Device policy and Limits):
+  --allow-device PAT   also let clients open devices matching the glob PAT (* ? [..]);
+                       repeatable; e.g. 'sim:file:/data/*', 'bass_jack'
+  --min-chunk-us US    shortest chunk a client may ask for (default 500)
+  --max-rate HZ        highest sample rate (default 192000; at most 768000)
+  --max-channels N     most channels (default 32; at most 64)
+  --max-window-s S     longest window (default 3600)
+  --idle-timeout-ms MS close control connections idle this long (default 30000)
 Logging: BASS_LOG=debug|info|warn (default info), on stderr.
 Stops on SIGTERM / SIGINT (the port shows Stopped, the socket is removed).";
 
@@ -44,7 +53,24 @@ fn run() -> Result<()> {
         "channels",
         "format",
     ];
-    let args = Args::parse(std::env::args().skip(1), &valued, &["help"])?;
+    // --- h-server hardening options (issue 9/14) ---
+    let (allow_devices, argv) = take_repeated(std::env::args().skip(1), "allow-device")?;
+    let hardening = ["min-chunk-us", "max-rate", "max-channels", "max-window-s", "idle-timeout-ms"];
+    let valued: Vec<&str> = valued.iter().chain(hardening.iter()).copied().collect();
+    let args = Args::parse(argv, &valued, &["help"])?;
+    let dl = bassd::request::Limits::default();
+    let limits = bassd::request::Limits {
+        min_chunk_us: args.get("min-chunk-us", dl.min_chunk_us)?,
+        max_rate: args.get("max-rate", dl.max_rate)?,
+        max_channels: args.get("max-channels", dl.max_channels)?,
+        max_window_s: args.get("max-window-s", dl.max_window_s)?,
+    };
+    let idle_ms: u64 = args.get("idle-timeout-ms", server::DEFAULT_IDLE_TIMEOUT.as_millis() as u64)?;
+    if idle_ms == 0 {
+        anyhow::bail!("--idle-timeout-ms 0: must be at least 1");
+    }
+    let policy = bassd::policy::DevicePolicy::new(&allow_devices).map_err(anyhow::Error::msg)?;
+    // --- end of the hardening options ---
     if args.flag("help") {
         println!("{HELP}");
         return Ok(());
@@ -76,7 +102,27 @@ fn run() -> Result<()> {
         rt_priority: args.get("rt-priority", def.rt_priority)?,
         stall_ms: args.get("stall-ms", def.stall_ms)?,
         acquire,
+        policy,
+        limits,
+        idle_timeout: std::time::Duration::from_millis(idle_ms),
     };
     bassclient::paths::check_name(&cfg.name)?;
     server::run(cfg)
+}
+
+/// Takes every `--NAME VALUE` / `--NAME=VALUE` out of `argv` (a repeatable option).
+fn take_repeated(argv: impl Iterator<Item = String>, name: &str) -> Result<(Vec<String>, Vec<String>)> {
+    let (flag, prefix) = (format!("--{name}"), format!("--{name}="));
+    let (mut values, mut rest) = (Vec::new(), Vec::new());
+    let mut it = argv;
+    while let Some(a) = it.next() {
+        if a == flag {
+            values.push(it.next().with_context(|| format!("option {flag} needs a value"))?);
+        } else if let Some(v) = a.strip_prefix(&prefix) {
+            values.push(v.to_owned());
+        } else {
+            rest.push(a);
+        }
+    }
+    Ok((values, rest))
 }

@@ -231,10 +231,22 @@ impl Agent {
     /// Spawns the agent with `args` and extra environment variables.
     pub fn spawn_env(args: &[&str], env: &[(&str, &str)]) -> Agent {
         let mut cmd = Command::new(agent_path());
-        cmd.args(args).stdin(Stdio::piped()).stdout(Stdio::piped()).stderr(Stdio::inherit());
+        cmd.args(args);
         for (k, v) in env {
             cmd.env(k, v);
         }
+        Agent::spawn_cmd(cmd)
+    }
+
+    /// Spawns the agent as another user: `setpriv SETPRIV... agent ARGS` (root only).
+    pub fn spawn_setpriv(setpriv: &[&str], args: &[&str]) -> Agent {
+        let mut cmd = Command::new("setpriv");
+        cmd.args(setpriv).arg(agent_path()).args(args);
+        Agent::spawn_cmd(cmd)
+    }
+
+    fn spawn_cmd(mut cmd: Command) -> Agent {
+        cmd.stdin(Stdio::piped()).stdout(Stdio::piped()).stderr(Stdio::inherit());
         let mut child = cmd.spawn().expect("spawn bass-fault-agent");
         let out = BufReader::new(child.stdout.take().expect("stdout"));
         Agent { child, out, lines: Vec::new() }

@@ -130,7 +130,7 @@ fn killed_jackd_is_an_error_readers_see_and_a_new_acquire_resumes_in_a_new_epoch
     let b = Bassd::start(
         &dir.0,
         "jk",
-        &[],
+        &["--allow-device", "bass_jack"],
         &[
             ("ALSA_CONFIG_PATH", &alsa_path),
             ("JACK_DEFAULT_SERVER", &jack_name),

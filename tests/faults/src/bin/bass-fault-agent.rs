@@ -73,6 +73,7 @@ fn main() {
         "try-open" => try_open(&args),
         "control-victim" => control_victim(&args),
         "follow" => follow(&args),
+        "hold-connections" => hold_connections(&args),
         _ => {
             eprintln!(
                 "usage: bass-fault-agent writer|reader|stepped|victim|poke|shrink-victim --port PATH ..."
@@ -415,6 +416,32 @@ fn try_open(a: &Args) {
         "RESULT uid={} read={read} write={write}", // SAFETY: getuid cannot fail.
         unsafe { libc::getuid() }
     );
+}
+
+/// Opens `--n` control connections, asks each for the status, and holds the ones the broker
+/// served until stdin closes; prints `held K refused R last_refusal=TEXT` first.
+fn hold_connections(a: &Args) {
+    let socket = PathBuf::from(a.s("socket", ""));
+    let name = a.s("name", "default");
+    let mut held = Vec::new();
+    let (mut refused, mut last) = (0, String::new());
+    for _ in 0..a.u("n", 1) {
+        match bassclient::control::Client::connect_path(&socket, &name)
+            .and_then(|mut c| c.status().map(|_| c))
+        {
+            Ok(c) => held.push(c),
+            Err(e) => {
+                refused += 1;
+                last = e.to_string().replace(' ', "_");
+            }
+        }
+    }
+    println!("held {} refused {refused} last_refusal={last}", held.len());
+    let stop = stdin_stop_flag();
+    while !stop.load(Ordering::Acquire) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    println!("RESULT held={} refused={refused}", held.len());
 }
 
 /// Connects to a broker's control socket and sends status requests forever, to be
