@@ -16,6 +16,9 @@
 //! Device frame `k` (from 1) is due at `start + k / rate`; a read of `n` frames sleeps until
 //! the last of them is due. Chunk timestamps are the exact due times; the rate estimator
 //! gets the observed wake-up times instead, so it measures what it would on a real device.
+//! A device that falls behind (its thread starved or stopped) delivers the frames it owes in
+//! a burst; a read that returns more than a read's duration (at least [`LATE_NS`]) after its
+//! last frame was due is marked `late`, and its chunk is flagged `LATE`.
 
 use bassclient::format::error_code;
 use bassclient::sys::monotonic_ns;
@@ -73,6 +76,9 @@ impl SimKind {
 }
 
 const NS_PER_MS: u64 = 1_000_000;
+/// A read delivered later than this after its last frame was due (or later than the read's
+/// own duration, if longer) is a catch-up read.
+pub const LATE_NS: u64 = NS_PER_MS;
 /// How long a stalled `sim:stall` waits per read before reporting "no data".
 const STALL_SLICE_NS: u64 = 100 * NS_PER_MS;
 
@@ -190,12 +196,14 @@ impl Capture for SimDevice {
             n = n.min((every - self.since_event) as usize);
         }
         let first = self.pos + 1;
-        if !self.sleep_until(self.due_ns(self.pos + n as u64), stop) {
+        let due = self.due_ns(self.pos + n as u64);
+        if !self.sleep_until(due, stop) {
             return ReadEvent::Stopped;
         }
         let woke = monotonic_ns();
         self.fill(out, first, n);
-        let span = self.due_ns(self.pos + n as u64) - self.due_ns(self.pos);
+        let span = due - self.due_ns(self.pos);
+        let late = woke.saturating_sub(due) > span.max(LATE_NS);
         self.pos += n as u64;
         self.since_event += n as u64;
         if self.kind == SimKind::Xrun && self.since_event >= every {
@@ -207,6 +215,7 @@ impl Capture for SimDevice {
             first_mono_ns: self.due_ns(first - 1),
             time_estimated: false,
             observed_mono_ns: woke.saturating_sub(span),
+            late,
         }
     }
 
