@@ -92,7 +92,7 @@ impl WindowMin {
     fn reference(&self, now: f64) -> Option<f64> {
         let mut filled = self.mins.iter().filter(|(v, _)| v.is_finite());
         let first = *filled.next()?;
-        let last = filled.last().copied().unwrap_or(first);
+        let last = filled.next_back().copied().unwrap_or(first);
         let slope = if last.1 - first.1 >= WINDOW_S / BUCKETS as f64 {
             ((last.0 - first.0) / (last.1 - first.1)).clamp(-MAX_SLOPE, MAX_SLOPE)
         } else {
