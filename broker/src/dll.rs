@@ -27,8 +27,8 @@
 //! through the oldest and newest of them (so that a loop whose rate is still off keeps
 //! finding them), are the reference; a stamp later than the reference by more than a
 //! tolerance (250 µs, or an eighth of a period if longer) does not correct the loop, which
-//! then runs free for that period (`t1 <- t1 + e2`). A stamp
-//! more than 8 periods late (a stall and its catch-up) is not even counted in the window.
+//! then runs free for that period (`t1 <- t1 + e2`). A stamp more than 8 periods late (a
+//! stall and its catch-up) is not even counted in the window.
 //! There is no anchor reset for late stamps: after a stall the loop's prediction is still
 //! where the device is, and the first on-time stamp is accepted again. The anchor itself
 //! (the first stamp, or the first after a gap) may be late: for 0.1 s (at least 4
