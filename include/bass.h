@@ -71,8 +71,16 @@
 // Chunk flag: timestamps estimated from the sample clock.
 #define BASS_CHUNK_TIME_ESTIMATED 4
 
+// Chunk flag: delivered late, in a catch-up burst after the capture fell behind.
+#define BASS_CHUNK_LATE 8
+
 // Wait forever (for `bass_port_wait`).
 #define BASS_WAIT_FOREVER UINT32_MAX
+
+// Delivered late, in a catch-up burst: the capture fell behind (its thread was starved
+// or stopped), so the chunk reached the port more than a chunk's duration after its
+// last frame was due. The rate estimate does not use its arrival time.
+#define LATE 8
 
 // Result codes. `BASS_OK` is 0; the codes are stable and never renumbered.
 typedef enum {

@@ -16,8 +16,11 @@ classdef Bass < handle
   properties (SetAccess = private)
     broker = 'default';   % broker (and port) name
   end
-  properties (Access = private)
-    h = [];               % port handle from bass_mex('Open'), opened on first use
+  properties (Hidden)
+    % Port handle from bass_mex('Open'), opened on first use. Hidden rather than private:
+    % an object kept across `clear functions` (whose class Octave reloads) may no longer
+    % touch private members, not even from delete.
+    h = [];
   end
 
   methods
@@ -28,7 +31,16 @@ classdef Bass < handle
     end
 
     function delete(obj)
-      obj.closePort();
+      % Closes the port. Calls no private method: an object kept across `clear functions`
+      % is deleted after its class was reloaded, when Octave refuses private method calls
+      % ("closePort has private access"). A handle from before the reload is refused by
+      % bass_mex (bass:invalidHandle; the unload already closed its port): ignored here.
+      if ~isempty(obj.h)
+        try
+          bass_mex('Close', obj.h);
+        catch
+        end
+      end
     end
 
     function epoch = Acquire(obj, varargin)
@@ -62,21 +74,24 @@ classdef Bass < handle
     end
 
     function info = PortInfo(obj)
-      info = bass_mex('Info', obj.port());
+      info = obj.call('Info');
     end
 
     function [l, r, nfr, n, loss] = getAudioData(obj, N, nfr)
-      % The formal getAudioData: up to N frames from nfr; never blocks.
-      [l, r, nfr, n, loss] = bass_mex('GetAudioData', obj.port(), N, nfr);
+      % The formal getAudioData: up to N frames from nfr; never blocks. A port replaced by a
+      % new acquisition (the broker restarted: bass:restarted) or whose broker died
+      % (bass:writerGone) is an error, not n = 0 forever; the next call opens the new port.
+      [l, r, nfr, n, loss] = obj.call('GetAudioData', N, nfr);
     end
 
     function lfi = Wait(obj, frame, timeout)
       % Blocks until frame is published (timeout in seconds, default Inf); returns the last
-      % frame index. Ctrl-C returns to the prompt (error bass:interrupted).
+      % frame index. Ctrl-C returns to the prompt (error bass:interrupted). bass:restarted
+      % and bass:writerGone as for getAudioData.
       if nargin < 3
         timeout = Inf;
       end
-      lfi = bass_mex('Wait', obj.port(), frame, timeout);
+      lfi = obj.call('Wait', frame, timeout);
     end
 
     function block = GetBlocks(obj, nBlocks, nFramesPerBlock, startOffs, period)
@@ -126,12 +141,36 @@ classdef Bass < handle
     end
   end
 
-  methods (Access = private)
+  methods (Hidden)
+    % Helpers, hidden rather than private: an object kept across `clear functions` may call
+    % only public methods (Octave re-checks access against the reloaded class).
     function h = port(obj)
       if isempty(obj.h)
         obj.h = bass_mex('Open', obj.broker);
       end
       h = obj.h;
+    end
+
+    function varargout = call(obj, cmd, varargin)
+      % bass_mex(cmd, port, ...). A handle from an earlier load of bass_mex (`clear
+      % functions`; its port was closed by the unload) is replaced by a new one, once. On
+      % bass:restarted or bass:writerGone the port is closed before the error is rethrown,
+      % so that the next call opens the broker's current port.
+      for attempt = 1:2
+        try
+          [varargout{1:max(1, nargout)}] = bass_mex(cmd, obj.port(), varargin{:});
+          return;
+        catch e
+          if strcmp(e.identifier, 'bass:invalidHandle') && attempt == 1
+            obj.h = [];
+            continue;
+          end
+          if any(strcmp(e.identifier, {'bass:restarted', 'bass:writerGone'}))
+            obj.closePort();
+          end
+          rethrow(e);
+        end
+      end
     end
 
     function closePort(obj)

@@ -21,16 +21,30 @@
  * so that Ctrl-C returns to the prompt (error bass:interrupted); timeoutSeconds Inf (the
  * default) waits forever.
  *
+ * GetAudioData and GetAudioDataMulti never block; when they return fewer frames than asked,
+ * they ask the library whether the port was replaced by a new acquisition (bass:restarted:
+ * Close and Open again) or its broker died (bass:writerGone), so a broker restart is never
+ * read as "no data yet" forever.
+ *
+ * Numeric arguments are checked before use: real, finite, integral, within the C type, and
+ * not text (bass:badArgument, naming the argument). Handles are this MEX's own: a slot and a
+ * per-load generation, so a handle from before `clear functions` / `clear mex` is
+ * bass:invalidHandle, never another port; everything still open is closed when the MEX is
+ * unloaded (mexAtExit).
+ *
  * Errors carry identifiers bass:<code> (bass:noPort, bass:noBroker, bass:timeout,
  * bass:stopped, bass:device, bass:restarted, bass:writerGone, bass:lost, ...) and the
  * library's message. Build: `mkoctfile --mex` (Octave) or `mex` (Matlab), see matlab/README.md.
  */
+#define _POSIX_C_SOURCE 200809L
 #include <math.h>
 #include <stdbool.h>
 #include <signal.h>
 #include <stdint.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "bass.h"
 #include "mex.h"
@@ -81,20 +95,57 @@ static char *opt_string(int nrhs, const mxArray *prhs[], int i) {
     return mxArrayToString(prhs[i]);
 }
 
-/* A non-negative integer argument given as any numeric class (uint64 exactly). */
-static uint64_t arg_u64(const mxArray *a, const char *what) {
+static void bad_argument(const char *what, const char *must) {
+    mexErrMsgIdAndTxt("bass:badArgument", "bass_mex: %s must be %s", what, must);
+}
+
+/* A non-negative integer argument no larger than `max`, given as any real numeric class
+ * (int64/uint64 exactly); text, logicals, NaN, Inf, fractions and out-of-range values are
+ * bass:badArgument errors naming `what`. */
+static uint64_t arg_uint(const mxArray *a, const char *what, uint64_t max) {
     if (!mxIsNumeric(a) || mxIsComplex(a) || mxGetNumberOfElements(a) != 1)
-        mexErrMsgIdAndTxt("bass:usage", "bass_mex: %s must be a real scalar", what);
-    if (mxIsUint64(a)) return *(const uint64_t *)mxGetData(a);
-    if (mxIsInt64(a)) {
-        int64_t v = *(const int64_t *)mxGetData(a);
-        if (v < 0) mexErrMsgIdAndTxt("bass:usage", "bass_mex: %s must be >= 0", what);
-        return (uint64_t)v;
+        bad_argument(what, "a real numeric scalar (not text, logical or an array)");
+    uint64_t v;
+    if (mxIsUint64(a)) {
+        v = *(const uint64_t *)mxGetData(a);
+    } else if (mxIsInt64(a)) {
+        int64_t i = *(const int64_t *)mxGetData(a);
+        if (i < 0) bad_argument(what, ">= 0");
+        v = (uint64_t)i;
+    } else {
+        double d = mxGetScalar(a);
+        if (isnan(d) || isinf(d)) bad_argument(what, "finite");
+        if (d < 0) bad_argument(what, ">= 0");
+        if (d != floor(d)) bad_argument(what, "a whole number");
+        if (d >= 18446744073709551616.0) bad_argument(what, "below 2^64");
+        v = (uint64_t)d;
     }
+    if (v > max)
+        mexErrMsgIdAndTxt("bass:badArgument", "bass_mex: %s = %llu is out of range (at most %llu)", what,
+                          (unsigned long long)v, (unsigned long long)max);
+    return v;
+}
+
+static uint64_t arg_u64(const mxArray *a, const char *what) { return arg_uint(a, what, UINT64_MAX); }
+
+static uint32_t arg_u32(const mxArray *a, const char *what) { return (uint32_t)arg_uint(a, what, UINT32_MAX); }
+
+/* A timeout in seconds: >= 0, Inf for none, not NaN. */
+static double arg_seconds(const mxArray *a, const char *what) {
+    if (!mxIsNumeric(a) || mxIsComplex(a) || mxGetNumberOfElements(a) != 1)
+        bad_argument(what, "a real numeric scalar in seconds (not text, logical or an array)");
     double d = mxGetScalar(a);
-    if (!(d >= 0) || d != floor(d) || d >= 18446744073709551616.0)
-        mexErrMsgIdAndTxt("bass:usage", "bass_mex: %s must be a non-negative integer", what);
-    return (uint64_t)d;
+    if (isnan(d) || d < 0) bad_argument(what, ">= 0 seconds (Inf: no limit)");
+    return d;
+}
+
+/* A true/false flag: a logical or numeric scalar. */
+static int arg_flag(const mxArray *a, const char *what) {
+    if (mxIsLogical(a) && mxGetNumberOfElements(a) == 1) return mxIsLogicalScalarTrue(a);
+    if (!mxIsNumeric(a) || mxIsComplex(a) || mxGetNumberOfElements(a) != 1) bad_argument(what, "true or false");
+    double d = mxGetScalar(a);
+    if (isnan(d)) bad_argument(what, "true or false");
+    return d != 0;
 }
 
 static mxArray *u64_scalar(uint64_t v) {
@@ -103,9 +154,106 @@ static mxArray *u64_scalar(uint64_t v) {
     return m;
 }
 
+/* ---- Handles: (generation << 32) | serial number (from 1, never reused in a load). ----
+ * The generation is unique for each load of this MEX in the process: it is counted in an
+ * environment variable, which outlives the MEX's own memory across `clear mex`. */
+enum kind { FREE = 0, PORT = 1, WRITER = 2 };
+struct slot {
+    enum kind kind;
+    uint32_t serial;
+    void *ptr;
+};
+static struct slot *slots;
+static uint32_t n_slots, last_serial;
+static uint64_t generation;
+static const char GENERATION_VAR[] = "BASS_MEX_LOAD_GENERATION";
+
+/* mexAtExit: closes everything this load opened (ports first, then writers). */
+static void unload(void) {
+    for (uint32_t i = 0; i < n_slots; i++) {
+        if (slots[i].kind == PORT) bass_port_close((bass_port *)slots[i].ptr);
+    }
+    for (uint32_t i = 0; i < n_slots; i++) {
+        if (slots[i].kind == WRITER) bass_writer_close((bass_writer *)slots[i].ptr);
+    }
+    free(slots);
+    slots = NULL;
+    n_slots = 0;
+    last_serial = 0;
+    generation = 0;
+}
+
+static void loaded(void) {
+    if (generation) return;
+    const char *prev = getenv(GENERATION_VAR);
+    uint64_t g = prev ? strtoull(prev, NULL, 10) : 0;
+    generation = (g + 1) & 0x1FFFFF; /* handles stay exact in a double: 21 + 32 bits */
+    if (!generation) generation = 1;
+    char text[24];
+    snprintf(text, sizeof text, "%llu", (unsigned long long)generation);
+    setenv(GENERATION_VAR, text, 1);
+    mexAtExit(unload);
+}
+
+static uint64_t handle_new(enum kind kind, void *ptr) {
+    if (last_serial == UINT32_MAX) {
+        if (kind == PORT) bass_port_close((bass_port *)ptr);
+        else bass_writer_close((bass_writer *)ptr);
+        mexErrMsgIdAndTxt("bass:io", "bass_mex: handle numbers exhausted; clear mex to start again");
+    }
+    uint32_t i = 0;
+    while (i < n_slots && slots[i].kind != FREE) i++;
+    if (i == n_slots) {
+        uint32_t grown = n_slots ? 2 * n_slots : 16;
+        struct slot *s = grown < n_slots ? NULL : realloc(slots, grown * sizeof *s);
+        if (!s) {
+            if (kind == PORT) bass_port_close((bass_port *)ptr);
+            else bass_writer_close((bass_writer *)ptr);
+            mexErrMsgIdAndTxt("bass:io", "bass_mex: out of memory for handles");
+        }
+        memset(s + n_slots, 0, (grown - n_slots) * sizeof *s);
+        slots = s;
+        n_slots = grown;
+    }
+    slots[i].kind = kind;
+    slots[i].serial = ++last_serial;
+    slots[i].ptr = ptr;
+    return generation << 32 | (uint64_t)slots[i].serial;
+}
+
+/* The slot of handle argument i of `kind`; bass:invalidHandle if closed, forged or stale. */
+static struct slot *handle_arg(int nrhs, const mxArray *prhs[], int i, enum kind kind) {
+    const char *what = kind == PORT ? "port handle" : "writer handle";
+    if (i >= nrhs) mexErrMsgIdAndTxt("bass:usage", "bass_mex: missing %s", what);
+    uint64_t h = arg_u64(prhs[i], what);
+    uint64_t gen = h >> 32, k = h & 0xFFFFFFFFu;
+    if (gen != generation)
+        mexErrMsgIdAndTxt("bass:invalidHandle",
+                          "bass_mex: %s %llu is from %s load of bass_mex (cleared by clear functions or clear mex)",
+                          what, (unsigned long long)h, gen ? "an earlier" : "no");
+    for (uint32_t j = 0; k && j < n_slots; j++) {
+        if (slots[j].kind == kind && slots[j].serial == k) return &slots[j];
+    }
+    mexErrMsgIdAndTxt("bass:invalidHandle", "bass_mex: %s %llu is closed or unknown", what, (unsigned long long)h);
+    return NULL; /* not reached */
+}
+
 static bass_port *port_arg(int nrhs, const mxArray *prhs[], int i) {
-    if (i >= nrhs) usage("missing port handle");
-    return (bass_port *)(uintptr_t)arg_u64(prhs[i], "port handle");
+    return (bass_port *)handle_arg(nrhs, prhs, i, PORT)->ptr;
+}
+
+static bass_writer *writer_arg(int nrhs, const mxArray *prhs[], int i) {
+    return (bass_writer *)handle_arg(nrhs, prhs, i, WRITER)->ptr;
+}
+
+/* After a read that returned fewer frames than asked: raises bass:restarted if a new
+ * acquisition replaced the port, bass:writerGone if its broker died (as bass_port_wait
+ * reports them; a zero timeout does not block). Stopped and device-error ports keep
+ * returning n = 0 (their state is in Info). */
+static void check_replaced(const char *call, bass_port *port, uint64_t nfr) {
+    uint64_t lfi = 0;
+    bass_result r = bass_port_wait(port, nfr, 0, &lfi);
+    if (r == BASS_ERR_RESTARTED || r == BASS_ERR_WRITER_GONE) fail(call, r);
 }
 
 static const char *const STATE_NAMES[] = {"idle", "capturing", "stopped", "error", "superseded"};
@@ -161,12 +309,13 @@ static mxArray *status_struct(const bass_broker_status *st) {
 
 static void cmd_acquire(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
     if (nrhs < 5) usage("Acquire needs device, sampleRate, nFramesPerChunk, nChunksOnPort");
+    if (!mxIsChar(prhs[1]) || mxIsEmpty(prhs[1])) bad_argument("device", "a non-empty string");
+    uint32_t rate = arg_u32(prhs[2], "sampleRate");
+    uint32_t nfpc = arg_u32(prhs[3], "nFramesPerChunk");
+    uint32_t ncop = arg_u32(prhs[4], "nChunksOnPort");
+    uint32_t channels = nrhs > 5 && !mxIsEmpty(prhs[5]) ? arg_u32(prhs[5], "channels") : 0;
+    if (nrhs > 6 && !mxIsEmpty(prhs[6]) && !mxIsChar(prhs[6])) bad_argument("broker", "a string");
     char *device = opt_string(nrhs, prhs, 1);
-    if (!device) usage("Acquire: device must be a non-empty string");
-    uint32_t rate = (uint32_t)arg_u64(prhs[2], "sampleRate");
-    uint32_t nfpc = (uint32_t)arg_u64(prhs[3], "nFramesPerChunk");
-    uint32_t ncop = (uint32_t)arg_u64(prhs[4], "nChunksOnPort");
-    uint32_t channels = nrhs > 5 && !mxIsEmpty(prhs[5]) ? (uint32_t)arg_u64(prhs[5], "channels") : 0;
     char *broker = opt_string(nrhs, prhs, 6);
     uint64_t epoch = 0;
     bass_result r = bass_acquire(broker, device, rate, nfpc, ncop, channels, &epoch);
@@ -208,10 +357,10 @@ static void cmd_list_devices(int nlhs, mxArray *plhs[], int nrhs, const mxArray 
 
 static void cmd_get_audio_data(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
     if (nrhs < 4) usage("GetAudioData needs a port handle, N and nfr");
-    bass_port *port = port_arg(nrhs, prhs, 1);
-    uint64_t n_req = arg_u64(prhs[2], "N");
+    uint64_t n_req = arg_uint(prhs[2], "N", SIZE_MAX);
     uint64_t nfr = arg_u64(prhs[3], "nfr");
-    int no_loss = nrhs > 4 && (mxIsLogicalScalarTrue(prhs[4]) || (mxIsNumeric(prhs[4]) && mxGetScalar(prhs[4]) != 0));
+    int no_loss = nrhs > 4 && arg_flag(prhs[4], "noLoss");
+    bass_port *port = port_arg(nrhs, prhs, 1);
     bass_port_info info;
     check("GetAudioData", bass_port_get_info(port, &info));
     /* At most nFOP frames can come back: allocate no more than that. */
@@ -232,6 +381,7 @@ static void cmd_get_audio_data(int nlhs, mxArray *plhs[], int nrhs, const mxArra
         mexErrMsgIdAndTxt("bass:lost", "GetAudioData: %llu frames from frame %llu left the port before they were read",
                           (unsigned long long)loss, (unsigned long long)nfr_in);
     }
+    if (n < cap) check_replaced("GetAudioData", port, nfr);
     mxSetM(l, n);
     mxSetM(r, n);
     plhs[0] = l;
@@ -244,9 +394,9 @@ static void cmd_get_audio_data(int nlhs, mxArray *plhs[], int nrhs, const mxArra
 
 static void cmd_get_audio_data_multi(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
     if (nrhs < 4) usage("GetAudioDataMulti needs a port handle, N and nfr");
-    bass_port *port = port_arg(nrhs, prhs, 1);
-    uint64_t n_req = arg_u64(prhs[2], "N");
+    uint64_t n_req = arg_uint(prhs[2], "N", SIZE_MAX);
     uint64_t nfr = arg_u64(prhs[3], "nfr");
+    bass_port *port = port_arg(nrhs, prhs, 1);
     bass_port_info info;
     check("GetAudioDataMulti", bass_port_get_info(port, &info));
     size_t cap = (size_t)(n_req < info.frames_on_port ? n_req : info.frames_on_port);
@@ -263,6 +413,7 @@ static void cmd_get_audio_data_multi(int nlhs, mxArray *plhs[], int nrhs, const 
         mxDestroyArray(x);
         fail("GetAudioDataMulti", res);
     }
+    if (n < cap) check_replaced("GetAudioDataMulti", port, nfr); /* x is freed by the error */
     /* Keep the first n rows of each column. */
     mxArray *y = mxCreateNumericMatrix(n, channels, mxINT32_CLASS, mxREAL);
     int32_t *dst = (int32_t *)mxGetData(y);
@@ -274,24 +425,31 @@ static void cmd_get_audio_data_multi(int nlhs, mxArray *plhs[], int nrhs, const 
     if (nlhs > 3) plhs[3] = mxCreateDoubleScalar((double)loss);
 }
 
+static double monotonic_s(void) {
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec + (double)t.tv_nsec * 1e-9;
+}
+
+/* Wait in slices of at most 100 ms against a deadline on the monotonic clock, so that any
+ * timeout (fractions of a millisecond, 0, Inf) ends when due and Ctrl-C is seen promptly. */
 static void cmd_wait(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
-    if (nrhs < 3) usage("Wait needs a port handle and a frame index");
-    bass_port *port = port_arg(nrhs, prhs, 1);
+    if (nrhs < 3) usage("Wait needs a port handle, a frame index [and timeoutSeconds]");
     uint64_t frame = arg_u64(prhs[2], "frame");
-    double timeout = nrhs > 3 ? mxGetScalar(prhs[3]) : INFINITY;
-    if (!(timeout >= 0)) usage("Wait: timeoutSeconds must be >= 0");
-    double left_ms = timeout * 1000.0;
+    double timeout = nrhs > 3 ? arg_seconds(prhs[3], "timeoutSeconds") : INFINITY;
+    bass_port *port = port_arg(nrhs, prhs, 1);
+    double deadline = monotonic_s() + timeout; /* Inf stays Inf */
     uint64_t lfi = 0;
     for (;;) {
-        uint32_t slice = left_ms < 100.0 ? (uint32_t)left_ms : 100u;
+        double left_ms = (deadline - monotonic_s()) * 1000.0;
+        uint32_t slice = left_ms >= 100.0 ? 100u : left_ms > 0 ? (uint32_t)ceil(left_ms) : 0u;
         bass_result r = bass_port_wait(port, frame, slice, &lfi);
         if (r == BASS_OK) break;
         if (r == BASS_ERR_INTERRUPTED || interrupt_pending())
             mexErrMsgIdAndTxt("bass:interrupted", "Wait: interrupted while waiting for frame %llu",
                               (unsigned long long)frame);
         if (r != BASS_ERR_TIMEOUT) fail("Wait", r);
-        left_ms -= slice;
-        if (left_ms <= 0) fail("Wait", r);
+        if (slice == 0 || monotonic_s() >= deadline) fail("Wait", r);
     }
     (void)nlhs;
     plhs[0] = u64_scalar(lfi);
@@ -301,6 +459,7 @@ void mexFunction(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
     if (nrhs < 1 || !mxIsChar(prhs[0])) usage("the first argument is a command, e.g. 'GetAudioData'");
     char cmd[32];
     if (mxGetString(prhs[0], cmd, sizeof cmd)) usage("unknown command");
+    loaded();
 
     if (!strcmp(cmd, "Version")) {
         plhs[0] = mxCreateString(bass_version());
@@ -326,9 +485,12 @@ void mexFunction(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
         bass_result r = bass_port_open(name ? name : "default", &port);
         if (name) mxFree(name);
         check("Open", r);
-        plhs[0] = u64_scalar((uint64_t)(uintptr_t)port);
+        plhs[0] = u64_scalar(handle_new(PORT, port));
     } else if (!strcmp(cmd, "Close")) {
-        check("Close", bass_port_close(port_arg(nrhs, prhs, 1)));
+        struct slot *sl = handle_arg(nrhs, prhs, 1, PORT);
+        bass_result r = bass_port_close((bass_port *)sl->ptr);
+        *sl = (struct slot){FREE, 0, NULL};
+        check("Close", r);
     } else if (!strcmp(cmd, "Info")) {
         bass_port_info info;
         check("Info", bass_port_get_info(port_arg(nrhs, prhs, 1), &info));
@@ -341,25 +503,27 @@ void mexFunction(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
         cmd_wait(nlhs, plhs, nrhs, prhs);
     } else if (!strcmp(cmd, "WriterCreate")) {
         if (nrhs < 7) usage("WriterCreate needs name, device, channels, rate, nfpc, ncop");
+        uint32_t channels = arg_u32(prhs[3], "channels"), rate = arg_u32(prhs[4], "rate");
+        uint32_t nfpc = arg_u32(prhs[5], "nfpc"), ncop = arg_u32(prhs[6], "ncop");
         char *name = opt_string(nrhs, prhs, 1), *device = opt_string(nrhs, prhs, 2);
         bass_writer *w = NULL;
-        bass_result r = bass_writer_create(name, device, (uint32_t)arg_u64(prhs[3], "channels"),
-                                           (uint32_t)arg_u64(prhs[4], "rate"), (uint32_t)arg_u64(prhs[5], "nfpc"),
-                                           (uint32_t)arg_u64(prhs[6], "ncop"), &w);
+        bass_result r = bass_writer_create(name, device, channels, rate, nfpc, ncop, &w);
         if (name) mxFree(name);
         if (device) mxFree(device);
         check("WriterCreate", r);
-        plhs[0] = u64_scalar((uint64_t)(uintptr_t)w);
+        plhs[0] = u64_scalar(handle_new(WRITER, w));
     } else if (!strcmp(cmd, "Publish")) {
         if (nrhs < 3 || !mxIsInt32(prhs[2])) usage("Publish needs a writer and int32 interleaved samples");
         uint64_t lfi = 0;
-        check("Publish", bass_writer_publish_interleaved((bass_writer *)(uintptr_t)arg_u64(prhs[1], "writer"),
-                                                         (const int32_t *)mxGetData(prhs[2]),
+        check("Publish", bass_writer_publish_interleaved(writer_arg(nrhs, prhs, 1), (const int32_t *)mxGetData(prhs[2]),
                                                          mxGetNumberOfElements(prhs[2]), NULL, &lfi));
         if (nlhs > 0) plhs[0] = u64_scalar(lfi);
     } else if (!strcmp(cmd, "WriterClose")) {
         if (nrhs < 2) usage("WriterClose needs a writer");
-        check("WriterClose", bass_writer_close((bass_writer *)(uintptr_t)arg_u64(prhs[1], "writer")));
+        struct slot *sl = handle_arg(nrhs, prhs, 1, WRITER);
+        bass_result r = bass_writer_close((bass_writer *)sl->ptr);
+        *sl = (struct slot){FREE, 0, NULL};
+        check("WriterClose", r);
     } else {
         mexErrMsgIdAndTxt("bass:usage", "bass_mex: unknown command '%s'", cmd);
     }

@@ -212,6 +212,8 @@ struct Assembler<'a> {
     /// Observed time of the chunk's first frame, when it came from the device.
     observed: Option<u64>,
     discontinuity: bool,
+    /// The read that began the chunk came late (a catch-up burst): flag LATE, skip the DLL.
+    late: bool,
     dll: RateDll,
     published: u64,
     requested_ns: u64,
@@ -240,7 +242,7 @@ impl Assembler<'_> {
     }
 
     /// Appends frames read from the device (`data` interleaved), the first captured at `t_ns`.
-    fn push_frames(&mut self, data: &[i32], t_ns: u64, estimated: bool, observed_ns: u64) {
+    fn push_frames(&mut self, data: &[i32], t_ns: u64, estimated: bool, observed_ns: u64, late: bool) {
         let mut done = 0;
         let total = data.len() / self.channels;
         while done < total {
@@ -249,6 +251,7 @@ impl Assembler<'_> {
                 let off = self.frames_ns(done as u64);
                 self.first = Some((t_ns + off, estimated));
                 self.observed = Some(observed_ns + off);
+                self.late = late;
             }
             let dst = &mut self.chunk[self.filled * self.channels..(self.filled + k) * self.channels];
             dst.copy_from_slice(&data[done * self.channels..(done + k) * self.channels]);
@@ -265,6 +268,10 @@ impl Assembler<'_> {
         let (mono, estimated) = self.first.unwrap_or((monotonic_ns(), true));
         let realtime = realtime_ns().wrapping_add(mono).wrapping_sub(monotonic_ns());
         let mut flags = if estimated { chunk_flags::TIME_ESTIMATED } else { 0 };
+        let late = std::mem::take(&mut self.late);
+        if late {
+            flags |= chunk_flags::LATE;
+        }
         let all_zero = self.zeros == self.nfpc;
         if all_zero {
             flags |= chunk_flags::GAP;
@@ -290,6 +297,8 @@ impl Assembler<'_> {
                 w.add_gap_frames(self.zeros as u64);
             }
             match self.observed {
+                // A late chunk's arrival says nothing about the device clock: the loop runs free.
+                Some(_) if late && self.zeros == 0 => self.dll.skip(),
                 Some(t) if !all_zero && self.zeros == 0 => w.set_rate_estimate(self.dll.update(t)),
                 _ => self.dll.reset(),
             }
@@ -335,6 +344,7 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
         first: None,
         observed: None,
         discontinuity: false,
+        late: false,
         dll: RateDll::new(f64::from(g.sample_rate), g.frames_per_chunk),
         published: 0,
         requested_ns: p.requested_ns,
@@ -348,7 +358,7 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
     while !shared.stop.is_set() {
         let want = nfpc - asm.filled;
         match dev.read(&mut scratch, want, &shared.stop) {
-            ReadEvent::Frames { frames, first_mono_ns, time_estimated, observed_mono_ns } => {
+            ReadEvent::Frames { frames, first_mono_ns, time_estimated, observed_mono_ns, late } => {
                 shared.progress_ns.store(monotonic_ns(), Ordering::Release);
                 shared.got_data.store(true, Ordering::Release);
                 // Frames lost: after a reported overrun, or when the timestamps jump ahead
@@ -378,6 +388,7 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
                     first_mono_ns,
                     time_estimated,
                     observed_mono_ns,
+                    late,
                 );
             }
             ReadEvent::Xrun => {

@@ -106,6 +106,10 @@ pub mod chunk_flags {
     pub const DISCONTINUITY: u32 = 2;
     /// The timestamps are estimated (from the sample clock) rather than read from the device.
     pub const TIME_ESTIMATED: u32 = 4;
+    /// Delivered late, in a catch-up burst: the capture fell behind (its thread was starved
+    /// or stopped), so the chunk reached the port more than a chunk's duration after its
+    /// last frame was due. The rate estimate does not use its arrival time.
+    pub const LATE: u32 = 8;
 }
 
 /// The port header, exactly as it lies in shared memory.

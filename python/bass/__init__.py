@@ -16,6 +16,8 @@ Frames are numbered from 1; frame 0 is the zero frame before the acquisition. Er
 
 import collections
 import ctypes
+import math
+import numbers
 import time
 
 import numpy as np
@@ -60,8 +62,52 @@ def _check(call, code):
         raise BassError(call, code, lib.bass_last_error().decode(errors="replace"))
 
 
-def _bytes(s):
-    return None if s is None else s.encode()
+def _bytes(s, what="name"):
+    """A str argument (or None) as NUL-terminated bytes for the C library."""
+    if s is None:
+        return None
+    if not isinstance(s, str):
+        raise TypeError(f"{what} must be a str or None, not {type(s).__name__}")
+    if "\0" in s:
+        raise ValueError(f"{what} must not contain NUL characters")
+    return s.encode()
+
+
+# Largest value of each C integer type the package passes to the library.
+_C_MAX = {"uint32_t": 2**32 - 1, "uint64_t": 2**64 - 1, "size_t": 2 ** (8 * ctypes.sizeof(ctypes.c_size_t)) - 1}
+
+
+def _uint(value, what, ctype="uint64_t", minimum=0):
+    """`value` checked as an integer for a C `ctype` argument named `what`: ValueError if it is
+    not an integer (float, NaN, None, ...) or below `minimum`, OverflowError if the C type cannot
+    hold it. Checked here because ctypes would silently wrap it (2**64 + 5 becomes 5)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{what} must be an integer, not {value!r}")
+    value = int(value)
+    if value < minimum:
+        raise ValueError(f"{what} must be >= {minimum}, not {value}")
+    if value > _C_MAX[ctype]:
+        raise OverflowError(f"{what} = {value} does not fit the C type {ctype} (max {_C_MAX[ctype]})")
+    return value
+
+
+def _int(value, what):
+    """`value` checked as a Python integer of any sign (ValueError otherwise)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{what} must be an integer, not {value!r}")
+    return int(value)
+
+
+def _seconds(value, what):
+    """A timeout in seconds: None or +inf (no limit), else a finite number >= 0."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{what} must be a number of seconds or None, not {value!r}")
+    value = float(value)
+    if math.isnan(value) or value < 0:
+        raise ValueError(f"{what} must be >= 0 seconds (or None), not {value}")
+    return None if math.isinf(value) else value
 
 
 def version():
@@ -94,7 +140,9 @@ class Port:
     def __init__(self, name="default"):
         self._h = None
         h = ctypes.c_void_p()
-        _check("bass_port_open", lib.bass_port_open(name.encode(), ctypes.byref(h)))
+        if name is None:
+            raise TypeError("name must be a str (the broker's name, e.g. \"default\")")
+        _check("bass_port_open", lib.bass_port_open(_bytes(name), ctypes.byref(h)))
         self._h = h
         self.name = name
         info = self.info()
@@ -138,26 +186,31 @@ class Port:
 
     def get_audio_data(self, n_frames, nfr):
         """The formal getAudioData: up to `n_frames` frames from `nfr` (never blocks)."""
-        if n_frames < 0 or nfr < 0:
-            raise ValueError("n_frames and nfr must be >= 0")
-        cap = max(1, min(n_frames, self.frames_on_port))
-        left = np.empty(cap, dtype=np.int32)
-        right = np.empty(cap, dtype=np.int32)
+        n_frames = _uint(n_frames, "n_frames", "size_t")
+        nfr = _uint(nfr, "nfr")
+        # At most nFOP frames come back: the buffers hold exactly the count passed to C.
+        want = min(n_frames, self.frames_on_port)
+        left = np.empty(max(1, want), dtype=np.int32)
+        right = np.empty(max(1, want), dtype=np.int32)
         c_nfr, n, loss = ctypes.c_uint64(nfr), ctypes.c_size_t(), ctypes.c_uint64()
         _check("bass_get_audio_data", lib.bass_get_audio_data(
-            self._handle(), min(n_frames, cap), ctypes.byref(c_nfr), _i32p(left), _i32p(right),
+            self._handle(), want, ctypes.byref(c_nfr), _i32p(left), _i32p(right),
             ctypes.byref(n), ctypes.byref(loss)))
         return AudioData(left[:n.value], right[:n.value], c_nfr.value, n.value, loss.value)
 
     def get_audio_data_multi(self, n_frames, nfr, channels=None):
         """getAudioData for the first `channels` channels: returns (array[channels, n], nfr, n, loss)."""
-        channels = self.channels if channels is None else channels
-        cap = max(1, min(n_frames, self.frames_on_port))
-        out = np.empty((channels, cap), dtype=np.int32)
+        n_frames = _uint(n_frames, "n_frames", "size_t")
+        nfr = _uint(nfr, "nfr")
+        channels = self.channels if channels is None else _uint(channels, "channels", "uint32_t", minimum=1)
+        if channels > self.channels:
+            raise ValueError(f"channels = {channels} exceeds the port's {self.channels} channels")
+        want = min(n_frames, self.frames_on_port)
+        out = np.empty((channels, max(1, want)), dtype=np.int32)
         ptrs = (ctypes.POINTER(ctypes.c_int32) * channels)(*[_i32p(out[c]) for c in range(channels)])
         c_nfr, n, loss = ctypes.c_uint64(nfr), ctypes.c_size_t(), ctypes.c_uint64()
         _check("bass_get_audio_data_multi", lib.bass_get_audio_data_multi(
-            self._handle(), min(n_frames, cap), ctypes.byref(c_nfr), ptrs, channels,
+            self._handle(), want, ctypes.byref(c_nfr), ptrs, channels,
             ctypes.byref(n), ctypes.byref(loss)))
         return out[:, :n.value], c_nfr.value, n.value, loss.value
 
@@ -168,6 +221,8 @@ class Port:
         Raises BassError TIMEOUT after `timeout` seconds (None: no limit), STOPPED, DEVICE,
         RESTARTED or WRITER_GONE when the acquisition ends.
         """
+        frame = _uint(frame, "frame")
+        timeout = _seconds(timeout, "timeout")
         deadline = None if timeout is None else time.monotonic() + timeout
         lfi = ctypes.c_uint64()
         while True:
@@ -186,7 +241,7 @@ class Port:
     def start_frame(self, start_offs=0):
         """nfr for a start offset counted from the next frame (0 = fresh frames only;
         -N = the last N frames on the port), clamped at 0, as BASC does."""
-        return max(0, self.last_frame_index + 1 + start_offs)
+        return max(0, self.last_frame_index + 1 + _int(start_offs, "start_offs"))
 
     def blocks(self, n_frames, start_offs=0, nfr=None, count=None, timeout=None):
         """Iterates over consecutive blocks of `n_frames` frames (blocking on the port).
@@ -228,8 +283,15 @@ class Writer:
                  device="python"):
         self._h = None
         h = ctypes.c_void_p()
+        if name is None:
+            raise TypeError("name must be a str")
+        channels = _uint(channels, "channels", "uint32_t")
+        sample_rate = _uint(sample_rate, "sample_rate", "uint32_t")
+        frames_per_chunk = _uint(frames_per_chunk, "frames_per_chunk", "uint32_t")
+        chunks_on_port = _uint(chunks_on_port, "chunks_on_port", "uint32_t")
         _check("bass_writer_create", lib.bass_writer_create(
-            name.encode(), _bytes(device), channels, sample_rate, frames_per_chunk, chunks_on_port, ctypes.byref(h)))
+            _bytes(name), _bytes(device, "device"), channels, sample_rate, frames_per_chunk, chunks_on_port,
+            ctypes.byref(h)))
         self._h = h
         self.channels, self.frames_per_chunk = channels, frames_per_chunk
 
@@ -248,7 +310,10 @@ class Writer:
         return lfi.value
 
     def set_state(self, state, error_code=0, message=None):
-        _check("bass_writer_set_state", lib.bass_writer_set_state(self._h, state, error_code, _bytes(message)))
+        state = _uint(state, "state", "uint32_t")
+        error_code = _uint(error_code, "error_code", "uint32_t")
+        _check("bass_writer_set_state", lib.bass_writer_set_state(self._h, state, error_code,
+                                                                  _bytes(message, "message")))
 
     def close(self):
         if self._h is not None:
@@ -270,22 +335,29 @@ def _control(name):
 
 def acquire(device, sample_rate=44100, frames_per_chunk=2205, chunks_on_port=20, channels=2, broker=None):
     """The Acquire service: starts (or restarts) the broker's acquisition. Returns the epoch."""
+    if device is None:
+        raise TypeError("device must be a str, e.g. \"sim:pattern\"")
+    device = _bytes(device, "device")
+    sample_rate = _uint(sample_rate, "sample_rate", "uint32_t")
+    frames_per_chunk = _uint(frames_per_chunk, "frames_per_chunk", "uint32_t")
+    chunks_on_port = _uint(chunks_on_port, "chunks_on_port", "uint32_t")
+    channels = _uint(channels, "channels", "uint32_t")
     epoch = ctypes.c_uint64()
     _check("bass_acquire", _control("bass_acquire")(
-        _bytes(broker), device.encode(), sample_rate, frames_per_chunk, chunks_on_port, channels,
+        _bytes(broker, "broker"), device, sample_rate, frames_per_chunk, chunks_on_port, channels,
         ctypes.byref(epoch)))
     return epoch.value
 
 
 def stop(broker=None):
     """The Stop service."""
-    _check("bass_stop", _control("bass_stop")(_bytes(broker)))
+    _check("bass_stop", _control("bass_stop")(_bytes(broker, "broker")))
 
 
 def status(broker=None):
     """The broker's status as a dict."""
     s = _lib.Status()
-    _check("bass_status", _control("bass_status")(_bytes(broker), ctypes.byref(s)))
+    _check("bass_status", _control("bass_status")(_bytes(broker, "broker"), ctypes.byref(s)))
     d = {name: getattr(s, name) for name, _ in _lib.Status._fields_}
     d["device"] = s.device.decode(errors="replace")
     d["message"] = s.message.decode(errors="replace")
@@ -296,11 +368,12 @@ def status(broker=None):
 def list_devices(broker=None):
     """The ListDevices service: a list of (name, description)."""
     fn = _control("bass_list_devices")
+    broker = _bytes(broker, "broker")
     size = 4096
     while True:
         buf = ctypes.create_string_buffer(size)
         out_len = ctypes.c_size_t()
-        r = fn(_bytes(broker), buf, size, ctypes.byref(out_len))
+        r = fn(broker, buf, size, ctypes.byref(out_len))
         if r == 22 and out_len.value > size:  # BUFFER_TOO_SMALL: out_len is the size needed
             size = out_len.value
             continue

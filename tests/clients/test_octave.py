@@ -137,3 +137,93 @@ def test_octave_control_plane_and_pattern_reads_through_a_broker(mexdir, clients
     rc, out, err = octave(clients_env, code)
     assert rc == 0, out + err
     assert "control plane ok" in out
+
+
+def test_mex_edge_cases_timeouts_ranges_and_handles_across_unloads(mexdir, clients_env, tmp_path):
+    """tests/clients/octave/test_mex_edges.m: fractional/zero/negative/NaN/Inf Wait timeouts,
+    bass:badArgument for every out-of-range or non-numeric argument, handles unique across
+    `clear bass_mex` / `clear functions` with nothing leaked, a Bass object kept across them."""
+    env = dict(clients_env, BASS_RUNTIME_DIR=str(tmp_path))
+    rc, out, err = octave(env, "test_mex_edges", timeout=60)
+    assert rc == 0, out + err
+    assert "test_mex_edges: all assertions passed" in out
+
+
+def test_every_read_path_reports_a_broker_restart_and_a_dead_broker(mexdir, clients_env, tmp_path):
+    """A Bass object and raw handles opened before a broker restart: getAudioData (and the raw
+    GetAudioData/GetAudioDataMulti) raise bass:restarted once the new broker acquires, instead of
+    returning n = 0 forever; the Bass object then reads the new port; after a SIGKILL of the
+    broker they raise bass:writerGone."""
+    if not broker_available():
+        pytest.skip("bassd or the control plane is not built")
+    env = dict(clients_env, BASS_RUNTIME_DIR=str(tmp_path))
+    bassd = os.path.join(TARGET, "release", "bassd")
+    pidfiles = [tmp_path / "bassd1.pid", tmp_path / "bassd2.pid"]
+    # The brokers are started from Octave's shell (orphans, reaped by init: a killed one is gone,
+    # not a zombie that `kill -0` still finds).
+    code = f"""
+    function pid = start(pidfile)
+      system(sprintf('{bassd} --name rs >/dev/null 2>&1 & echo $! > %s', pidfile));
+      pid = str2double(fileread(pidfile));
+    end
+    function up()
+      for k = 1:200
+        try
+          bass_mex('Status', 'rs'); return;
+        catch
+          pause(0.05);
+        end
+      end
+      error('test:fail', 'broker rs did not come up');
+    end
+    function gone(pid)
+      system(sprintf('kill -%s %d; while kill -0 %d 2>/dev/null; do sleep 0.05; done', 'TERM', pid, pid));
+    end
+    function expect(id, fn)
+      try
+        fn();
+      catch e
+        assert(strcmp(e.identifier, id), sprintf('expected %s, got %s: %s', id, e.identifier, e.message));
+        return;
+      end
+      error('test:fail', 'expected %s, got no error', id);
+    end
+    first = start('{pidfiles[0]}');
+    up();
+    bass_mex('Acquire', 'sim:pattern', 48000, 480, 10, 2, 'rs');
+    b = Bass('rs');
+    b.Wait(uint64(960), 10);
+    [l, r, nfr, n] = b.getAudioData(960, uint64(1));
+    assert(n == 960 && nfr == 961);
+    raw = bass_mex('Open', 'rs');
+    gone(first);
+    second = start('{pidfiles[1]}');
+    up();
+    bass_mex('Acquire', 'sim:pattern', 48000, 480, 10, 2, 'rs');
+    expect('bass:restarted', @() b.getAudioData(960, uint64(2)^40));
+    expect('bass:restarted', @() bass_mex('GetAudioData', raw, 960, uint64(2)^40));
+    expect('bass:restarted', @() bass_mex('GetAudioDataMulti', raw, 960, uint64(2)^40));
+    % the Bass object reads the new acquisition from frame 1
+    b.Wait(uint64(480), 10);
+    [l, r, nfr, n] = b.getAudioData(480, uint64(1));
+    assert(n == 480 && isequal(l, int32((1:480).' * 64)));
+    raw2 = bass_mex('Open', 'rs');
+    system(sprintf('kill -KILL %d', second));
+    pause(0.5);
+    expect('bass:writerGone', @() b.getAudioData(480, uint64(2)^40));
+    expect('bass:writerGone', @() bass_mex('GetAudioData', raw2, 480, uint64(2)^40));
+    expect('bass:writerGone', @() bass_mex('GetAudioDataMulti', raw2, 480, uint64(2)^40));
+    disp('restart ok');
+    """
+    script = tmp_path / "restart_paths.m"
+    script.write_text("1;\n" + code)
+    try:
+        rc, out, err = octave(env, f"source('{script}')", timeout=90)
+    finally:
+        for f in pidfiles:
+            try:
+                os.kill(int(f.read_text()), 9)
+            except (OSError, ValueError):
+                pass
+    assert rc == 0, out + err
+    assert "restart ok" in out

@@ -261,6 +261,7 @@ impl Capture for AlsaDevice {
                         first_mono_ns: first_ns,
                         time_estimated: estimated,
                         observed_mono_ns: first_ns,
+                        late: false,
                     };
                 }
                 Ok(_) => {}

@@ -54,6 +54,9 @@ pub enum ReadEvent {
         /// When the first of them was observed to be captured, for the rate estimator
         /// (for a real device the same as `first_mono_ns`).
         observed_mono_ns: u64,
+        /// Whether the frames arrive late, in a catch-up burst: the device fell behind (its
+        /// thread was starved), so `observed_mono_ns` says nothing about the device clock.
+        late: bool,
     },
     /// An overrun happened and was recovered: frames were lost before the next read.
     Xrun,

@@ -11,11 +11,19 @@
 //!   `rate/20 + 7` frames and reports an overrun (tests the gap filling);
 //! - `sim:stall` — the pattern for `rate/2` frames, then nothing, without an error (tests
 //!   the stall watchdog);
-//! - `sim:unplug` — the pattern for `rate/2` frames, then a fatal ENODEV-like error.
+//! - `sim:unplug` — the pattern for `rate/2` frames, then a fatal ENODEV-like error;
+//! - `sim:latestamps` — the pattern, paced as usual, but the times the rate estimator is
+//!   given are made up, deterministically, as a starved capture thread would see them: a
+//!   latency of 50..149 µs, a catch-up burst every 100 ms (the frames due in 8 ms seen
+//!   together at its end) and a 500 ms stall every 4 s (seen together at its end). A
+//!   late-stamp injector that does not depend on the machine's load (tests the estimator).
 //!
 //! Device frame `k` (from 1) is due at `start + k / rate`; a read of `n` frames sleeps until
 //! the last of them is due. Chunk timestamps are the exact due times; the rate estimator
 //! gets the observed wake-up times instead, so it measures what it would on a real device.
+//! A device that falls behind (its thread starved or stopped) delivers the frames it owes in
+//! a burst; a read that returns more than a read's duration (at least [`LATE_NS`]) after its
+//! last frame was due is marked `late`, and its chunk is flagged `LATE`.
 
 use bassclient::format::error_code;
 use bassclient::sys::monotonic_ns;
@@ -41,16 +49,19 @@ pub enum SimKind {
     Stall,
     /// The pattern, then a fatal error.
     Unplug,
+    /// The pattern, with injected late stamps for the rate estimator.
+    LateStamps,
 }
 
 /// Names and descriptions, as listed by ListDevices.
-pub const DEVICES: [(SimKind, &str); 6] = [
+pub const DEVICES: [(SimKind, &str); 7] = [
     (SimKind::Pattern, "Simulated: test pattern (each sample encodes its frame index and channel)"),
     (SimKind::Sine, "Simulated: sine tones, 440 Hz left, 660 Hz right"),
     (SimKind::Silence, "Simulated: silence"),
     (SimKind::Xrun, "Simulated: test pattern with an overrun every half second"),
     (SimKind::Stall, "Simulated: test pattern for half a second, then stops delivering (stall)"),
     (SimKind::Unplug, "Simulated: test pattern for half a second, then unplugged (ENODEV)"),
+    (SimKind::LateStamps, "Simulated: test pattern, rate estimator fed injected late timestamps"),
 ];
 
 impl SimKind {
@@ -63,6 +74,7 @@ impl SimKind {
             SimKind::Xrun => "xrun",
             SimKind::Stall => "stall",
             SimKind::Unplug => "unplug",
+            SimKind::LateStamps => "latestamps",
         }
     }
 
@@ -73,6 +85,9 @@ impl SimKind {
 }
 
 const NS_PER_MS: u64 = 1_000_000;
+/// A read delivered later than this after its last frame was due (or later than the read's
+/// own duration, if longer) is a catch-up read.
+pub const LATE_NS: u64 = NS_PER_MS;
 /// How long a stalled `sim:stall` waits per read before reporting "no data".
 const STALL_SLICE_NS: u64 = 100 * NS_PER_MS;
 
@@ -151,6 +166,26 @@ impl SimDevice {
     }
 }
 
+/// For `sim:latestamps`: when a starved thread would see a read whose last frame is due
+/// `due_ns` after the start (read number `k`), in ns after the start.
+pub fn injected_seen_ns(due_ns: u64, k: u64) -> u64 {
+    const BURST_EVERY: u64 = 100 * NS_PER_MS;
+    const BURST: u64 = 8 * NS_PER_MS;
+    const STALL_EVERY: u64 = 4_000 * NS_PER_MS;
+    const STALL_AT: u64 = 2_000 * NS_PER_MS;
+    const STALL: u64 = 500 * NS_PER_MS;
+    let latency = 50_000 + k.wrapping_mul(7919) % 100 * 1_000;
+    let in_stall = due_ns % STALL_EVERY;
+    let seen = if (STALL_AT..STALL_AT + STALL).contains(&in_stall) {
+        due_ns - in_stall + STALL_AT + STALL
+    } else if due_ns % BURST_EVERY < BURST {
+        due_ns - due_ns % BURST_EVERY + BURST
+    } else {
+        due_ns
+    };
+    seen + latency
+}
+
 /// Sample of `sim:sine`: (440 + 220 c) Hz at half full scale, phase 0 at frame 0.
 pub fn sine_sample(frame: u64, channel: u32, rate: u64) -> i32 {
     let f = 440.0 + 220.0 * f64::from(channel);
@@ -190,12 +225,20 @@ impl Capture for SimDevice {
             n = n.min((every - self.since_event) as usize);
         }
         let first = self.pos + 1;
-        if !self.sleep_until(self.due_ns(self.pos + n as u64), stop) {
+        let due = self.due_ns(self.pos + n as u64);
+        if !self.sleep_until(due, stop) {
             return ReadEvent::Stopped;
         }
         let woke = monotonic_ns();
         self.fill(out, first, n);
-        let span = self.due_ns(self.pos + n as u64) - self.due_ns(self.pos);
+        let span = due - self.due_ns(self.pos);
+        let late = woke.saturating_sub(due) > span.max(LATE_NS);
+        let observed = if self.kind == SimKind::LateStamps {
+            let reads = self.pos / self.period as u64;
+            self.start_ns + injected_seen_ns(due - self.start_ns, reads)
+        } else {
+            woke
+        };
         self.pos += n as u64;
         self.since_event += n as u64;
         if self.kind == SimKind::Xrun && self.since_event >= every {
@@ -206,7 +249,8 @@ impl Capture for SimDevice {
             frames: n,
             first_mono_ns: self.due_ns(first - 1),
             time_estimated: false,
-            observed_mono_ns: woke.saturating_sub(span),
+            observed_mono_ns: observed.saturating_sub(span),
+            late,
         }
     }
 

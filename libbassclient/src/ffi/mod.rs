@@ -119,6 +119,8 @@ pub const BASS_CHUNK_GAP: u32 = 1;
 pub const BASS_CHUNK_DISCONTINUITY: u32 = 2;
 /// Chunk flag: timestamps estimated from the sample clock.
 pub const BASS_CHUNK_TIME_ESTIMATED: u32 = 4;
+/// Chunk flag: delivered late, in a catch-up burst after the capture fell behind.
+pub const BASS_CHUNK_LATE: u32 = 8;
 /// Wait forever (for `bass_port_wait`).
 pub const BASS_WAIT_FOREVER: u32 = u32::MAX;
 
@@ -140,6 +142,7 @@ const _: () = assert!(
         && BASS_CHUNK_GAP == chunk_flags::GAP
         && BASS_CHUNK_DISCONTINUITY == chunk_flags::DISCONTINUITY
         && BASS_CHUNK_TIME_ESTIMATED == chunk_flags::TIME_ESTIMATED
+        && BASS_CHUNK_LATE == chunk_flags::LATE
 );
 
 /// What went wrong inside an export.

@@ -64,7 +64,7 @@ function test_mex()
   expect_error('bass:noPort', @() bass_mex('Open', 'no-such-port'));
   expect_error('bass:noBroker', @() bass_mex('Status', 'no-such-broker'));
   expect_error('bass:usage', @() bass_mex('NoSuchCommand'));
-  expect_error('bass:usage', @() bass_mex('GetAudioData', uint64(1), -1, 0));
+  expect_error('bass:badArgument', @() bass_mex('GetAudioData', uint64(1), -1, 0));
   disp('test_mex: all assertions passed');
 end
 
