@@ -69,7 +69,7 @@ out=$(bass blocks --block 160 --count 3)
 n=$(grep -c '^block .*(160) loss 0 ' <<<"$out" || true)
 if [[ $n == 3 ]]; then ok "bass blocks"; else bad "bass blocks: $out"; fi
 if out=$(bass acquire sim:pattern --frames 0 2>&1); then bad "bass acquire --frames 0 succeeded"; else
-  if grep -q 'nFramesPerChunk = 0' <<<"$out"; then ok "bass refuses a bad request"; else bad "bad request message: $out"; fi
+  if grep -q "'--frames <N>': 0 is not in 1\.\." <<<"$out"; then ok "bass refuses a bad request"; else bad "bad request message: $out"; fi
 fi
 out=$(bass stop) && out=$(bass status)
 if grep -q '^state *stopped' <<<"$out"; then ok "bass stop"; else bad "bass stop: $out"; fi

@@ -52,8 +52,10 @@ pub fn bassd_bin() -> &'static str {
     env!("CARGO_BIN_EXE_bassd")
 }
 
-pub fn bass_bin() -> &'static str {
-    env!("CARGO_BIN_EXE_bass")
+/// The `bass` under test: `$BASS_CLI` if set (to run a suite against another build, e.g. to
+/// show that a test fails on the old code), else the one cargo built.
+pub fn bass_bin() -> String {
+    std::env::var("BASS_CLI").unwrap_or_else(|_| env!("CARGO_BIN_EXE_bass").to_owned())
 }
 
 impl Bassd {
