@@ -8,12 +8,14 @@
 //!   completions);
 //! - [`blocks`]: `bass blocks`, the BASC loop with one line (or JSON object) per block;
 //! - [`follow`]: opening a port and following it across acquisitions (new epochs);
+//! - [`record`]: `bass record FILE.wav` with its timestamp sidecar;
 //! - [`exit`]: the documented exit codes and how errors map onto them.
 
 pub mod bass;
 pub mod blocks;
 pub mod exit;
 pub mod follow;
+pub mod record;
 
 use bassclient::control::AcquireRequest;
 use bassclient::format::MAX_CHANNELS;

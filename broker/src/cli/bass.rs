@@ -13,6 +13,7 @@ use serde_json::json;
 
 use super::blocks::{self, BlocksArgs};
 use super::exit::{self, Exit};
+use super::record::{self, RecordArgs};
 use super::{parse_seconds, AcquireArgs};
 
 const EXIT_CODES: &str = "\
@@ -56,6 +57,8 @@ pub enum Command {
     },
     /// Read blocks of frames like the BASC client, one line per block
     Blocks(BlocksArgs),
+    /// Record the port to a WAV file with a timestamp sidecar (FILE.json)
+    Record(RecordArgs),
     /// Print a shell completion script (bash, zsh, fish, elvish, powershell)
     Completions {
         /// The shell
@@ -153,6 +156,7 @@ pub fn run(cli: &Cli) -> Result<()> {
         }
         Command::Status { json } => status(name, *json, timeout)?,
         Command::Blocks(b) => blocks::run(name, b, timeout)?,
+        Command::Record(r) => record::run(name, r, timeout)?,
         Command::Completions { shell } => {
             clap_complete::generate(*shell, &mut Cli::command(), "bass", &mut std::io::stdout());
         }
