@@ -51,6 +51,9 @@ pub struct AcquireArgs {
     /// Device sample format (ALSA devices only; default: the best the device offers)
     #[arg(short = 'f', long = "format", value_name = "FORMAT", value_parser = format_names())]
     pub format: Option<String>,
+    /// Replay a sim:file: device in a loop (the same as naming it sim:file-loop:PATH)
+    #[arg(long = "loop")]
+    pub looping: bool,
 }
 
 impl Default for AcquireArgs {
@@ -62,6 +65,7 @@ impl Default for AcquireArgs {
             chunks_on_port: d.chunks_on_port,
             channels: d.channels,
             format: None,
+            looping: false,
         }
     }
 }
@@ -77,8 +81,15 @@ impl AcquireArgs {
                 ));
             }
         }
+        let device = match (self.looping, device.strip_prefix("sim:file:")) {
+            (false, _) => device.to_owned(),
+            (true, Some(path)) => format!("sim:file-loop:{path}"),
+            (true, None) => {
+                return Err(format!("--loop applies to sim:file:PATH devices only, not {device:?}"))
+            }
+        };
         Ok(AcquireRequest {
-            device: device.to_owned(),
+            device,
             sample_rate: self.sample_rate,
             frames_per_chunk: self.frames_per_chunk,
             chunks_on_port: self.chunks_on_port,
@@ -164,6 +175,13 @@ mod tests {
         }
         assert_eq!(parse("--seconds 0.5").unwrap().seconds, Some(0.5));
         assert_eq!(parse("--seconds 1e9").unwrap().seconds, Some(1e9));
+    }
+
+    #[test]
+    fn loop_names_the_looping_file_device() {
+        let t = parse("--loop").unwrap();
+        assert_eq!(t.a.request("sim:file:/r.wav").unwrap().device, "sim:file-loop:/r.wav");
+        assert!(t.a.request("sim:sine").unwrap_err().contains("--loop applies to sim:file:"));
     }
 
     #[test]

@@ -58,7 +58,7 @@ fn main() {
 fn config(a: &BassdArgs) -> Result<Config> {
     let acquire = match &a.acquire {
         None if a.params != AcquireArgs::default() => {
-            anyhow::bail!("--rate, --frames, --chunks, --channels and --format need --acquire DEVICE")
+            anyhow::bail!("--rate, --frames, --chunks, --channels, --format and --loop need --acquire DEVICE")
         }
         None => None,
         Some(dev) => Some(a.params.request(dev).map_err(|m| anyhow::anyhow!("--acquire {dev}: {m}"))?),

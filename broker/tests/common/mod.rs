@@ -155,6 +155,23 @@ impl Drop for Bassd {
     }
 }
 
+/// Extra `bassd` arguments that let clients replay WAV files from `dir` (`sim:file:`).
+/// Empty while the broker has no device policy; with one, this is where the rigs widen it
+/// (e.g. `--allow-device 'sim:file:DIR/*'`), so every replay test gets it from one place.
+pub fn replay_args(dir: &Path) -> Vec<String> {
+    let _ = dir;
+    Vec::new()
+}
+
+impl Bassd {
+    /// Starts a broker allowed to replay WAV files from `dir` (see [`replay_args`]).
+    pub fn start_replaying(dir: &Path, name: &str) -> Bassd {
+        let extra = replay_args(dir);
+        let args: Vec<&str> = extra.iter().map(String::as_str).collect();
+        Bassd::start(dir, name, &args, &[])
+    }
+}
+
 pub fn req(device: &str, rate: u32, nfpc: u32, ncop: u32, channels: u32) -> AcquireRequest {
     AcquireRequest {
         device: device.into(),
