@@ -8,6 +8,7 @@
 //!   completions);
 //! - [`blocks`]: `bass blocks`, the BASC loop with one line (or JSON object) per block;
 //! - [`follow`]: opening a port and following it across acquisitions (new epochs);
+//! - [`meter`]: `bass meter`, the live level meter;
 //! - [`record`]: `bass record FILE.wav` with its timestamp sidecar;
 //! - [`exit`]: the documented exit codes and how errors map onto them.
 
@@ -15,6 +16,7 @@ pub mod bass;
 pub mod blocks;
 pub mod exit;
 pub mod follow;
+pub mod meter;
 pub mod record;
 
 use bassclient::control::AcquireRequest;

@@ -13,6 +13,7 @@ use serde_json::json;
 
 use super::blocks::{self, BlocksArgs};
 use super::exit::{self, Exit};
+use super::meter::{self, MeterArgs};
 use super::record::{self, RecordArgs};
 use super::{parse_seconds, AcquireArgs};
 
@@ -57,6 +58,8 @@ pub enum Command {
     },
     /// Read blocks of frames like the BASC client, one line per block
     Blocks(BlocksArgs),
+    /// Live level meter: RMS and peak dBFS per channel, clip and gap markers
+    Meter(MeterArgs),
     /// Record the port to a WAV file with a timestamp sidecar (FILE.json)
     Record(RecordArgs),
     /// Print a shell completion script (bash, zsh, fish, elvish, powershell)
@@ -157,6 +160,7 @@ pub fn run(cli: &Cli) -> Result<()> {
         Command::Status { json } => status(name, *json, timeout)?,
         Command::Blocks(b) => blocks::run(name, b, timeout)?,
         Command::Record(r) => record::run(name, r, timeout)?,
+        Command::Meter(m) => meter::run(name, m, timeout)?,
         Command::Completions { shell } => {
             clap_complete::generate(*shell, &mut Cli::command(), "bass", &mut std::io::stdout());
         }
