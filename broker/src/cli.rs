@@ -9,6 +9,7 @@
 //! - [`blocks`]: `bass blocks`, the BASC loop with one line (or JSON object) per block;
 //! - [`follow`]: opening a port and following it across acquisitions (new epochs);
 //! - [`meter`]: `bass meter`, the live level meter;
+//! - [`plot`]: `bass plot`, PNG pictures of a recording or of the port;
 //! - [`record`]: `bass record FILE.wav` with its timestamp sidecar;
 //! - [`exit`]: the documented exit codes and how errors map onto them.
 
@@ -17,6 +18,7 @@ pub mod blocks;
 pub mod exit;
 pub mod follow;
 pub mod meter;
+pub mod plot;
 pub mod record;
 
 use bassclient::control::AcquireRequest;

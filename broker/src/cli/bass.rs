@@ -14,6 +14,7 @@ use serde_json::json;
 use super::blocks::{self, BlocksArgs};
 use super::exit::{self, Exit};
 use super::meter::{self, MeterArgs};
+use super::plot::{self, PlotArgs};
 use super::record::{self, RecordArgs};
 use super::{parse_seconds, AcquireArgs};
 
@@ -60,6 +61,8 @@ pub enum Command {
     Blocks(BlocksArgs),
     /// Live level meter: RMS and peak dBFS per channel, clip and gap markers
     Meter(MeterArgs),
+    /// Draw a PNG of a WAV recording, or of the last seconds on the port (--live)
+    Plot(PlotArgs),
     /// Record the port to a WAV file with a timestamp sidecar (FILE.json)
     Record(RecordArgs),
     /// Print a shell completion script (bash, zsh, fish, elvish, powershell)
@@ -161,6 +164,7 @@ pub fn run(cli: &Cli) -> Result<()> {
         Command::Blocks(b) => blocks::run(name, b, timeout)?,
         Command::Record(r) => record::run(name, r, timeout)?,
         Command::Meter(m) => meter::run(name, m, timeout)?,
+        Command::Plot(p) => plot::run(name, p, timeout)?,
         Command::Completions { shell } => {
             clap_complete::generate(*shell, &mut Cli::command(), "bass", &mut std::io::stdout());
         }
