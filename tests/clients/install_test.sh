@@ -67,4 +67,15 @@ out=$(LD_LIBRARY_PATH="$PREFIX/lib" "$WORK/src/prog")
 kill "$BROKER2_PID"; wait "$BROKER2_PID" 2>/dev/null || true
 [[ $out == "12000 frames, 0 lost, next frame 12001" ]] || { echo "install: README program printed: $out" >&2; exit 1; }
 echo "install: README program: $out"
+
+# pip install ./python (a copy: pip builds in the tree) into a virtual environment, then the
+# package finds the installed library through the dynamic loader, outside the source tree.
+cp -r "$ROOT/python" "$WORK/pysrc"
+python3 -m venv --system-site-packages "$WORK/venv"
+"$WORK/venv/bin/pip" install -q --no-deps "$WORK/pysrc" >"$WORK/pip.log" 2>&1 \
+  || { cat "$WORK/pip.log"; exit 1; }
+pyout=$(cd "$WORK" && env -u BASS_LIB LD_LIBRARY_PATH="$PREFIX/lib" "$WORK/venv/bin/python" -c \
+  'import bass, bass._lib as l; print(bass.__file__.startswith("'"$WORK"'/venv"), l.lib._name)')
+[[ $pyout == "True "*libbassclient* ]] || { echo "install: pip-installed bass: $pyout" >&2; exit 1; }
+echo "install: pip install ./python: $pyout"
 echo "install: ok"
