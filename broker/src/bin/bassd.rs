@@ -10,6 +10,7 @@ use clap::Parser;
 #[command(
     name = "bassd",
     version,
+    args_override_self = true, // a later option wins (the test rigs override their defaults)
     after_help = "Logging: BASS_LOG=debug|info|warn (default info), on stderr.\n\
                   Stops on SIGTERM / SIGINT (the port shows Stopped, the socket is removed).\n\
                   The port and the socket live in $BASS_RUNTIME_DIR (default /dev/shm)."

@@ -25,7 +25,7 @@ invalid); 3 broker unreachable; 4 device error; 5 acquisition ended by a device 
 
 /// bass: command-line tool of the bass audio broker
 #[derive(Parser, Debug)]
-#[command(name = "bass", version, after_help = EXIT_CODES)]
+#[command(name = "bass", version, after_help = EXIT_CODES, args_override_self = true)]
 pub struct Cli {
     /// Broker name (port bass-NAME.port, socket bass-NAME.sock)
     #[arg(long, global = true, value_name = "BROKER", default_value = DEFAULT_NAME)]
