@@ -72,7 +72,9 @@ install: build
 	install -d $(INSTALL_ROOT)/bin $(INSTALL_ROOT)/lib/pkgconfig $(INSTALL_ROOT)/lib/cmake/bassclient \
 	  $(INSTALL_ROOT)/include $(INSTALL_ROOT)/share/bass/matlab
 	install -m 0755 $(BUILT_DIR)/bassd $(BUILT_DIR)/bass $(INSTALL_ROOT)/bin/
-	install -m 0755 $(BUILT_DIR)/libbassclient.so $(INSTALL_ROOT)/lib/
+	install -m 0755 $(BUILT_DIR)/libbassclient.so $(INSTALL_ROOT)/lib/libbassclient.so.$(VERSION)
+	ln -sf libbassclient.so.$(VERSION) $(INSTALL_ROOT)/lib/libbassclient.so.0
+	ln -sf libbassclient.so.0 $(INSTALL_ROOT)/lib/libbassclient.so
 	install -m 0644 $(BUILT_DIR)/libbassclient.a $(INSTALL_ROOT)/lib/
 	install -m 0644 include/bass.h examples-c/bass.hpp $(INSTALL_ROOT)/include/
 	sed -e 's|@PREFIX@|$(PREFIX)|' -e 's|@VERSION@|$(VERSION)|' pkgconfig/bassclient.pc.in \

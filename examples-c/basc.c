@@ -24,6 +24,10 @@
  *
  * nBlocks = 0 runs until Ctrl-C (SIGINT) or SIGTERM.
  *
+ * Exit status: 0 done; 1 a failed call, or the acquisition ended (stopped, device error,
+ * replaced); 2 usage; 3 pattern mismatch; 4 the broker writing the port died (both modes
+ * notice it within about 100 ms of the next call that finds no new frames).
+ *
  * Test options: --check-pattern verifies every delivered sample against the pattern test
  * signal (exit status 3 on a mismatch); --trace prints one "trace ..." line per call on
  * stderr with the last frame index seen just before and after the call; --no-align starts
@@ -227,7 +231,8 @@ int main(int argc, char **argv) {
             if (r == BASS_ERR_TIMEOUT) continue; /* sliced wait: re-check stop_requested */
             if (r == BASS_ERR_INTERRUPTED) continue;
             if (r != BASS_OK) {
-                status = fail("bass_port_wait", r);
+                status = r == BASS_ERR_WRITER_GONE ? 4 : fail("bass_port_wait", r);
+                if (status == 4) fprintf(stderr, "basc: the broker writing port %s is gone (%s); restart bassd\n", o.port, bass_last_error());
                 break;
             }
         } else {
@@ -273,6 +278,16 @@ int main(int argc, char **argv) {
         /* The periodic mode never blocks, so it notices the end of the acquisition here: once
          * the port has nothing more to give and no longer captures, stop. */
         if (!o.wait_mode && n < requested) {
+            /* A zero-timeout wait reports a writer that died without a word (killed broker:
+             * the port still says "capturing"); the library checks the writer's pid. */
+            uint64_t unused = 0;
+            r = bass_port_wait(port, nfr, 0, &unused);
+            if (r == BASS_ERR_WRITER_GONE) {
+                fprintf(stderr, "basc: the broker writing port %s is gone (%s); restart bassd\n", o.port,
+                        bass_last_error());
+                status = 4;
+                break;
+            }
             bass_port_info now;
             r = bass_port_get_info(port, &now);
             if (r != BASS_OK) {

@@ -7,7 +7,8 @@
 //! - card references: `hw`, `plughw`, `dsnoop`, `sysdefault` or `default`, alone or with
 //!   plain arguments (`hw:1,0`, `plughw:CARD=PCH,DEV=0`, `default:U0x46d0x825`): letters,
 //!   digits and `_ = , . -` only;
-//! - simulated devices `sim:NAME`, except the file replay device `sim:file:PATH`;
+//! - simulated devices `sim:NAME`, except the file replay devices `sim:file:PATH` and
+//!   `sim:file-loop:PATH`;
 //! - the PCM names the broker itself lists in ListDevices (hints of the system's ALSA
 //!   configuration, which only the machine's administrator writes);
 //! - whatever the operator allowed with `bassd --allow-device PATTERN` (glob syntax:
@@ -41,7 +42,8 @@ impl DevicePolicy {
     /// asked for when the cheaper rules did not decide).
     pub fn check(&self, name: &str, listed: impl FnOnce() -> Vec<DeviceInfo>) -> Result<(), String> {
         if let Some(sim) = name.strip_prefix("sim:") {
-            if !sim.starts_with("file:") {
+            // `sim:file:PATH` and `sim:file-loop:PATH` read files: operator patterns only.
+            if !sim.starts_with("file") {
                 return Ok(());
             }
         } else if is_card_reference(name) {
@@ -81,7 +83,7 @@ fn is_card_reference(name: &str) -> bool {
 
 /// Why a name is refused, in the user's terms.
 fn refusal_reason(name: &str) -> &'static str {
-    if name.starts_with("sim:file:") {
+    if name.starts_with("sim:file") {
         "file replay needs an operator pattern"
     } else if name.contains('{') || name.contains('}') {
         "an inline plugin definition"
@@ -135,6 +137,7 @@ mod tests {
             ("hwx", "not a card reference"),
             ("bass_jack", "not a card reference"),
             ("sim:file:/tmp/a.wav", "file replay"),
+            ("sim:file-loop:/tmp/a.wav", "file replay"),
             ("hw:", "not a card reference"),
         ] {
             let e = p.check(bad, listed).unwrap_err();

@@ -86,6 +86,13 @@ pub enum DeviceKind {
     Sim(SimKind),
     /// An ALSA PCM name.
     Alsa(String),
+    /// A WAV file replayed (`sim:file:PATH`, `sim:file-loop:PATH`; see `device::file`).
+    File {
+        /// The file.
+        path: std::path::PathBuf,
+        /// Start again at its end.
+        looping: bool,
+    },
 }
 
 /// A request that passed the checks.
@@ -114,6 +121,7 @@ pub fn check(r: &AcquireRequest, max_port_bytes: u64, limits: &Limits) -> Result
         return Err(format!("device name {name:?} contains control characters"));
     }
     let device = match name.strip_prefix("sim:") {
+        Some(s) if s.starts_with("file:") || s.starts_with("file-loop:") => file_device(s)?,
         Some(s) => DeviceKind::Sim(SimKind::from_name(s).ok_or_else(|| {
             let known: Vec<String> = DEVICES.iter().map(|(k, _)| format!("sim:{}", k.name())).collect();
             format!("unknown simulated device {name:?} (available: {})", known.join(", "))
@@ -146,6 +154,18 @@ pub fn check(r: &AcquireRequest, max_port_bytes: u64, limits: &Limits) -> Result
     }
     limits.check(&geometry)?;
     Ok(Checked { geometry, device, format, port_bytes: layout.total_size })
+}
+
+/// `file:PATH` or `file-loop:PATH` (after `sim:`).
+fn file_device(s: &str) -> Result<DeviceKind, String> {
+    let (path, looping) = match s.strip_prefix("file:") {
+        Some(p) => (p, false),
+        None => (s.trim_start_matches("file-loop:"), true),
+    };
+    if path.is_empty() {
+        return Err("sim:file: needs the WAV file, e.g. sim:file:/data/rec.wav".into());
+    }
+    Ok(DeviceKind::File { path: path.into(), looping })
 }
 
 #[cfg(test)]

@@ -174,6 +174,11 @@ impl Broker {
             DeviceKind::Sim(kind) => {
                 Ok(Box::new(SimDevice::new(*kind, g.sample_rate, g.channels, g.frames_per_chunk)))
             }
+            DeviceKind::File { path, looping } => {
+                device::file::open(path, *looping, g.sample_rate, g.channels, g.frames_per_chunk)
+                    .map(|d| Box::new(d) as Box<dyn Capture>)
+                    .map_err(|message| alsa::OpenError { code: error_code::CONFIG, message })
+            }
             DeviceKind::Alsa(name) => alsa::open(&alsa::OpenParams {
                 name,
                 rate: g.sample_rate,

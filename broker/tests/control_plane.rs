@@ -249,7 +249,7 @@ fn clients_of_another_user_are_refused_by_peer_credentials() {
     std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
     std::fs::set_permissions(b.socket(), std::fs::Permissions::from_mode(0o666)).unwrap();
     let out = Command::new("setpriv")
-        .args(["--reuid=65534", "--regid=65534", "--clear-groups", bass_bin(), "status"])
+        .args(["--reuid=65534", "--regid=65534", "--clear-groups", &bass_bin(), "status"])
         .env("BASS_RUNTIME_DIR", dir.path())
         .output();
     let Ok(out) = out else {
@@ -281,7 +281,7 @@ fn members_of_the_configured_group_are_served() {
     assert_eq!((sock.mode() & 0o777, sock.gid()), (0o660, 65534));
     // uid 65534 is neither the broker's user nor root: only its group lets it in.
     let out = Command::new("setpriv")
-        .args(["--reuid=65534", "--regid=65534", "--clear-groups", bass_bin(), "acquire", "sim:pattern"])
+        .args(["--reuid=65534", "--regid=65534", "--clear-groups", &bass_bin(), "acquire", "sim:pattern"])
         .args(["--rate", "8000", "--frames", "80", "--chunks", "10"])
         .env("BASS_RUNTIME_DIR", dir.path())
         .output();

@@ -249,31 +249,40 @@ class Port:
         Starts at `nfr` if given, else at `start_frame(start_offs)`. Reads at least every half
         window, so no frame is lost while the consumer keeps up; frames lost anyway are
         reported in `Block.loss`. Stops after `count` blocks (None: forever).
+
+        Every channel of the port is read (1 to 64): `Block.left` and `Block.right` are
+        channels 0 and 1 (`right` is None on a 1-channel port); all channels, as an int32 array
+        of shape (channels, n_frames), are `Block.left.base` -- see `Port.block_samples`.
         """
         if n_frames <= 0:
             raise ValueError("n_frames must be > 0")
         nfr = self.start_frame(start_offs) if nfr is None else nfr
         half = max(1, self.frames_on_port // 2)
+        ch = self.channels
         done = 0
         while count is None or done < count:
-            left = np.empty(n_frames, dtype=np.int32)
-            right = np.empty(n_frames, dtype=np.int32)
+            data = np.empty((ch, n_frames), dtype=np.int32)
             filled, loss, first = 0, 0, None
             while filled < n_frames:
                 rem = n_frames - filled
                 self.wait(nfr + min(rem, half) - 1, timeout)
                 want = min(rem, self.frames_on_port)
+                ptrs = (ctypes.POINTER(ctypes.c_int32) * ch)(*[_i32p(data[c], filled) for c in range(ch)])
                 c_nfr, n, l = ctypes.c_uint64(nfr), ctypes.c_size_t(), ctypes.c_uint64()
-                _check("bass_get_audio_data", lib.bass_get_audio_data(
-                    self._handle(), want, ctypes.byref(c_nfr), _i32p(left, filled), _i32p(right, filled),
-                    ctypes.byref(n), ctypes.byref(l)))
+                _check("bass_get_audio_data_multi", lib.bass_get_audio_data_multi(
+                    self._handle(), want, ctypes.byref(c_nfr), ptrs, ch, ctypes.byref(n), ctypes.byref(l)))
                 if first is None and n.value:
                     first = c_nfr.value - n.value
                 loss += l.value
                 filled += n.value
                 nfr = c_nfr.value
             done += 1
-            yield Block(left, right, first, nfr, loss)
+            yield Block(data[0], data[1] if ch > 1 else None, first, nfr, loss)
+
+    @staticmethod
+    def block_samples(block):
+        """All channels of a block from `blocks()`: int32 array of shape (channels, n_frames)."""
+        return block.left.base
 
 
 class Writer:

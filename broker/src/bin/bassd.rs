@@ -1,128 +1,122 @@
 //! `bassd`: the bass capture broker daemon. See docs/broker.md.
 
 use anyhow::{Context, Result};
-use bassclient::control::AcquireRequest;
-use bassd::cli::Args;
-use bassd::server::{self, Config};
+use bassd::cli::AcquireArgs;
+use bassd::request::Limits;
+use bassd::server::{self, Config, DEFAULT_MAX_PORT_BYTES};
+use clap::Parser;
 
-const HELP: &str = "\
-bassd: the bass audio capture broker
+/// bassd: the bass audio capture broker
+#[derive(Parser, Debug)]
+#[command(
+    name = "bassd",
+    version,
+    args_override_self = true, // a later option wins (the test rigs override their defaults)
+    after_help = "Logging: BASS_LOG=debug|info|warn (default info), on stderr.\n\
+                  Stops on SIGTERM / SIGINT (the port shows Stopped, the socket is removed).\n\
+                  The port and the socket live in $BASS_RUNTIME_DIR (default /run/bass for a\n\
+                  broker run as root, else /dev/shm)."
+)]
+struct BassdArgs {
+    /// Broker name: port bass-NAME.port and socket bass-NAME.sock
+    #[arg(long, value_name = "NAME", default_value = bassclient::paths::DEFAULT_NAME)]
+    name: String,
+    /// Also let members of GROUP control the broker and read its port
+    #[arg(long, value_name = "GROUP")]
+    group: Option<String>,
+    /// Memory cap of one port in bytes
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_MAX_PORT_BYTES,
+          value_parser = clap::value_parser!(u64).range(1..))]
+    max_port_bytes: u64,
+    /// SCHED_FIFO priority of the capture thread; 0 = none
+    #[arg(long, value_name = "P", default_value_t = Config::default().rt_priority,
+          value_parser = clap::value_parser!(i32).range(0..=99))]
+    rt_priority: i32,
+    /// No data for MS ms = device stalled; 0 = max(4 chunks, 250 ms)
+    #[arg(long, value_name = "MS", default_value_t = 0,
+          value_parser = clap::value_parser!(u64).range(0..=3_600_000))]
+    stall_ms: u64,
+    /// Start capturing from DEVICE at start-up (with the acquisition options below)
+    #[arg(short = 'D', long = "acquire", value_name = "DEVICE")]
+    acquire: Option<String>,
+    /// Parameters of --acquire.
+    #[command(flatten, next_help_heading = "Options of --acquire")]
+    params: AcquireArgs,
+    /// Hardening: what clients may ask for (docs/broker.md, "Device policy" and "Limits").
+    #[command(flatten, next_help_heading = "Hardening")]
+    hardening: Hardening,
+}
 
-usage: bassd [--name NAME] [--group GROUP] [--max-port-bytes N] [--rt-priority P] [--stall-ms MS]
-             [--acquire DEVICE [--rate HZ] [--frames N] [--chunks N] [--channels N] [--format F]]
-
-  --name NAME          broker name: port bass-NAME.port, socket bass-NAME.sock in
-                       $BASS_RUNTIME_DIR (default /run/bass as root, else /dev/shm);
-                       default \"default\"
-  --group GROUP        also let members of GROUP control the broker and read its port
-  --max-port-bytes N   memory cap of one port (default 536870912 = 512 MiB)
-  --rt-priority P      SCHED_FIFO priority of the capture thread; 0 = none (default 70)
-  --stall-ms MS        no data for MS ms = device stalled (default 0 = max(4 chunks, 250 ms))
-  --acquire DEVICE     start capturing at start-up (defaults: --rate 44100 --frames 2205
-                       --chunks 20 --channels 2)
-Hardening (docs/broker.md, Device policy and Limits):
-  --allow-device PAT   also let clients open devices matching the glob PAT (* ? [..]);
-                       repeatable; e.g. 'sim:file:/data/*', 'bass_jack'
-  --min-chunk-us US    shortest chunk a client may ask for (default 500)
-  --max-rate HZ        highest sample rate (default 192000; at most 768000)
-  --max-channels N     most channels (default 32; at most 64)
-  --max-window-s S     longest window (default 3600)
-  --idle-timeout-ms MS close control connections idle this long (default 30000)
-Logging: BASS_LOG=debug|info|warn (default info), on stderr.
-Stops on SIGTERM / SIGINT (the port shows Stopped, the socket is removed).";
+/// The operator's bounds on what control clients may make the broker do.
+#[derive(clap::Args, Debug)]
+struct Hardening {
+    /// Also let clients open devices matching the glob PATTERN (* ? [..]); repeatable;
+    /// e.g. 'sim:file:/data/*', 'bass_jack'
+    #[arg(long = "allow-device", value_name = "PATTERN")]
+    allow_device: Vec<String>,
+    /// Shortest chunk a client may ask for, in µs
+    #[arg(long, value_name = "US", default_value_t = Limits::default().min_chunk_us)]
+    min_chunk_us: u32,
+    /// Highest sample rate a client may ask for (at most 768000)
+    #[arg(long, value_name = "HZ", default_value_t = Limits::default().max_rate,
+          value_parser = clap::value_parser!(u32).range(1..=768_000))]
+    max_rate: u32,
+    /// Most channels a client may ask for (at most 64)
+    #[arg(long, value_name = "N", default_value_t = Limits::default().max_channels,
+          value_parser = clap::value_parser!(u32).range(1..=64))]
+    max_channels: u32,
+    /// Longest window a client may ask for, in seconds
+    #[arg(long, value_name = "S", default_value_t = Limits::default().max_window_s,
+          value_parser = clap::value_parser!(u32).range(1..))]
+    max_window_s: u32,
+    /// Close control connections idle this long (ms)
+    #[arg(long, value_name = "MS", default_value_t = server::DEFAULT_IDLE_TIMEOUT.as_millis() as u64,
+          value_parser = clap::value_parser!(u64).range(1..))]
+    idle_timeout_ms: u64,
+}
 
 fn main() {
+    let args = BassdArgs::parse();
     bassd::init_logging();
-    if let Err(e) = run() {
+    let cfg = config(&args).unwrap_or_else(|e| {
+        eprintln!("bassd: {e:#}");
+        std::process::exit(2) // a usage error, as clap's own
+    });
+    if let Err(e) = server::run(cfg) {
         eprintln!("bassd: {e:#}");
         std::process::exit(1);
     }
 }
 
-fn run() -> Result<()> {
-    let valued = [
-        "name",
-        "group",
-        "max-port-bytes",
-        "rt-priority",
-        "stall-ms",
-        "acquire",
-        "rate",
-        "frames",
-        "chunks",
-        "channels",
-        "format",
-    ];
-    // --- h-server hardening options (issue 9/14) ---
-    let (allow_devices, argv) = take_repeated(std::env::args().skip(1), "allow-device")?;
-    let hardening = ["min-chunk-us", "max-rate", "max-channels", "max-window-s", "idle-timeout-ms"];
-    let valued: Vec<&str> = valued.iter().chain(hardening.iter()).copied().collect();
-    let args = Args::parse(argv, &valued, &["help"])?;
-    let dl = bassd::request::Limits::default();
-    let limits = bassd::request::Limits {
-        min_chunk_us: args.get("min-chunk-us", dl.min_chunk_us)?,
-        max_rate: args.get("max-rate", dl.max_rate)?,
-        max_channels: args.get("max-channels", dl.max_channels)?,
-        max_window_s: args.get("max-window-s", dl.max_window_s)?,
-    };
-    let idle_ms: u64 = args.get("idle-timeout-ms", server::DEFAULT_IDLE_TIMEOUT.as_millis() as u64)?;
-    if idle_ms == 0 {
-        anyhow::bail!("--idle-timeout-ms 0: must be at least 1");
-    }
-    let policy = bassd::policy::DevicePolicy::new(&allow_devices).map_err(anyhow::Error::msg)?;
-    // --- end of the hardening options ---
-    if args.flag("help") {
-        println!("{HELP}");
-        return Ok(());
-    }
-    if let Some(w) = args.words.first() {
-        anyhow::bail!("unexpected argument {w:?} (try --help)");
-    }
-    let d = AcquireRequest::default();
-    let acquire = match args.text("acquire") {
+/// The broker configuration from the command line: the one place that builds it.
+fn config(a: &BassdArgs) -> Result<Config> {
+    let acquire = match &a.acquire {
+        None if a.params != AcquireArgs::default() => {
+            anyhow::bail!("--rate, --frames, --chunks, --channels, --format and --loop need --acquire DEVICE")
+        }
         None => None,
-        Some(dev) => Some(AcquireRequest {
-            device: dev.to_owned(),
-            sample_rate: args.get("rate", d.sample_rate)?,
-            frames_per_chunk: args.get("frames", d.frames_per_chunk)?,
-            chunks_on_port: args.get("chunks", d.chunks_on_port)?,
-            channels: args.get("channels", d.channels)?,
-            format: args.text("format").map(str::to_owned),
-        }),
+        Some(dev) => Some(a.params.request(dev).map_err(|m| anyhow::anyhow!("--acquire {dev}: {m}"))?),
     };
-    let group = match args.text("group") {
+    let group = match &a.group {
         None => None,
         Some(g) => Some(bassd::os::group_id(g).with_context(|| format!("--group {g}"))?),
     };
-    let def = Config::default();
-    let cfg = Config {
-        name: args.text("name").unwrap_or(&def.name).to_owned(),
+    bassclient::paths::check_name(&a.name).with_context(|| format!("--name {}", a.name))?;
+    let h = &a.hardening;
+    Ok(Config {
+        name: a.name.clone(),
         group,
-        max_port_bytes: args.get("max-port-bytes", def.max_port_bytes)?,
-        rt_priority: args.get("rt-priority", def.rt_priority)?,
-        stall_ms: args.get("stall-ms", def.stall_ms)?,
+        max_port_bytes: a.max_port_bytes,
+        rt_priority: a.rt_priority,
+        stall_ms: a.stall_ms,
         acquire,
-        policy,
-        limits,
-        idle_timeout: std::time::Duration::from_millis(idle_ms),
-    };
-    bassclient::paths::check_name(&cfg.name)?;
-    server::run(cfg)
-}
-
-/// Takes every `--NAME VALUE` / `--NAME=VALUE` out of `argv` (a repeatable option).
-fn take_repeated(argv: impl Iterator<Item = String>, name: &str) -> Result<(Vec<String>, Vec<String>)> {
-    let (flag, prefix) = (format!("--{name}"), format!("--{name}="));
-    let (mut values, mut rest) = (Vec::new(), Vec::new());
-    let mut it = argv;
-    while let Some(a) = it.next() {
-        if a == flag {
-            values.push(it.next().with_context(|| format!("option {flag} needs a value"))?);
-        } else if let Some(v) = a.strip_prefix(&prefix) {
-            values.push(v.to_owned());
-        } else {
-            rest.push(a);
-        }
-    }
-    Ok((values, rest))
+        policy: bassd::policy::DevicePolicy::new(&h.allow_device).map_err(anyhow::Error::msg)?,
+        limits: Limits {
+            min_chunk_us: h.min_chunk_us,
+            max_rate: h.max_rate,
+            max_channels: h.max_channels,
+            max_window_s: h.max_window_s,
+        },
+        idle_timeout: std::time::Duration::from_millis(h.idle_timeout_ms),
+    })
 }

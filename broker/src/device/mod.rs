@@ -1,7 +1,9 @@
-//! Capture devices: real ALSA PCMs ([`alsa`]) and simulated ones ([`sim`]), behind one
+//! Capture devices: real ALSA PCMs ([`alsa`]), simulated ones ([`sim`]) and WAV replay
+//! ([`file`]), behind one
 //! small interface the capture thread drives.
 
 pub mod alsa;
+pub mod file;
 pub mod sim;
 
 use std::sync::atomic::{AtomicBool, Ordering};

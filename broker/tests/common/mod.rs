@@ -52,8 +52,10 @@ pub fn bassd_bin() -> &'static str {
     env!("CARGO_BIN_EXE_bassd")
 }
 
-pub fn bass_bin() -> &'static str {
-    env!("CARGO_BIN_EXE_bass")
+/// The `bass` under test: `$BASS_CLI` if set (to run a suite against another build, e.g. to
+/// show that a test fails on the old code), else the one cargo built.
+pub fn bass_bin() -> String {
+    std::env::var("BASS_CLI").unwrap_or_else(|_| env!("CARGO_BIN_EXE_bass").to_owned())
 }
 
 impl Bassd {
@@ -150,6 +152,28 @@ impl Drop for Bassd {
                 std::thread::sleep(Duration::from_millis(10));
             }
         }
+    }
+}
+
+/// Extra `bassd` arguments that let clients replay WAV files from `dir` (`sim:file:`).
+/// The broker's device policy refuses file replay by default; every replay test gets the
+/// operator's widening from this one place.
+pub fn replay_args(dir: &Path) -> Vec<String> {
+    let d = dir.display();
+    vec![
+        "--allow-device".into(),
+        format!("sim:file:{d}/*"),
+        "--allow-device".into(),
+        format!("sim:file-loop:{d}/*"),
+    ]
+}
+
+impl Bassd {
+    /// Starts a broker allowed to replay WAV files from `dir` (see [`replay_args`]).
+    pub fn start_replaying(dir: &Path, name: &str) -> Bassd {
+        let extra = replay_args(dir);
+        let args: Vec<&str> = extra.iter().map(String::as_str).collect();
+        Bassd::start(dir, name, &args, &[])
     }
 }
 

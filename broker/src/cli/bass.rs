@@ -1,0 +1,268 @@
+//! The `bass` command line (clap derive) and its small commands: devices, acquire, stop,
+//! status, completions. See docs/broker.md.
+
+use std::io::Write;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use bassclient::control::Client;
+use bassclient::paths::DEFAULT_NAME;
+use bassclient::{Error, Port};
+use clap::{CommandFactory, Parser, Subcommand};
+use serde_json::json;
+
+use super::blocks::{self, BlocksArgs};
+use super::exit::{self, Exit};
+use super::meter::{self, MeterArgs};
+use super::plot::{self, PlotArgs};
+use super::record::{self, RecordArgs};
+use super::{parse_seconds, AcquireArgs};
+
+const EXIT_CODES: &str = "\
+Exit codes: 0 success; 1 other failure; 2 usage error (or a request the broker refused as
+invalid); 3 broker unreachable; 4 device error; 5 acquisition ended by a device error;
+6 timeout. The broker's directory is $BASS_RUNTIME_DIR (default /dev/shm).";
+
+/// bass: command-line tool of the bass audio broker
+#[derive(Parser, Debug)]
+#[command(name = "bass", version, after_help = EXIT_CODES, args_override_self = true)]
+pub struct Cli {
+    /// Broker name (port bass-NAME.port, socket bass-NAME.sock)
+    #[arg(long, global = true, value_name = "BROKER", default_value = DEFAULT_NAME)]
+    pub name: String,
+    /// Longest wait for the broker's reply or for a port to appear, in seconds
+    #[arg(long, global = true, value_name = "S", default_value = "15", value_parser = parse_seconds)]
+    pub timeout: f64,
+    /// What to do
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The commands.
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// List capture devices
+    Devices {
+        /// One JSON object per device and line: {"name", "description"}
+        #[arg(long)]
+        json: bool,
+    },
+    /// Start an acquisition (interrupting the running one)
+    Acquire(AcquireCmd),
+    /// Stop the acquisition (the port keeps its frames)
+    Stop,
+    /// State of the broker and of its port
+    Status {
+        /// One JSON object with the fields of the C struct bass_broker_status
+        #[arg(long)]
+        json: bool,
+    },
+    /// Read blocks of frames like the BASC client, one line per block
+    Blocks(BlocksArgs),
+    /// Live level meter: RMS and peak dBFS per channel, clip and gap markers
+    Meter(MeterArgs),
+    /// Draw a PNG of a WAV recording, or of the last seconds on the port (--live)
+    Plot(PlotArgs),
+    /// Record the port to a WAV file with a timestamp sidecar (FILE.json)
+    Record(RecordArgs),
+    /// Print a shell completion script (bash, zsh, fish, elvish, powershell)
+    Completions {
+        /// The shell
+        shell: clap_complete::Shell,
+    },
+}
+
+/// `bass acquire [DEVICE]`.
+#[derive(clap::Args, Debug)]
+pub struct AcquireCmd {
+    /// Capture device: an ALSA PCM (hw:1,0, plughw:..., default) or sim:sine, sim:pattern, ...
+    #[arg(value_name = "DEVICE", conflicts_with = "device_opt")]
+    pub device: Option<String>,
+    /// Capture device (as arecord -D)
+    #[arg(short = 'D', long = "device", value_name = "DEVICE", id = "device_opt")]
+    pub device_opt: Option<String>,
+    /// Acquisition parameters.
+    #[command(flatten)]
+    pub params: AcquireArgs,
+    /// Also wait for the first chunk and print how long it took
+    #[arg(long)]
+    pub wait: bool,
+}
+
+/// Entry point of the `bass` binary: parses, runs, prints the error and exits with its code.
+pub fn main() -> ! {
+    let cli = Cli::parse();
+    let code = match run(&cli) {
+        Ok(()) => exit::OK,
+        Err(e) => {
+            eprintln!("bass: {e:#}");
+            exit::code_of(&e)
+        }
+    };
+    let _ = std::io::stdout().flush();
+    std::process::exit(code)
+}
+
+fn connect(name: &str, timeout: Duration) -> Result<Client> {
+    let mut c = Client::connect(name).map_err(|e| match e {
+        Error::NoBroker { .. } => Exit::new(
+            exit::NO_BROKER,
+            format!("{e}; is bassd --name {name} running? Start it with `bassd --name {name}`"),
+        ),
+        e => {
+            let code = exit::code_of(&anyhow::Error::from(Error::Protocol(String::new())));
+            Exit::new(code, format!("cannot connect to the broker {name}: {e}"))
+        }
+    })?;
+    c.set_timeout(timeout)?;
+    Ok(c)
+}
+
+/// Adds the next step to a failure of a request.
+fn explain(e: Error, name: &str, device: Option<&str>) -> anyhow::Error {
+    let text = e.to_string();
+    let hint = match &e {
+        Error::Broker(m) if m.ends_with("[device]") => format!(
+            "; list the devices with `bass --name {name} devices`, or try a simulated one: `bass acquire sim:sine`{}",
+            device.map(|d| format!(" (device {d:?})")).unwrap_or_default()
+        ),
+        Error::Io { source, .. } if source.kind() == std::io::ErrorKind::TimedOut => {
+            format!("; the broker {name} did not answer in time (stopped or overloaded?); raise --timeout")
+        }
+        _ => String::new(),
+    };
+    let code = exit::code_of(&anyhow::Error::from(e));
+    Exit::new(code, format!("{text}{hint}")).into()
+}
+
+/// Runs one parsed command line.
+pub fn run(cli: &Cli) -> Result<()> {
+    let name = cli.name.as_str();
+    bassclient::paths::check_name(name).map_err(|e| Exit::new(exit::USAGE, format!("--name: {e}")))?;
+    let timeout = Duration::from_secs_f64(cli.timeout);
+    match &cli.command {
+        Command::Devices { json } => {
+            let devs = connect(name, timeout)?.list_devices().map_err(|e| explain(e, name, None))?;
+            if *json {
+                for d in devs {
+                    println!("{}", json!({"name": d.name, "description": d.description}));
+                }
+            } else {
+                let w = devs.iter().map(|d| d.name.len()).max().unwrap_or(6).max(6);
+                println!("{:<w$}  DESCRIPTION", "DEVICE");
+                for d in devs {
+                    println!("{:<w$}  {}", d.name, d.description);
+                }
+            }
+        }
+        Command::Acquire(a) => acquire(name, a, timeout)?,
+        Command::Stop => {
+            connect(name, timeout)?.stop().map_err(|e| explain(e, name, None))?;
+            println!("stopped");
+        }
+        Command::Status { json } => status(name, *json, timeout)?,
+        Command::Blocks(b) => blocks::run(name, b, timeout)?,
+        Command::Record(r) => record::run(name, r, timeout)?,
+        Command::Meter(m) => meter::run(name, m, timeout)?,
+        Command::Plot(p) => plot::run(name, p, timeout)?,
+        Command::Completions { shell } => {
+            clap_complete::generate(*shell, &mut Cli::command(), "bass", &mut std::io::stdout());
+        }
+    }
+    Ok(())
+}
+
+fn acquire(name: &str, a: &AcquireCmd, timeout: Duration) -> Result<()> {
+    let default = bassclient::control::AcquireRequest::default().device;
+    let device = a.device.as_deref().or(a.device_opt.as_deref()).unwrap_or(&default);
+    let req = a.params.request(device).map_err(|m| Exit::new(exit::USAGE, m))?;
+    let t0 = Instant::now();
+    let got = connect(name, timeout)?.acquire(&req).map_err(|e| explain(e, name, Some(device)))?;
+    let replied = t0.elapsed();
+    println!(
+        "acquiring {} (format {}), epoch {}, port {}",
+        req.device,
+        got.format,
+        got.epoch,
+        got.port.display()
+    );
+    if a.wait {
+        let port = Port::open_path(&got.port).context("open the new port")?;
+        port.wait(u64::from(req.frames_per_chunk), timeout)?;
+        let first = t0.elapsed();
+        println!(
+            "reply after {:.3} ms; first chunk published {:.3} ms after the request",
+            replied.as_secs_f64() * 1e3,
+            first.as_secs_f64() * 1e3
+        );
+    }
+    Ok(())
+}
+
+fn status(name: &str, json: bool, timeout: Duration) -> Result<()> {
+    let s = connect(name, timeout)?.status().map_err(|e| explain(e, name, None))?;
+    let state = s.state().map_or("unknown".to_string(), |st| format!("{st:?}").to_lowercase());
+    if json {
+        let v = json!({
+            "broker": name, "broker_pid": s.broker_pid, "broker_version": s.broker_version,
+            "state": s.state, "state_name": state, "error_code": s.error_code,
+            "sample_rate": s.sample_rate, "frames_per_chunk": s.frames_per_chunk,
+            "chunks_on_port": s.chunks_on_port, "channels": s.channels, "epoch": s.epoch,
+            "last_frame_index": s.last_frame_index, "chunks_published": s.chunks_published,
+            "xruns": s.xruns, "gap_frames": s.gap_frames, "rate_estimate_hz": s.rate_estimate_hz,
+            "device": s.device, "format": s.format, "message": s.message, "port": s.port,
+        });
+        println!("{v}");
+        return Ok(());
+    }
+    println!("broker      {name} (pid {}, version {})", s.broker_pid, s.broker_version);
+    let code = if s.error_code != 0 { format!(" (error code {})", s.error_code) } else { String::new() };
+    println!("state       {state}{code}");
+    if !s.message.is_empty() {
+        println!("message     {}", s.message);
+    }
+    if s.epoch > 0 {
+        println!("device      {} ({})", s.device, s.format);
+        println!(
+            "geometry    {} Hz, {} ch, {} frames x {} chunks",
+            s.sample_rate, s.channels, s.frames_per_chunk, s.chunks_on_port
+        );
+        println!("epoch       {}", s.epoch);
+        println!("last frame  {}", s.last_frame_index);
+        println!("chunks      {}", s.chunks_published);
+        println!("xruns       {} ({} zero-filled frames)", s.xruns, s.gap_frames);
+        println!("rate est.   {:.3} Hz", s.rate_estimate_hz);
+        println!("port        {}", s.port);
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(args: &[&str]) -> Result<Cli, clap::Error> {
+        Cli::try_parse_from(std::iter::once("bass").chain(args.iter().copied()))
+    }
+
+    #[test]
+    fn the_command_line_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn positional_numbers_after_the_device_are_refused() {
+        let e = parse(&["acquire", "sim:sine", "48000", "480", "100"]).unwrap_err();
+        assert_eq!(e.exit_code(), exit::USAGE);
+        assert!(e.to_string().contains("unexpected argument '48000'"), "{e}");
+    }
+
+    #[test]
+    fn device_by_position_or_by_dash_capital_d() {
+        for args in [&["acquire", "sim:sine"][..], &["acquire", "-D", "sim:sine"]] {
+            let Command::Acquire(a) = parse(args).unwrap().command else { panic!("not acquire") };
+            assert_eq!(a.device.or(a.device_opt).as_deref(), Some("sim:sine"));
+        }
+        assert!(parse(&["acquire", "sim:sine", "-D", "sim:pattern"]).is_err());
+    }
+}

@@ -1,0 +1,284 @@
+//! `bass blocks`: reads blocks of N frames from the port like the BASC client and prints one
+//! line (or one JSON object, `--json`) per block: first frame, frames, frames lost by this
+//! reader, zero-filled gap frames (device overruns), RMS and peak level per channel.
+//!
+//! It follows an Acquire that interrupts the one it reads (a new epoch: it reopens the port)
+//! and ends only on a real Stop (exit 0), a device error (exit 5), the broker's death (exit 3)
+//! or its own limits (`--count`, `--seconds`).
+
+use std::time::{Duration, Instant};
+
+use anyhow::Result;
+use bassclient::format::{chunk_flags, State};
+use bassclient::{Error, Port};
+use serde::Serialize;
+
+use super::exit::{self, Exit};
+use super::follow::{after_stop, open_port, AfterStop};
+use crate::cli::parse_seconds;
+
+/// Largest block (frames per channel) `--block` accepts.
+pub const MAX_BLOCK: u64 = 1 << 24;
+
+/// Options of `bass blocks`.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct BlocksArgs {
+    /// Frames per block [default: the port's nFramesPerChunk]
+    #[arg(short = 'b', long, value_name = "N",
+          value_parser = clap::value_parser!(u64).range(1..=MAX_BLOCK))]
+    pub block: Option<u64>,
+    /// Stop after N blocks [default: no limit]
+    #[arg(short = 'n', long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub count: Option<u64>,
+    /// Stop after S seconds [default: no limit]
+    #[arg(short = 'd', long = "seconds", visible_alias = "duration", value_name = "S",
+          value_parser = parse_seconds)]
+    pub seconds: Option<f64>,
+    /// First frame, counted from the first frame not yet published (negative: frames already
+    /// on the port; -12000 = the last 12000 frames)
+    #[arg(long, value_name = "N", default_value_t = 0, allow_negative_numbers = true)]
+    pub offset: i64,
+    /// One JSON object per line instead of text
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// RMS and peak level (full scale = 1.0) of each channel of a block.
+pub fn levels(bufs: &[Vec<i32>]) -> Vec<(f64, f64)> {
+    bufs.iter()
+        .map(|b| {
+            let (mut sum, mut peak) = (0f64, 0f64);
+            for &s in b {
+                let x = f64::from(s) / 2_147_483_648.0;
+                sum += x * x;
+                peak = peak.max(x.abs());
+            }
+            ((sum / b.len().max(1) as f64).sqrt(), peak)
+        })
+        .collect()
+}
+
+/// A level in dBFS (None for silence: JSON `null`, text `-inf`).
+pub fn dbfs(x: f64) -> Option<f64> {
+    (x > 0.0).then(|| 20.0 * x.log10())
+}
+
+fn dbfs_text(x: f64) -> String {
+    dbfs(x).map_or_else(|| "  -inf".into(), |d| format!("{d:6.1}"))
+}
+
+/// Gap frames (in chunks flagged GAP) and discontinuities among frames `first..=last`.
+/// Chunks that already left the window are not counted.
+pub fn gaps_in(port: &Port, first: u64, last: u64) -> (u64, u32) {
+    let nfpc = u64::from(port.geometry().frames_per_chunk.max(1));
+    let (mut gap, mut disc) = (0u64, 0u32);
+    let mut chunk = (first - 1) / nfpc;
+    while chunk * nfpc < last {
+        let (c0, c1) = (chunk * nfpc + 1, (chunk + 1) * nfpc);
+        let (a, b) = (c0.max(first), c1.min(last));
+        if let Ok(ci) = port.chunk_info(a) {
+            if ci.flags & chunk_flags::GAP != 0 {
+                gap += b - a + 1;
+            }
+            if ci.flags & chunk_flags::DISCONTINUITY != 0 {
+                disc += 1;
+            }
+        }
+        chunk += 1;
+    }
+    (gap, disc)
+}
+
+#[derive(Serialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+enum Line {
+    Port {
+        epoch: u64,
+        sample_rate: u32,
+        channels: u32,
+        frames_per_chunk: u32,
+        chunks_on_port: u32,
+        block_frames: u64,
+    },
+    Block {
+        block: u64,
+        epoch: u64,
+        first_frame: u64,
+        frames: u64,
+        loss: u64,
+        gap_frames: u64,
+        discontinuities: u32,
+        rms_dbfs: Vec<Option<f64>>,
+        peak_dbfs: Vec<Option<f64>>,
+    },
+    Restarted {
+        old_epoch: u64,
+    },
+    End {
+        reason: &'static str,
+        last_frame_index: u64,
+        blocks: u64,
+    },
+}
+
+/// How reading one acquisition ended.
+enum Ended {
+    Limit,
+    Stopped(u64),
+    Restarted,
+}
+
+/// Runs `bass blocks` on broker `name`; `timeout` bounds waiting for the port and the broker.
+pub fn run(name: &str, a: &BlocksArgs, timeout: Duration) -> Result<()> {
+    let end = a.seconds.and_then(|s| Instant::now().checked_add(Duration::from_secs_f64(s)));
+    let mut port = open_port(name, timeout, None)?;
+    let mut n_blocks = 0u64;
+    loop {
+        let epoch = port.epoch();
+        match read_acquisition(name, &port, a, end, timeout, &mut n_blocks)? {
+            Ended::Limit => {
+                let last = port.info().map(|i| i.last_frame_index).unwrap_or(0);
+                emit(a.json, Line::End { reason: "limit", last_frame_index: last, blocks: n_blocks }, "");
+                return Ok(());
+            }
+            Ended::Stopped(last) => {
+                let text = format!("-- acquisition stopped at frame {last}");
+                emit(
+                    a.json,
+                    Line::End { reason: "stopped", last_frame_index: last, blocks: n_blocks },
+                    &text,
+                );
+                return Ok(());
+            }
+            Ended::Restarted => {
+                let text = "-- a new acquisition replaced the port; following it";
+                emit(a.json, Line::Restarted { old_epoch: epoch }, text);
+                port = open_port(name, timeout, Some(epoch))?;
+            }
+        }
+    }
+}
+
+fn emit(json: bool, line: Line, text: &str) {
+    if json {
+        println!("{}", serde_json::to_string(&line).expect("plain data serialises"));
+    } else if !text.is_empty() {
+        println!("{text}");
+    }
+}
+
+/// The BASC loop over one port: blocks of N frames, following each other without loss
+/// unless the port overtakes us.
+fn read_acquisition(
+    name: &str,
+    port: &Port,
+    a: &BlocksArgs,
+    end: Option<Instant>,
+    timeout: Duration,
+    n_blocks: &mut u64,
+) -> Result<Ended> {
+    let g = port.geometry().clone();
+    let block = a.block.unwrap_or(u64::from(g.frames_per_chunk)) as usize;
+    let ch = g.channels as usize;
+    let epoch = port.epoch();
+    let text = format!(
+        "port {name}: epoch {epoch}, {} Hz, {ch} ch, {} frames/chunk, {} chunks; blocks of {block} frames",
+        g.sample_rate, g.frames_per_chunk, g.chunks_on_port
+    );
+    let header = Line::Port {
+        epoch,
+        sample_rate: g.sample_rate,
+        channels: g.channels,
+        frames_per_chunk: g.frames_per_chunk,
+        chunks_on_port: g.chunks_on_port,
+        block_frames: block as u64,
+    };
+    emit(a.json, header, &text);
+    let first_unpublished = port.info()?.last_frame_index.saturating_add(1);
+    let mut nfr = if a.offset >= 0 {
+        first_unpublished.saturating_add(a.offset.unsigned_abs())
+    } else {
+        first_unpublished.saturating_sub(a.offset.unsigned_abs()).max(1)
+    };
+    let mut bufs = vec![vec![0i32; block]; ch];
+    let past = |e: Option<Instant>| e.is_some_and(|e| Instant::now() >= e);
+    loop {
+        if a.count.is_some_and(|c| *n_blocks >= c) || past(end) {
+            return Ok(Ended::Limit);
+        }
+        // Collect one block (getAudioData may return fewer frames than asked).
+        let (mut got, mut loss) = (0usize, 0u64);
+        while got < block {
+            if past(end) {
+                return Ok(Ended::Limit);
+            }
+            let want = nfr.saturating_add((block - got) as u64 - 1);
+            match port.wait(want.min(nfr.saturating_add(u64::from(g.frames_per_chunk))), Duration::from_millis(200)) {
+                Ok(_) | Err(Error::Timeout { .. }) | Err(Error::Interrupted) => {}
+                Err(Error::Restarted) => return Ok(Ended::Restarted),
+                Err(Error::Stopped { last }) => {
+                    return Ok(match after_stop(name, port, timeout)? {
+                        AfterStop::Restarted => Ended::Restarted,
+                        AfterStop::Stopped => Ended::Stopped(last),
+                    })
+                }
+                Err(Error::Device { code, message }) => {
+                    return Err(Exit::new(
+                        exit::DEVICE_ENDED,
+                        format!("the acquisition ended on a device error (code {code}): {message}; see `bass --name {name} status`"),
+                    )
+                    .into())
+                }
+                Err(e @ Error::WriterGone { .. }) => {
+                    return Err(Exit::new(exit::NO_BROKER, format!("{e}; restart bassd --name {name}")).into())
+                }
+                Err(e) => return Err(e.into()),
+            }
+            let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| &mut b[got..]).collect();
+            let r = port.get_audio_data(block - got, &mut nfr, &mut outs)?;
+            if r.loss > 0 {
+                // The port overtook us: the block restarts at the oldest frame on the port.
+                loss += r.loss;
+                if got > 0 {
+                    for b in bufs.iter_mut() {
+                        b.copy_within(got..got + r.frames, 0);
+                    }
+                    got = 0;
+                }
+            }
+            got += r.frames;
+        }
+        *n_blocks += 1;
+        let start = nfr - block as u64;
+        let (gap, disc) = gaps_in(port, start, nfr - 1);
+        let lv = levels(&bufs);
+        if a.json {
+            let line = Line::Block {
+                block: *n_blocks,
+                epoch,
+                first_frame: start,
+                frames: block as u64,
+                loss,
+                gap_frames: gap,
+                discontinuities: disc,
+                rms_dbfs: lv.iter().map(|l| dbfs(l.0)).collect(),
+                peak_dbfs: lv.iter().map(|l| dbfs(l.1)).collect(),
+            };
+            emit(true, line, "");
+        } else {
+            let mut line = format!(
+                "block {:5}  frames {start:>10}..{:<10} ({block}) loss {loss:<6} gap {gap:<6}{}",
+                *n_blocks,
+                nfr - 1,
+                if disc > 0 { " xrun" } else { "" }
+            );
+            for (c, (rms, peak)) in lv.iter().enumerate() {
+                line.push_str(&format!(" | ch{c} rms {} peak {} dBFS", dbfs_text(*rms), dbfs_text(*peak)));
+            }
+            println!("{line}");
+        }
+        if port.info().map(|i| i.state == Some(State::Superseded)).unwrap_or(false) {
+            return Ok(Ended::Restarted);
+        }
+    }
+}

@@ -1,0 +1,283 @@
+//! The `bass` command line against a real bassd: following restarts, exit codes, refused
+//! arguments, gap frames per block, JSON output.
+//!
+//! `BASS_CLI=/path/to/bass` runs these tests against another build of the tool.
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::mpsc;
+use std::time::Instant;
+
+use common::*;
+use serde_json::Value;
+
+fn bass_cmd(b: &Bassd, args: &[&str]) -> Command {
+    let mut c = Command::new(bass_bin());
+    c.arg("--name").arg(&b.name).args(args).env("BASS_RUNTIME_DIR", &b.dir);
+    c
+}
+
+fn bass(b: &Bassd, args: &[&str]) -> Output {
+    bass_cmd(b, args).output().expect("run bass")
+}
+
+fn text(o: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+/// A `bass` child whose stdout lines arrive on a channel.
+struct Running {
+    child: Child,
+    lines: mpsc::Receiver<String>,
+    seen: Vec<String>,
+}
+
+impl Running {
+    fn spawn(b: &Bassd, args: &[&str]) -> Running {
+        let mut child =
+            bass_cmd(b, args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("spawn bass");
+        let out = child.stdout.take().unwrap();
+        let (tx, lines) = mpsc::channel();
+        std::thread::spawn(move || {
+            for l in BufReader::new(out).lines().map_while(Result::ok) {
+                if tx.send(l).is_err() {
+                    break;
+                }
+            }
+        });
+        Running { child, lines, seen: Vec::new() }
+    }
+
+    /// Waits for a line satisfying `f` (panics with everything seen if the child ends first).
+    fn expect(&mut self, what: &str, f: impl Fn(&str) -> bool) -> String {
+        let deadline = Instant::now() + PATIENCE;
+        loop {
+            match self.lines.recv_timeout(deadline.saturating_duration_since(Instant::now())) {
+                Ok(l) => {
+                    self.seen.push(l.clone());
+                    if f(&l) {
+                        return l;
+                    }
+                }
+                Err(_) => panic!("no line {what}; bass printed:\n{}", self.seen.join("\n")),
+            }
+        }
+    }
+
+    /// Waits for the exit; returns (exit code, all stdout lines, stderr).
+    fn finish(mut self) -> (i32, Vec<String>, String) {
+        let deadline = Instant::now() + PATIENCE;
+        let st = loop {
+            if let Some(st) = self.child.try_wait().unwrap() {
+                break st;
+            }
+            if Instant::now() > deadline {
+                let _ = self.child.kill();
+                panic!("bass did not exit; printed:\n{}", self.seen.join("\n"));
+            }
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        };
+        self.seen.extend(self.lines.iter());
+        let mut err = String::new();
+        std::io::Read::read_to_string(self.child.stderr.as_mut().unwrap(), &mut err).unwrap();
+        (st.code().unwrap_or(-1), self.seen, err)
+    }
+}
+
+#[test]
+fn blocks_follows_interrupting_acquires_and_ends_only_on_a_real_stop() {
+    // Before the fix, `bass blocks` took the transient Stopped state of an interrupted
+    // acquisition for the end in about 3 of 20 restarts.
+    let dir = TempDir::new("follow");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    let mut c = b.client();
+    c.acquire(&req("sim:pattern", 8000, 80, 50, 2)).unwrap();
+    let mut r = Running::spawn(&b, &["blocks"]);
+    r.expect("for epoch 1", |l| l.starts_with("port default: epoch 1,"));
+    for epoch in 2..=25u64 {
+        assert_eq!(c.acquire(&req("sim:pattern", 8000, 80, 50, 2)).unwrap().epoch, epoch);
+        let want = format!("port default: epoch {epoch},");
+        r.expect(&format!("for epoch {epoch}"), |l| l.starts_with(&want));
+        r.expect(&format!("a block of epoch {epoch}"), |l| l.starts_with("block "));
+    }
+    c.stop().unwrap();
+    let (code, lines, err) = r.finish();
+    assert_eq!(code, 0, "{err}");
+    assert!(lines.last().unwrap().starts_with("-- acquisition stopped at frame "), "{lines:?}");
+    assert!(!lines.iter().any(|l| l.contains("acquisition ended")), "{lines:?}");
+}
+
+#[test]
+fn blocks_exits_non_zero_when_the_device_fails() {
+    let dir = TempDir::new("devfail");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    b.client().acquire(&req("sim:unplug", 8000, 100, 100, 2)).unwrap();
+    let o = bass(&b, &["blocks"]);
+    assert_eq!(o.status.code(), Some(5), "{}", text(&o));
+    assert!(text(&o).contains("device error") && text(&o).contains("unplugged"), "{}", text(&o));
+}
+
+#[test]
+fn blocks_shows_the_gap_frames_of_each_block() {
+    // sim:xrun at 8000 Hz zero-fills frames 4001..=4407: chunks 4001..4400 are GAP chunks,
+    // chunk 4401..4500 mixes zeros and data (a discontinuity). Before the fix every block
+    // said `loss 0` and nothing else.
+    let dir = TempDir::new("gaps");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    b.client().acquire(&req("sim:xrun", 8000, 100, 100, 2)).unwrap();
+    let o = bass(&b, &["blocks", "--json", "--block", "100", "--count", "50", "--offset", "-100000"]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let mut blocks = 0;
+    for line in String::from_utf8_lossy(&o.stdout).lines() {
+        let v: Value = serde_json::from_str(line).unwrap_or_else(|e| panic!("{line}: {e}"));
+        if v["event"] != "block" {
+            continue;
+        }
+        blocks += 1;
+        let first = v["first_frame"].as_u64().unwrap();
+        let want = if (4001..=4301).contains(&first) { 100 } else { 0 };
+        assert_eq!(v["gap_frames"], want, "{line}");
+        assert_eq!(v["loss"], 0, "{line}");
+        if first == 4401 {
+            assert_eq!(v["discontinuities"], 1, "{line}");
+            assert_eq!(v["rms_dbfs"].as_array().unwrap().len(), 2);
+        }
+        assert_eq!(first, 100 * (blocks - 1) + 1, "blocks start at frame 1 and follow each other");
+    }
+    assert_eq!(blocks, 50);
+    // The text form says it too.
+    let o = bass(&b, &["blocks", "--block", "100", "--count", "45", "--offset", "-100000"]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.lines().any(|l| l.contains("frames       4001..4100") && l.contains("gap 100 ")), "{out}");
+    assert!(out.lines().any(|l| l.contains("frames       4401..4500") && l.contains(" xrun")), "{out}");
+}
+
+#[test]
+fn bad_numbers_are_refused_with_the_option_and_range_never_a_panic() {
+    // Before the fix: `--seconds inf`, `1e300`, `1e19` panicked (exit 101); NaN and negative
+    // values meant "no limit"; a non-UTF-8 device name panicked.
+    let dir = TempDir::new("ranges");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    let cases: [(&[&str], &str); 11] = [
+        (&["blocks", "--seconds", "inf"], "--seconds"),
+        (&["blocks", "--seconds", "1e300"], "--seconds"),
+        (&["blocks", "--seconds", "1e19"], "--seconds"),
+        (&["blocks", "--seconds", "NaN"], "--seconds"),
+        (&["blocks", "--seconds=-1"], "--seconds"),
+        (&["blocks", "--block", "0"], "--block"),
+        (&["acquire", "sim:sine", "--rate", "0"], "1..=768000"),
+        (&["acquire", "sim:sine", "--channels", "65"], "1..=64"),
+        (&["acquire", "sim:sine", "--frames=-5"], "--frames"),
+        (&["acquire", "sim:sine", "--frames", "99999999999"], "--frames"),
+        (&["--timeout", "0", "status"], "--timeout"),
+    ];
+    for (args, want) in cases {
+        let o = bass(&b, args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", text(&o));
+        assert!(text(&o).contains(want), "{args:?}: {}", text(&o));
+    }
+    use std::os::unix::ffi::OsStrExt;
+    let o = bass_cmd(&b, &["acquire"]).arg(std::ffi::OsStr::from_bytes(b"sim:\xff\xfe")).output().unwrap();
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("invalid UTF-8"), "{}", text(&o));
+    assert_eq!(b.client().status().unwrap().epoch, 0, "nothing was acquired");
+}
+
+#[test]
+fn ignored_arguments_are_refused() {
+    // Before the fix `bass acquire sim:sine 48000 480 100` ran at 44100/2205/20, and
+    // `--format` on a sim: device was dropped silently.
+    let dir = TempDir::new("ignored");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    let o = bass(&b, &["acquire", "sim:sine", "48000", "480", "100"]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("unexpected argument '48000'"), "{}", text(&o));
+    let o = bass(&b, &["acquire", "sim:sine", "--format", "S16_LE"]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("ALSA devices only"), "{}", text(&o));
+    assert_eq!(b.client().status().unwrap().epoch, 0, "nothing was acquired");
+    let o = bass(&b, &["acquire", "-D", "sim:sine", "-r", "8000", "-c", "1", "--frames", "80"]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let s = b.client().status().unwrap();
+    assert_eq!((s.sample_rate, s.channels, s.frames_per_chunk), (8000, 1, 80));
+}
+
+#[test]
+fn exit_codes_tell_usage_broker_device_and_timeout_apart() {
+    let dir = TempDir::new("exits");
+    let mut b = Bassd::start(dir.path(), "default", &[], &[]);
+    let code = |o: &Output| o.status.code();
+    assert_eq!(code(&bass(&b, &["bogus"])), Some(2));
+    let o = Command::new(bass_bin())
+        .args(["--name", "nobody", "status"])
+        .env("BASS_RUNTIME_DIR", &b.dir)
+        .output()
+        .unwrap();
+    assert_eq!(code(&o), Some(3), "{}", text(&o));
+    assert!(text(&o).contains("is bassd --name nobody running"), "{}", text(&o));
+    // No port within --timeout: the "waiting" notice, then exit 6.
+    let o = bass(&b, &["--timeout", "1.5", "blocks"]);
+    assert_eq!(code(&o), Some(6), "{}", text(&o));
+    assert!(text(&o).contains("waiting for the port default"), "{}", text(&o));
+    assert!(text(&o).contains("bass --name default acquire DEVICE"), "{}", text(&o));
+    let o = bass(&b, &["acquire", "hw:97,0"]);
+    assert_eq!(code(&o), Some(4), "{}", text(&o));
+    assert!(
+        text(&o).contains("bass --name default devices") && text(&o).contains("sim:sine"),
+        "{}",
+        text(&o)
+    );
+    let o = bass(&b, &["acquire", "sim:pattern", "--frames", "4000000", "--chunks", "4000"]);
+    assert_eq!(code(&o), Some(2), "a request the broker refuses: {}", text(&o));
+    // A stopped broker: the reply never comes; --timeout bounds the wait.
+    b.signal(libc::SIGSTOP);
+    let o = bass(&b, &["--timeout", "0.5", "status"]);
+    b.signal(libc::SIGCONT);
+    assert_eq!(code(&o), Some(6), "{}", text(&o));
+    assert!(text(&o).contains("raise --timeout"), "{}", text(&o));
+    b.signal(libc::SIGTERM);
+    b.wait_exit();
+}
+
+#[test]
+fn json_output_parses_with_the_c_field_names() {
+    let dir = TempDir::new("json");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    let o = bass(&b, &["devices", "--json"]);
+    let devs: Vec<Value> =
+        String::from_utf8_lossy(&o.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert!(devs.iter().any(|d| d["name"] == "sim:pattern" && d["description"].is_string()), "{devs:?}");
+    b.client().acquire(&req("sim:pattern", 8000, 80, 50, 2)).unwrap();
+    let port = b.port();
+    wait_frame(&port, 160);
+    let o = bass(&b, &["status", "--json"]);
+    let s: Value = serde_json::from_slice(&o.stdout).unwrap();
+    for k in ["state", "error_code", "sample_rate", "frames_per_chunk", "chunks_on_port", "channels", "epoch"]
+    {
+        assert!(s[k].is_u64(), "{k} in {s}");
+    }
+    assert_eq!((s["state_name"].as_str(), s["sample_rate"].as_u64()), (Some("capturing"), Some(8000)));
+    assert!(s["last_frame_index"].as_u64().unwrap() >= 160);
+    let o = bass(&b, &["blocks", "--json", "--count", "2"]);
+    let lines: Vec<Value> =
+        String::from_utf8_lossy(&o.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(lines.len(), 4, "port, 2 blocks, end: {lines:?}");
+    assert_eq!((lines[0]["event"].as_str(), lines[0]["channels"].as_u64()), (Some("port"), Some(2)));
+    assert_eq!((lines[1]["event"].as_str(), lines[1]["frames"].as_u64()), (Some("block"), Some(80)));
+    assert_eq!(lines[3]["event"], "end");
+}
+
+#[test]
+fn completions_and_version() {
+    for shell in ["bash", "zsh", "fish"] {
+        let o = Command::new(bass_bin()).args(["completions", shell]).output().unwrap();
+        assert!(o.status.success());
+        assert!(String::from_utf8_lossy(&o.stdout).contains("blocks"), "{shell}");
+    }
+    for bin in [bass_bin(), bassd_bin().to_owned()] {
+        let o = Command::new(&bin).arg("-V").output().unwrap();
+        assert!(o.status.success() && String::from_utf8_lossy(&o.stdout).contains(env!("CARGO_PKG_VERSION")));
+    }
+}
