@@ -82,13 +82,7 @@ impl Broker {
         match req {
             Request::ListDevices => control::devices_to_message(&device::list()),
             Request::Status => self.status().to_message(),
-            Request::Stop => {
-                if let Some(a) = self.current.as_mut() {
-                    a.stop(STOP_TIMEOUT);
-                    tracing::info!(device = %a.device, "acquisition stopped");
-                }
-                Message::new("ok")
-            }
+            Request::Stop => self.stop(),
             Request::Acquire(r) => self.acquire(&r),
         }
     }
@@ -132,6 +126,30 @@ impl Broker {
         s
     }
 
+    /// What a failed Acquire left in place, for its error message.
+    fn unchanged(&self) -> String {
+        match self.current.as_ref().map(|a| a.port.info()) {
+            None => "no port was created or changed".into(),
+            Some(Ok(i)) => format!(
+                "the port is unchanged (epoch {}, {}, last frame {})",
+                i.epoch,
+                i.state.map_or("unknown state".into(), |s| format!("{s:?}").to_lowercase()),
+                i.last_frame_index
+            ),
+            Some(Err(e)) => format!("the port was not touched (it cannot be read: {e})"),
+        }
+    }
+
+    /// Acquire. Everything that can fail is done before the running acquisition or its port
+    /// is touched: the request is checked, the new port is built and allocated under a
+    /// temporary name, the device is opened and configured. Only then is the old capture
+    /// stopped and the new port renamed into place. A failed Acquire therefore leaves the
+    /// old port exactly as it was (same epoch, frames and state) and says why.
+    ///
+    /// One exception: a device that is busy while an acquisition runs may be busy because
+    /// the running acquisition holds it (an ALSA hw device opens once). Then the running
+    /// capture is stopped (its port keeps its window, state stopped) and the open retried
+    /// once; if that fails too, the old port stays stopped, with its epoch and frames.
     fn acquire(&mut self, r: &AcquireRequest) -> Message {
         let requested_ns = monotonic_ns();
         let checked = match request::check(r, self.cfg.max_port_bytes) {
@@ -141,26 +159,37 @@ impl Broker {
                 return Message::error(ErrorKind::InvalidArgument, &msg);
             }
         };
-        // From here on the running acquisition is replaced, whatever happens.
+        let g = checked.geometry.clone();
+        let params = PortParams { geometry: g.clone(), device: r.device.clone(), group: self.cfg.group };
+        let pending = match Writer::prepare(&self.cfg.name, &params) {
+            Ok(p) => p,
+            Err(e) => {
+                let msg = format!("Acquire refused: cannot create the port: {e}; {}", self.unchanged());
+                tracing::error!("{msg}");
+                return Message::error(ErrorKind::Internal, &msg);
+            }
+        };
+        let mut opened = open_device(&checked.device, &g, checked.format);
+        if opened.as_ref().is_err_and(|e| e.busy) && self.current.as_ref().is_some_and(Acquisition::running) {
+            if let Some(old) = self.current.as_mut() {
+                tracing::info!(device = %r.device, "device busy: stopping the running acquisition to retry");
+                old.stop(STOP_TIMEOUT);
+            }
+            opened = open_device(&checked.device, &g, checked.format);
+        }
+        let dev = match opened {
+            Ok(d) => d,
+            Err(e) => {
+                let msg = format!("{}; {}", e.message, self.unchanged());
+                tracing::error!("Acquire failed: {msg}");
+                return Message::error(ErrorKind::Device, &msg);
+            }
+        };
+        // The switch: from here on the running acquisition is replaced.
         if let Some(mut old) = self.current.take() {
             old.stop(STOP_TIMEOUT);
         }
-        let g = checked.geometry.clone();
-        let opened: Result<Box<dyn Capture>, alsa::OpenError> = match &checked.device {
-            DeviceKind::Sim(kind) => {
-                Ok(Box::new(SimDevice::new(*kind, g.sample_rate, g.channels, g.frames_per_chunk)))
-            }
-            DeviceKind::Alsa(name) => alsa::open(&alsa::OpenParams {
-                name,
-                rate: g.sample_rate,
-                channels: g.channels,
-                period: g.frames_per_chunk,
-                format: checked.format,
-            })
-            .map(|d| Box::new(d) as Box<dyn Capture>),
-        };
-        let params = PortParams { geometry: g.clone(), device: r.device.clone(), group: self.cfg.group };
-        let writer = match Writer::create(&self.cfg.name, &params) {
+        let writer = match pending.commit() {
             Ok(w) => w,
             Err(e) => {
                 let msg = format!("cannot create the port: {e}");
@@ -170,17 +199,6 @@ impl Broker {
         };
         let epoch = writer.epoch();
         let port_path = writer.path().display().to_string();
-        let dev = match opened {
-            Ok(d) => d,
-            Err(e) => {
-                tracing::error!(epoch, "Acquire failed: {}", e.message);
-                match Acquisition::failed(writer, &r.device, e.code, &e.message) {
-                    Ok(a) => self.current = Some(a),
-                    Err(e2) => tracing::error!("cannot keep the failed port: {e2}"),
-                }
-                return Message::error(ErrorKind::Device, &e.message);
-            }
-        };
         let format = dev.format_name();
         let cp = CaptureParams {
             geometry: g.clone(),
@@ -207,6 +225,26 @@ impl Broker {
         }
     }
 
+    /// Stop: ends the capture (the port keeps its window, state stopped); an acquisition
+    /// that had ended on an error is moved out of the error state. The reply's `message`
+    /// says what was done.
+    fn stop(&mut self) -> Message {
+        let Some(a) = self.current.as_mut() else {
+            return Message::new("ok")
+                .with("message", "nothing to stop: no acquisition since the broker started");
+        };
+        let before = a.port.info().ok().and_then(|i| i.state);
+        a.stop(STOP_TIMEOUT);
+        let last = a.port.info().map(|i| i.last_frame_index).unwrap_or(0);
+        let msg = match a.clear_error() {
+            Some(err) => format!("cleared the error state (it was: {err}); state stopped, last frame {last}"),
+            None if before == Some(State::Stopped) => format!("already stopped at frame {last}"),
+            None => format!("stopped at frame {last}"),
+        };
+        tracing::info!(device = %a.device, "{msg}");
+        Message::new("ok").with("message", msg)
+    }
+
     /// Runs the stall watchdog once.
     ///
     /// If the broker itself did not run for a while (SIGSTOP, a suspended machine, heavy
@@ -230,6 +268,27 @@ impl Broker {
         if let Some(a) = self.current.as_mut() {
             a.stop(STOP_TIMEOUT);
         }
+    }
+}
+
+/// Opens (and configures) the device of an Acquire.
+fn open_device(
+    kind: &DeviceKind,
+    g: &bassclient::Geometry,
+    format: Option<crate::convert::SampleFormat>,
+) -> Result<Box<dyn Capture>, alsa::OpenError> {
+    match kind {
+        DeviceKind::Sim(kind) => {
+            Ok(Box::new(SimDevice::new(*kind, g.sample_rate, g.channels, g.frames_per_chunk)))
+        }
+        DeviceKind::Alsa(name) => alsa::open(&alsa::OpenParams {
+            name,
+            rate: g.sample_rate,
+            channels: g.channels,
+            period: g.frames_per_chunk,
+            format,
+        })
+        .map(|d| Box::new(d) as Box<dyn Capture>),
     }
 }
 

@@ -44,3 +44,39 @@ pub fn socket_path(name: &str) -> Result<PathBuf> {
     check_name(name)?;
     Ok(runtime_dir().join(format!("bass-{name}.sock")))
 }
+
+/// Environment variable naming the uid a reader expects to own the ports it opens by name
+/// (a number; default: root or the reader's own uid).
+pub const BROKER_UID_ENV: &str = "BASS_BROKER_UID";
+
+/// The uids a reader accepts as the owner of a port it opens by name: `$BASS_BROKER_UID`
+/// (plus root) when set, else root and the reader's own effective uid.
+pub fn expected_port_owners() -> Result<Vec<u32>> {
+    let own = rustix::process::geteuid().as_raw();
+    match std::env::var(BROKER_UID_ENV) {
+        Ok(v) if !v.trim().is_empty() => {
+            let uid: u32 = v.trim().parse().map_err(|_| {
+                Error::InvalidArgument(format!("{BROKER_UID_ENV}={v:?} (expected a numeric uid)"))
+            })?;
+            Ok(if uid == 0 { vec![0] } else { vec![0, uid] })
+        }
+        _ => Ok(if own == 0 { vec![0] } else { vec![0, own] }),
+    }
+}
+
+/// `uid N (name)` for messages; the name comes from /etc/passwd when it is there.
+pub fn describe_uid(uid: u32) -> String {
+    let name = std::fs::read_to_string("/etc/passwd").ok().and_then(|t| {
+        t.lines().find_map(|l| {
+            let mut f = l.split(':');
+            let name = f.next()?;
+            let id: u32 = f.nth(1)?.parse().ok()?;
+            (id == uid).then(|| name.to_owned())
+        })
+    });
+    match name {
+        // Debug formatting escapes anything odd a passwd entry might hold.
+        Some(n) => format!("uid {uid} ({})", n.escape_debug()),
+        None => format!("uid {uid}"),
+    }
+}
