@@ -7,6 +7,7 @@
 //! - [`request`]: checks an Acquire before anything running is touched;
 //! - [`convert`]: device sample formats to left-justified S32;
 //! - [`dll`]: the device-clock rate estimator;
+//! - [`pins`]: superseded ports still mapped by readers, and the bound on them;
 //! - [`os`]: the Linux edge (eventfd, signalfd, sleeps, scheduling, credentials, lock);
 //! - [`cli`]: the small argument parser both binaries use.
 
@@ -16,6 +17,7 @@ pub mod convert;
 pub mod device;
 pub mod dll;
 pub mod os;
+pub mod pins;
 pub mod request;
 pub mod server;
 

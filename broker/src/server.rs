@@ -21,7 +21,9 @@ use bassclient::{PortParams, Writer};
 use crate::capture::{Acquisition, CaptureParams};
 use crate::device::{self, alsa, sim::SimDevice, Capture};
 use crate::os;
+use crate::pins::{Ledger, PIN_BUDGET_FACTOR};
 use crate::request::{self, DeviceKind};
+use bassclient::portfile::mib;
 
 /// Broker configuration (command line of `bassd`).
 #[derive(Clone, Debug)]
@@ -61,6 +63,8 @@ const STOP_TIMEOUT: Duration = Duration::from_secs(2);
 const TICK: Duration = Duration::from_millis(25);
 /// A gap between two watchdog ticks longer than this means the broker was frozen.
 const FROZEN_NS: u64 = 200_000_000;
+/// How often superseded ports are checked for remaining readers.
+const PRUNE_NS: u64 = 1_000_000_000;
 /// Most control connections open at once.
 const MAX_CLIENTS: usize = 128;
 
@@ -69,21 +73,37 @@ pub struct Broker {
     cfg: Config,
     current: Option<Acquisition>,
     last_tick_ns: u64,
+    /// Superseded ports readers may still map.
+    pins: Ledger,
+    last_prune_ns: u64,
+    own_uid: u32,
 }
 
 impl Broker {
     /// A broker with no acquisition.
     pub fn new(cfg: Config) -> Broker {
-        Broker { cfg, current: None, last_tick_ns: monotonic_ns() }
+        Broker {
+            cfg,
+            current: None,
+            last_tick_ns: monotonic_ns(),
+            pins: Ledger::default(),
+            last_prune_ns: 0,
+            own_uid: os::euid(),
+        }
     }
 
-    /// Answers one request.
+    /// Answers one request of the broker's own user.
     pub fn handle(&mut self, req: Request) -> Message {
+        self.handle_as(req, self.own_uid)
+    }
+
+    /// Answers one request of a client running as `peer_uid`.
+    pub fn handle_as(&mut self, req: Request, peer_uid: u32) -> Message {
         match req {
             Request::ListDevices => control::devices_to_message(&device::list()),
             Request::Status => self.status().to_message(),
             Request::Stop => self.stop(),
-            Request::Acquire(r) => self.acquire(&r),
+            Request::Acquire(r) => self.acquire(&r, peer_uid),
         }
     }
 
@@ -150,7 +170,7 @@ impl Broker {
     /// the running acquisition holds it (an ALSA hw device opens once). Then the running
     /// capture is stopped (its port keeps its window, state stopped) and the open retried
     /// once; if that fails too, the old port stays stopped, with its epoch and frames.
-    fn acquire(&mut self, r: &AcquireRequest) -> Message {
+    fn acquire(&mut self, r: &AcquireRequest, peer_uid: u32) -> Message {
         let requested_ns = monotonic_ns();
         let checked = match request::check(r, self.cfg.max_port_bytes) {
             Ok(c) => c,
@@ -169,6 +189,10 @@ impl Broker {
                 return Message::error(ErrorKind::Internal, &msg);
             }
         };
+        if let Err(msg) = self.check_pin_budget(peer_uid, pending.size()) {
+            tracing::warn!(uid = peer_uid, "{msg}");
+            return Message::error(ErrorKind::InvalidArgument, &msg);
+        }
         let mut opened = open_device(&checked.device, &g, checked.format);
         if opened.as_ref().is_err_and(|e| e.busy) && self.current.as_ref().is_some_and(Acquisition::running) {
             if let Some(old) = self.current.as_mut() {
@@ -186,10 +210,16 @@ impl Broker {
             }
         };
         // The switch: from here on the running acquisition is replaced.
+        let mut superseded = None;
         if let Some(mut old) = self.current.take() {
             old.stop(STOP_TIMEOUT);
+            superseded = std::fs::File::open(old.port.path()).ok().map(|f| (f, old.port.size()));
         }
-        let writer = match pending.commit() {
+        let committed = pending.commit();
+        if let (Ok(_), Some((file, bytes))) = (&committed, superseded) {
+            self.pins.add(file, bytes);
+        }
+        let writer = match committed {
             Ok(w) => w,
             Err(e) => {
                 let msg = format!("cannot create the port: {e}");
@@ -225,6 +255,36 @@ impl Broker {
         }
     }
 
+    /// The bound on shared memory other users can make the broker's ports pin: for an
+    /// Acquire of a client that is neither the broker's user nor root, the superseded ports
+    /// still mapped by readers, the current port (which this Acquire would supersede) and
+    /// the new one must fit in `PIN_BUDGET_FACTOR x --max-port-bytes`.
+    fn check_pin_budget(&mut self, peer_uid: u32, new_bytes: u64) -> Result<(), String> {
+        let pinned = self.pins.prune();
+        if peer_uid == self.own_uid || peer_uid == 0 {
+            return Ok(());
+        }
+        let current = self.current.as_ref().map_or(0, |a| a.port.size());
+        let budget = PIN_BUDGET_FACTOR.saturating_mul(self.cfg.max_port_bytes);
+        let total = pinned + current + new_bytes;
+        if total > budget {
+            return Err(format!(
+                "Acquire refused: {} superseded port(s) still mapped by readers pin {}, the current port \
+                 holds {} and this one needs {}: {} in all, over the {} that clients other than the \
+                 broker's user may make its ports pin ({PIN_BUDGET_FACTOR} x --max-port-bytes); close \
+                 the readers of old acquisitions, or ask the broker's user to acquire; {}",
+                self.pins.len(),
+                mib(pinned),
+                mib(current),
+                mib(new_bytes),
+                mib(total),
+                mib(budget),
+                self.unchanged()
+            ));
+        }
+        Ok(())
+    }
+
     /// Stop: ends the capture (the port keeps its window, state stopped); an acquisition
     /// that had ended on an error is moved out of the error state. The reply's `message`
     /// says what was done.
@@ -254,6 +314,11 @@ impl Broker {
         let now = monotonic_ns();
         let late = now.saturating_sub(self.last_tick_ns) > FROZEN_NS;
         self.last_tick_ns = now;
+        // Superseded ports: our own descriptor must not keep one alive once its readers left.
+        if !self.pins.is_empty() && now.saturating_sub(self.last_prune_ns) > PRUNE_NS {
+            self.last_prune_ns = now;
+            self.pins.prune();
+        }
         if let Some(a) = &self.current {
             if late {
                 a.rebase_watchdog(now);
@@ -443,7 +508,10 @@ fn serve_one(broker: &mut Broker, c: &OwnedFd) -> bool {
             ),
         ),
         Ok(Some(m)) => match Request::from_message(&m) {
-            Ok(r) => broker.handle(r),
+            Ok(r) => {
+                let uid = os::peer_credentials(c.as_raw_fd()).map_or(u32::MAX, |p| p.uid);
+                broker.handle_as(r, uid)
+            }
             Err(e) => Message::error(ErrorKind::Protocol, &e.to_string()),
         },
         Err(e) => Message::error(ErrorKind::Protocol, &e.to_string()),

@@ -192,6 +192,11 @@ impl Port {
         &self.geometry
     }
 
+    /// Bytes of the port file the header describes.
+    pub fn size(&self) -> u64 {
+        self.layout.total_size
+    }
+
     /// nFOP.
     pub fn frames_on_port(&self) -> u64 {
         self.layout.frames_on_port
