@@ -62,6 +62,9 @@
 // Port state: replaced by a newer acquisition.
 #define BASS_STATE_SUPERSEDED 4
 
+// Port state: Acquire accepted, device open, no chunk published yet (format 1.1).
+#define BASS_STATE_STARTING 5
+
 // Chunk flag: zero-filled chunk standing for frames the device did not deliver.
 #define BASS_CHUNK_GAP 1
 
@@ -122,6 +125,12 @@ typedef enum {
   BASS_ERR_PANIC = 21,
   // An output buffer is too small.
   BASS_ERR_BUFFER_TOO_SMALL = 22,
+  // The port file (opened by name) is owned by a user the reader does not expect
+  // (default: root or the reader itself; `BASS_BROKER_UID` names another).
+  BASS_ERR_WRONG_OWNER = 23,
+  // A port file whose header never became valid (format version 0 long after it was
+  // last written): no writer is initialising it; retrying will not help.
+  BASS_ERR_NEVER_READY = 24,
 } bass_result;
 
 // Opaque handle of an open port (reader).
