@@ -181,6 +181,10 @@ impl Broker {
         };
         let g = checked.geometry.clone();
         let params = PortParams { geometry: g.clone(), device: r.device.clone(), group: self.cfg.group };
+        if let Err(msg) = self.check_pin_budget(peer_uid, g.layout().map_or(0, |l| l.total_size)) {
+            tracing::warn!(uid = peer_uid, "{msg}");
+            return Message::error(ErrorKind::InvalidArgument, &msg);
+        }
         let pending = match Writer::prepare(&self.cfg.name, &params) {
             Ok(p) => p,
             Err(e) => {
@@ -189,22 +193,29 @@ impl Broker {
                 return Message::error(ErrorKind::Internal, &msg);
             }
         };
-        if let Err(msg) = self.check_pin_budget(peer_uid, pending.size()) {
-            tracing::warn!(uid = peer_uid, "{msg}");
-            return Message::error(ErrorKind::InvalidArgument, &msg);
-        }
         let mut opened = open_device(&checked.device, &g, checked.format);
+        let mut freed = false;
         if opened.as_ref().is_err_and(|e| e.busy) && self.current.as_ref().is_some_and(Acquisition::running) {
             if let Some(old) = self.current.as_mut() {
                 tracing::info!(device = %r.device, "device busy: stopping the running acquisition to retry");
                 old.stop(STOP_TIMEOUT);
+                freed = true;
             }
             opened = open_device(&checked.device, &g, checked.format);
         }
         let dev = match opened {
             Ok(d) => d,
             Err(e) => {
-                let msg = format!("{}; {}", e.message, self.unchanged());
+                let kept = self.unchanged();
+                let msg = if freed {
+                    format!(
+                        "{} (after stopping the running acquisition, which may have held the device); \
+                         its port keeps its window: {kept}",
+                        e.message
+                    )
+                } else {
+                    format!("{}; {kept}", e.message)
+                };
                 tracing::error!("Acquire failed: {msg}");
                 return Message::error(ErrorKind::Device, &msg);
             }
@@ -213,7 +224,7 @@ impl Broker {
         let mut superseded = None;
         if let Some(mut old) = self.current.take() {
             old.stop(STOP_TIMEOUT);
-            superseded = std::fs::File::open(old.port.path()).ok().map(|f| (f, old.port.size()));
+            superseded = old.port.file().try_clone().ok().map(|f| (f, old.port.size()));
         }
         let committed = pending.commit();
         if let (Ok(_), Some((file, bytes))) = (&committed, superseded) {

@@ -50,18 +50,29 @@ pub fn socket_path(name: &str) -> Result<PathBuf> {
 pub const BROKER_UID_ENV: &str = "BASS_BROKER_UID";
 
 /// The uids a reader accepts as the owner of a port it opens by name: `$BASS_BROKER_UID`
-/// (plus root) when set, else root and the reader's own effective uid.
+/// (plus root) when set, else root and the reader's own effective uid — and, either way, the
+/// owner of the runtime directory when nobody else can write that directory (only its owner
+/// and root can have put a file there, e.g. a `/run/bass` of a broker's own user).
 pub fn expected_port_owners() -> Result<Vec<u32>> {
     let own = rustix::process::geteuid().as_raw();
+    let mut owners = vec![0];
     match std::env::var(BROKER_UID_ENV) {
         Ok(v) if !v.trim().is_empty() => {
             let uid: u32 = v.trim().parse().map_err(|_| {
                 Error::InvalidArgument(format!("{BROKER_UID_ENV}={v:?} (expected a numeric uid)"))
             })?;
-            Ok(if uid == 0 { vec![0] } else { vec![0, uid] })
+            owners.push(uid);
         }
-        _ => Ok(if own == 0 { vec![0] } else { vec![0, own] }),
+        _ => owners.push(own),
     }
+    if let Ok(st) = rustix::fs::stat(runtime_dir()) {
+        if st.st_mode & 0o022 == 0 {
+            owners.push(st.st_uid);
+        }
+    }
+    owners.sort_unstable();
+    owners.dedup();
+    Ok(owners)
 }
 
 /// `uid N (name)` for messages; the name comes from /etc/passwd when it is there.

@@ -142,10 +142,19 @@ impl Port {
     }
 
     fn open_path_named(path: &Path, name: &str, owners: Option<&[u32]>) -> Result<Port> {
-        let file = match OpenOptions::new().read(true).custom_flags(libc::O_CLOEXEC).open(path) {
+        // By name: never through a symbolic link (nothing of bass puts one there).
+        let flags = if owners.is_some() { libc::O_CLOEXEC | libc::O_NOFOLLOW } else { libc::O_CLOEXEC };
+        let file = match OpenOptions::new().read(true).custom_flags(flags).open(path) {
             Ok(f) => f,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
                 return Err(Error::NotFound { name: name.to_owned(), path: path.to_owned() })
+            }
+            Err(e) if e.raw_os_error() == Some(libc::ELOOP) => {
+                return Err(Error::Corrupt(format!(
+                    "{} is a symbolic link; a port opened by name is never read through a link \
+                     (another user may have planted it)",
+                    path.display()
+                )))
             }
             Err(e) => return Err(Error::io(format!("open {}", path.display()), e)),
         };
@@ -190,6 +199,11 @@ impl Port {
     /// Geometry (fixed for the life of the port).
     pub fn geometry(&self) -> &Geometry {
         &self.geometry
+    }
+
+    /// The open port file (read-only).
+    pub fn file(&self) -> &File {
+        &self.file
     }
 
     /// Bytes of the port file the header describes.

@@ -188,8 +188,7 @@ fn a_switch_that_fails_keeps_the_old_window_and_stop_clears_the_error() {
     let r = old.get_audio_data(buf.len(), &mut nfr, &mut [buf.as_mut_slice()]).unwrap();
     assert_eq!(&buf[..r.frames], &before.2[0][..], "the old window is not readable in the old file");
     // Stop after the error: clears it and says so.
-    let reply = c.call(&bassclient::control::Message::new("stop")).unwrap();
-    let said = reply.get("message").unwrap_or("").to_owned();
+    let said = c.stop_report().unwrap();
     let s = c.status().unwrap();
     figure!(
         9,
@@ -309,10 +308,29 @@ fn a_root_reader_refuses_a_port_squatted_by_another_user() {
     std::env::set_var("BASS_BROKER_UID", NOBODY);
     assert!(Port::open("default").is_ok(), "BASS_BROKER_UID=65534 accepts nobody's port");
     std::env::remove_var("BASS_BROKER_UID");
-    std::env::remove_var("BASS_RUNTIME_DIR");
+    // A runtime directory only its owner can write vouches for its owner's ports.
+    std::fs::set_permissions(dir.0.as_path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+    std::os::unix::fs::chown(dir.0.as_path(), Some(65534), Some(65534)).unwrap();
+    assert!(Port::open("default").is_ok(), "a 0755 directory of nobody vouches for nobody's port");
+    std::os::unix::fs::chown(dir.0.as_path(), Some(0), Some(0)).unwrap();
+    std::fs::set_permissions(dir.0.as_path(), std::fs::Permissions::from_mode(0o1777)).unwrap();
     drop(squatter.stdin.take());
     let _ = squatter.kill();
     let _ = squatter.wait();
+    // A link at the port's name, even to a root port, is not followed by a reader.
+    let real = dir.join("bass-real.port");
+    let g = bassclient::Geometry { channels: 1, sample_rate: 8000, frames_per_chunk: 80, chunks_on_port: 4 };
+    let _w = bassclient::Writer::create_at(
+        &real,
+        &bassclient::PortParams { geometry: g, device: "r".into(), group: None },
+    )
+    .unwrap();
+    std::fs::remove_file(&port).unwrap();
+    assert!(as_nobody("ln", &["-s", real.to_str().unwrap(), port.to_str().unwrap()]).status.success());
+    let e = Port::open("default").err().expect("a link at the port's name must not open");
+    figure!(14, "item 2b: root reader, port name is a link -> {e}");
+    assert!(e.to_string().contains("symbolic link"), "{e}");
+    std::env::remove_var("BASS_RUNTIME_DIR");
 }
 
 /// Bytes of distinct bass port files (live or deleted) mapped by process `pid`.
