@@ -408,3 +408,27 @@ fn a_group_member_cannot_pin_more_than_the_stated_bound_of_superseded_ports() {
     drop(again.stdin.take());
     let _ = again.wait();
 }
+
+#[test]
+#[ignore = "fault suite: run by tests/faults/run.sh"]
+fn a_new_port_is_wholly_allocated_not_sparse() {
+    let dir = TempDir::new("alloc");
+    let path = dir.join("bass-alloc.port");
+    let g =
+        bassclient::Geometry { channels: 2, sample_rate: 48000, frames_per_chunk: 4800, chunks_on_port: 100 };
+    let w = bassclient::Writer::create_at(
+        &path,
+        &bassclient::PortParams { geometry: g, device: "a".into(), group: None },
+    )
+    .unwrap();
+    let m = std::fs::metadata(&path).unwrap();
+    let allocated = m.blocks() * 512;
+    figure!(
+        9,
+        "item 1: a {:.1} MiB port has {:.1} MiB allocated right after creation (a sparse file had 1 page)",
+        m.len() as f64 / 1048576.0,
+        allocated as f64 / 1048576.0
+    );
+    assert!(allocated >= m.len(), "port file is sparse: {allocated} of {} bytes allocated", m.len());
+    drop(w);
+}
