@@ -220,24 +220,24 @@ impl Broker {
                 return Message::error(ErrorKind::Device, &msg);
             }
         };
-        // The switch: from here on the running acquisition is replaced.
-        let mut superseded = None;
-        if let Some(mut old) = self.current.take() {
+        // The switch: the old capture stops, then the new port takes the name.
+        if let Some(old) = self.current.as_mut() {
             old.stop(STOP_TIMEOUT);
-            superseded = old.port.file().try_clone().ok().map(|f| (f, old.port.size()));
         }
-        let committed = pending.commit();
-        if let (Ok(_), Some((file, bytes))) = (&committed, superseded) {
-            self.pins.add(file, bytes);
-        }
-        let writer = match committed {
+        let writer = match pending.commit() {
             Ok(w) => w,
             Err(e) => {
-                let msg = format!("cannot create the port: {e}");
+                // The rename failed: the old acquisition stays current (stopped, its window kept).
+                let msg = format!("cannot put the new port in place: {e}; {}", self.unchanged());
                 tracing::error!("{msg}");
                 return Message::error(ErrorKind::Internal, &msg);
             }
         };
+        if let Some(old) = self.current.take() {
+            if let Ok(f) = old.port.file().try_clone() {
+                self.pins.add(f, old.port.size());
+            }
+        }
         let epoch = writer.epoch();
         let port_path = writer.path().display().to_string();
         let format = dev.format_name();
