@@ -122,6 +122,35 @@ fn symlink_refused(dir: &OwnedFd, name: &str, path: &Path) -> Error {
     ))
 }
 
+/// Removes temporary port files of `name` left by writers that died while building one
+/// (`.NAME.PID.N.tmp` of a PID that no longer exists, regular files of our own user only):
+/// they are wholly allocated, so leaving them would eat the runtime directory's space.
+pub(crate) fn remove_stale_temps(dir: &OwnedFd, dir_path: &Path, name: &str) {
+    let Ok(entries) = std::fs::read_dir(dir_path) else { return };
+    let prefix = format!(".{name}.");
+    let own = rustix::process::geteuid().as_raw();
+    for e in entries.flatten() {
+        let file = e.file_name();
+        let Some(f) = file.to_str() else { continue };
+        let Some(pid) = f
+            .strip_prefix(&prefix)
+            .and_then(|r| r.strip_suffix(".tmp"))
+            .and_then(|r| r.split('.').next())
+            .and_then(|p| p.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        if pid == std::process::id() || Path::new(&format!("/proc/{pid}")).exists() {
+            continue;
+        }
+        let ours = rustix::fs::statat(dir, f, AtFlags::SYMLINK_NOFOLLOW)
+            .is_ok_and(|st| st.st_uid == own && FileType::from_raw_mode(st.st_mode) == FileType::RegularFile);
+        if ours {
+            let _ = rustix::fs::unlinkat(dir, f, AtFlags::empty());
+        }
+    }
+}
+
 /// Creates a new temporary file next to `name` (`O_EXCL`, `O_NOFOLLOW`, mode 0640).
 pub(crate) fn create_temp(dir: &OwnedFd, dir_path: &Path, name: &str) -> Result<(String, File)> {
     static SEQ: AtomicU32 = AtomicU32::new(0);

@@ -86,6 +86,7 @@ impl Writer {
             .to_owned();
         let dir = portfile::open_dir(&dir_path)?;
         let previous = Previous::inspect(&dir, &name, path)?;
+        portfile::remove_stale_temps(&dir, &dir_path, &name);
         portfile::check_space(&dir, &dir_path, layout.total_size)?;
         let (tmp_name, file) = portfile::create_temp(&dir, &dir_path, &name)?;
         let mut pending = PendingPort {

@@ -432,3 +432,23 @@ fn a_new_port_is_wholly_allocated_not_sparse() {
     assert!(allocated >= m.len(), "port file is sparse: {allocated} of {} bytes allocated", m.len());
     drop(w);
 }
+
+#[test]
+#[ignore = "fault suite: run by tests/faults/run.sh"]
+fn a_temporary_port_left_by_a_dead_writer_is_removed_by_the_next_one() {
+    let dir = TempDir::new("stale");
+    // A leftover of a writer (pid 2^22 + 1 cannot exist: above pid_max's ceiling) next to
+    // one of a live process (ours is never touched by another writer).
+    let dead = dir.join(".bass-stale.port.4194305.0.tmp");
+    std::fs::write(&dead, vec![1u8; 8192]).unwrap();
+    let live = dir.join(&format!(".bass-stale.port.{}.99.tmp", std::process::id()));
+    std::fs::write(&live, b"x").unwrap();
+    let g = bassclient::Geometry { channels: 1, sample_rate: 8000, frames_per_chunk: 80, chunks_on_port: 4 };
+    let _w = bassclient::Writer::create_at(
+        &dir.join("bass-stale.port"),
+        &bassclient::PortParams { geometry: g, device: "s".into(), group: None },
+    )
+    .unwrap();
+    assert!(!dead.exists(), "the dead writer's temporary file is still there");
+    assert!(live.exists(), "a live process's temporary file was removed");
+}
