@@ -294,7 +294,8 @@ int main(int argc, char **argv) {
                 status = fail("bass_port_get_info", r);
                 break;
             }
-            if (now.state != BASS_STATE_CAPTURING && now.state != BASS_STATE_IDLE && nfr > now.last_frame_index) {
+            if (now.state != BASS_STATE_CAPTURING && now.state != BASS_STATE_IDLE &&
+                now.state != BASS_STATE_STARTING && nfr > now.last_frame_index) {
                 static const char *const names[] = {"idle", "capturing", "stopped", "ended on a device error",
                                                     "replaced by a new acquisition"};
                 fprintf(stderr, "basc: the acquisition was %s%s%s\n", now.state < 5 ? names[now.state] : "ended",

@@ -62,6 +62,9 @@
 // Port state: replaced by a newer acquisition.
 #define BASS_STATE_SUPERSEDED 4
 
+// Port state: Acquire accepted, device open, no chunk published yet (format 2.1).
+#define BASS_STATE_STARTING 5
+
 // Chunk flag: zero-filled chunk standing for frames the device did not deliver.
 #define BASS_CHUNK_GAP 1
 
@@ -130,6 +133,12 @@ typedef enum {
   BASS_ERR_PANIC = 21,
   // An output buffer is too small.
   BASS_ERR_BUFFER_TOO_SMALL = 22,
+  // The port file (opened by name) is owned by a user the reader does not expect
+  // (default: root or the reader itself; `BASS_BROKER_UID` names another).
+  BASS_ERR_WRONG_OWNER = 23,
+  // A port file whose header never became valid (format version 0 long after it was
+  // last written): no writer is initialising it; retrying will not help.
+  BASS_ERR_NEVER_READY = 24,
 } bass_result;
 
 // Opaque handle of an open port (reader).
@@ -307,7 +316,11 @@ bass_result bass_status(const char *broker, bass_broker_status *out_status);
 // `out_len` valid for a write.
 bass_result bass_list_devices(const char *broker, char *buf, size_t buf_len, size_t *out_len);
 
-// Opens the port `name` (in `$BASS_RUNTIME_DIR`, default /dev/shm) read-only.
+// Opens the port `name` (in `$BASS_RUNTIME_DIR`, default /dev/shm) read-only. The file is
+// not opened through a symbolic link, and its owner must be root, the caller (or
+// `$BASS_BROKER_UID`) or the owner of a runtime directory nobody else can write, else
+// `BASS_ERR_WRONG_OWNER`. A file whose header stays unwritten is `BASS_ERR_NOT_READY` for
+// 2 s after its last change, then `BASS_ERR_NEVER_READY`.
 //
 // # Safety
 // `name` must be NULL or a NUL-terminated string; `out_port` NULL or valid for a write.

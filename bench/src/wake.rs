@@ -503,7 +503,7 @@ pub fn child_poll_reader(args: &[String]) {
         }
         if port
             .info()
-            .map(|i| i.state != Some(State::Capturing) && i.state != Some(State::Idle))
+            .map(|i| !matches!(i.state, Some(State::Capturing | State::Idle | State::Starting)))
             .unwrap_or(true)
         {
             break;

@@ -84,30 +84,6 @@ pub struct Acquisition {
 static RT_WARNED: AtomicBool = AtomicBool::new(false);
 
 impl Acquisition {
-    /// An acquisition that failed before capturing (the port shows the error).
-    pub fn failed(writer: Writer, device: &str, code: u32, message: &str) -> std::io::Result<Acquisition> {
-        writer.set_state(State::Error, code, message);
-        let port = Port::open_path(writer.path()).map_err(std::io::Error::other)?;
-        let shared = Arc::new(Shared {
-            writer: Mutex::new(writer),
-            stop: StopSignal::new()?,
-            progress_ns: AtomicU64::new(monotonic_ns()),
-            ended: AtomicBool::new(true),
-            got_data: AtomicBool::new(false),
-        });
-        let (_tx, done) = mpsc::channel();
-        Ok(Acquisition {
-            shared,
-            thread: None,
-            done,
-            port,
-            device: device.into(),
-            format: String::new(),
-            stall_ns: 0,
-            grace_ns: 0,
-        })
-    }
-
     /// Starts the capture thread on `dev`, publishing into `writer`.
     pub fn start(
         writer: Writer,
@@ -185,6 +161,12 @@ impl Acquisition {
             }
         }
         self.shared.writer().stop();
+    }
+
+    /// Moves a port that ended on an error to stopped (see `Writer::clear_error`); returns
+    /// the error message it cleared.
+    pub fn clear_error(&self) -> Option<String> {
+        self.shared.writer().clear_error()
     }
 
     /// Whether the capture thread is still running.

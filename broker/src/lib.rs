@@ -8,6 +8,7 @@
 //! - [`policy`]: which device names a client may make the broker open;
 //! - [`convert`]: device sample formats to left-justified S32;
 //! - [`dll`]: the device-clock rate estimator;
+//! - [`pins`]: superseded ports still mapped by readers, and the bound on them;
 //! - [`os`]: the Linux edge (eventfd, signalfd, sleeps, scheduling, credentials, lock);
 //! - [`cli`]: the small argument parser both binaries use.
 
@@ -17,6 +18,7 @@ pub mod convert;
 pub mod device;
 pub mod dll;
 pub mod os;
+pub mod pins;
 pub mod policy;
 pub mod request;
 pub mod server;

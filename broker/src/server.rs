@@ -21,8 +21,10 @@ use bassclient::{PortParams, Writer};
 use crate::capture::{Acquisition, CaptureParams};
 use crate::device::{self, alsa, sim::SimDevice, Capture};
 use crate::os;
+use crate::pins::{Ledger, PIN_BUDGET_FACTOR};
 use crate::policy::DevicePolicy;
 use crate::request::{self, DeviceKind, Limits};
+use bassclient::portfile::mib;
 
 /// Broker configuration (command line of `bassd`).
 #[derive(Clone, Debug)]
@@ -72,6 +74,8 @@ const STOP_TIMEOUT: Duration = Duration::from_secs(2);
 const TICK: Duration = Duration::from_millis(25);
 /// A gap between two watchdog ticks longer than this means the broker was frozen.
 const FROZEN_NS: u64 = 200_000_000;
+/// How often superseded ports are checked for remaining readers.
+const PRUNE_NS: u64 = 1_000_000_000;
 /// Most control connections open at once.
 pub const MAX_CLIENTS: usize = 128;
 /// Of those, how many only the broker's own user and root may take: members of `--group`
@@ -89,27 +93,37 @@ pub struct Broker {
     cfg: Config,
     current: Option<Acquisition>,
     last_tick_ns: u64,
+    /// Superseded ports readers may still map.
+    pins: Ledger,
+    last_prune_ns: u64,
+    own_uid: u32,
 }
 
 impl Broker {
     /// A broker with no acquisition.
     pub fn new(cfg: Config) -> Broker {
-        Broker { cfg, current: None, last_tick_ns: monotonic_ns() }
+        Broker {
+            cfg,
+            current: None,
+            last_tick_ns: monotonic_ns(),
+            pins: Ledger::default(),
+            last_prune_ns: 0,
+            own_uid: os::euid(),
+        }
     }
 
-    /// Answers one request.
+    /// Answers one request of the broker's own user.
     pub fn handle(&mut self, req: Request) -> Message {
+        self.handle_as(req, self.own_uid)
+    }
+
+    /// Answers one request of a client running as `peer_uid`.
+    pub fn handle_as(&mut self, req: Request, peer_uid: u32) -> Message {
         match req {
             Request::ListDevices => control::devices_to_message(&device::list()),
             Request::Status => self.status().to_message(),
-            Request::Stop => {
-                if let Some(a) = self.current.as_mut() {
-                    a.stop(STOP_TIMEOUT);
-                    tracing::info!(device = %a.device, "acquisition stopped");
-                }
-                Message::new("ok")
-            }
-            Request::Acquire(r) => self.acquire(&r),
+            Request::Stop => self.stop(),
+            Request::Acquire(r) => self.acquire(&r, peer_uid),
         }
     }
 
@@ -152,7 +166,31 @@ impl Broker {
         s
     }
 
-    fn acquire(&mut self, r: &AcquireRequest) -> Message {
+    /// What a failed Acquire left in place, for its error message.
+    fn unchanged(&self) -> String {
+        match self.current.as_ref().map(|a| a.port.info()) {
+            None => "no port was created or changed".into(),
+            Some(Ok(i)) => format!(
+                "the port is unchanged (epoch {}, {}, last frame {})",
+                i.epoch,
+                i.state.map_or("unknown state".into(), |s| format!("{s:?}").to_lowercase()),
+                i.last_frame_index
+            ),
+            Some(Err(e)) => format!("the port was not touched (it cannot be read: {e})"),
+        }
+    }
+
+    /// Acquire. Everything that can fail is done before the running acquisition or its port
+    /// is touched: the request is checked, the new port is built and allocated under a
+    /// temporary name, the device is opened and configured. Only then is the old capture
+    /// stopped and the new port renamed into place. A failed Acquire therefore leaves the
+    /// old port exactly as it was (same epoch, frames and state) and says why.
+    ///
+    /// One exception: a device that is busy while an acquisition runs may be busy because
+    /// the running acquisition holds it (an ALSA hw device opens once). Then the running
+    /// capture is stopped (its port keeps its window, state stopped) and the open retried
+    /// once; if that fails too, the old port stays stopped, with its epoch and frames.
+    fn acquire(&mut self, r: &AcquireRequest, peer_uid: u32) -> Message {
         let requested_ns = monotonic_ns();
         let checked = match request::check(r, self.cfg.max_port_bytes, &self.cfg.limits) {
             Ok(c) => c,
@@ -165,51 +203,67 @@ impl Broker {
             tracing::warn!("Acquire refused by the device policy (nothing changed): {msg}");
             return Message::error(ErrorKind::Permission, &msg);
         }
-        // From here on the running acquisition is replaced, whatever happens.
-        if let Some(mut old) = self.current.take() {
-            old.stop(STOP_TIMEOUT);
-        }
         let g = checked.geometry.clone();
-        let opened: Result<Box<dyn Capture>, alsa::OpenError> = match &checked.device {
-            DeviceKind::Sim(kind) => {
-                Ok(Box::new(SimDevice::new(*kind, g.sample_rate, g.channels, g.frames_per_chunk)))
-            }
-            DeviceKind::File { path, looping } => {
-                device::file::open(path, *looping, g.sample_rate, g.channels, g.frames_per_chunk)
-                    .map(|d| Box::new(d) as Box<dyn Capture>)
-                    .map_err(|message| alsa::OpenError { code: error_code::CONFIG, message })
-            }
-            DeviceKind::Alsa(name) => alsa::open(&alsa::OpenParams {
-                name,
-                rate: g.sample_rate,
-                channels: g.channels,
-                period: g.frames_per_chunk,
-                format: checked.format,
-            })
-            .map(|d| Box::new(d) as Box<dyn Capture>),
-        };
         let params = PortParams { geometry: g.clone(), device: r.device.clone(), group: self.cfg.group };
-        let writer = match Writer::create(&self.cfg.name, &params) {
-            Ok(w) => w,
+        if let Err(msg) = self.check_pin_budget(peer_uid, g.layout().map_or(0, |l| l.total_size)) {
+            tracing::warn!(uid = peer_uid, "{msg}");
+            return Message::error(ErrorKind::InvalidArgument, &msg);
+        }
+        let pending = match Writer::prepare(&self.cfg.name, &params) {
+            Ok(p) => p,
             Err(e) => {
-                let msg = format!("cannot create the port: {e}");
+                let msg = format!("Acquire refused: cannot create the port: {e}; {}", self.unchanged());
                 tracing::error!("{msg}");
                 return Message::error(ErrorKind::Internal, &msg);
             }
         };
-        let epoch = writer.epoch();
-        let port_path = writer.path().display().to_string();
+        let mut opened = open_device(&checked.device, &g, checked.format);
+        let mut freed = false;
+        if opened.as_ref().is_err_and(|e| e.busy) && self.current.as_ref().is_some_and(Acquisition::running) {
+            if let Some(old) = self.current.as_mut() {
+                tracing::info!(device = %r.device, "device busy: stopping the running acquisition to retry");
+                old.stop(STOP_TIMEOUT);
+                freed = true;
+            }
+            opened = open_device(&checked.device, &g, checked.format);
+        }
         let dev = match opened {
             Ok(d) => d,
             Err(e) => {
-                tracing::error!(epoch, "Acquire failed: {}", e.message);
-                match Acquisition::failed(writer, &r.device, e.code, &e.message) {
-                    Ok(a) => self.current = Some(a),
-                    Err(e2) => tracing::error!("cannot keep the failed port: {e2}"),
-                }
-                return Message::error(ErrorKind::Device, &e.message);
+                let kept = self.unchanged();
+                let msg = if freed {
+                    format!(
+                        "{} (after stopping the running acquisition, which may have held the device); \
+                         its port keeps its window: {kept}",
+                        e.message
+                    )
+                } else {
+                    format!("{}; {kept}", e.message)
+                };
+                tracing::error!("Acquire failed: {msg}");
+                return Message::error(ErrorKind::Device, &msg);
             }
         };
+        // The switch: the old capture stops, then the new port takes the name.
+        if let Some(old) = self.current.as_mut() {
+            old.stop(STOP_TIMEOUT);
+        }
+        let writer = match pending.commit() {
+            Ok(w) => w,
+            Err(e) => {
+                // The rename failed: the old acquisition stays current (stopped, its window kept).
+                let msg = format!("cannot put the new port in place: {e}; {}", self.unchanged());
+                tracing::error!("{msg}");
+                return Message::error(ErrorKind::Internal, &msg);
+            }
+        };
+        if let Some(old) = self.current.take() {
+            if let Ok(f) = old.port.file().try_clone() {
+                self.pins.add(f, old.port.size());
+            }
+        }
+        let epoch = writer.epoch();
+        let port_path = writer.path().display().to_string();
         let format = dev.format_name();
         let cp = CaptureParams {
             geometry: g.clone(),
@@ -236,6 +290,56 @@ impl Broker {
         }
     }
 
+    /// The bound on shared memory other users can make the broker's ports pin: for an
+    /// Acquire of a client that is neither the broker's user nor root, the superseded ports
+    /// still mapped by readers, the current port (which this Acquire would supersede) and
+    /// the new one must fit in `PIN_BUDGET_FACTOR x --max-port-bytes`.
+    fn check_pin_budget(&mut self, peer_uid: u32, new_bytes: u64) -> Result<(), String> {
+        let pinned = self.pins.prune();
+        if peer_uid == self.own_uid || peer_uid == 0 {
+            return Ok(());
+        }
+        let current = self.current.as_ref().map_or(0, |a| a.port.size());
+        let budget = PIN_BUDGET_FACTOR.saturating_mul(self.cfg.max_port_bytes);
+        let total = pinned + current + new_bytes;
+        if total > budget {
+            return Err(format!(
+                "Acquire refused: {} superseded port(s) still mapped by readers pin {}, the current port \
+                 holds {} and this one needs {}: {} in all, over the {} that clients other than the \
+                 broker's user may make its ports pin ({PIN_BUDGET_FACTOR} x --max-port-bytes); close \
+                 the readers of old acquisitions, or ask the broker's user to acquire; {}",
+                self.pins.len(),
+                mib(pinned),
+                mib(current),
+                mib(new_bytes),
+                mib(total),
+                mib(budget),
+                self.unchanged()
+            ));
+        }
+        Ok(())
+    }
+
+    /// Stop: ends the capture (the port keeps its window, state stopped); an acquisition
+    /// that had ended on an error is moved out of the error state. The reply's `message`
+    /// says what was done.
+    fn stop(&mut self) -> Message {
+        let Some(a) = self.current.as_mut() else {
+            return Message::new("ok")
+                .with("message", "nothing to stop: no acquisition since the broker started");
+        };
+        let before = a.port.info().ok().and_then(|i| i.state);
+        a.stop(STOP_TIMEOUT);
+        let last = a.port.info().map(|i| i.last_frame_index).unwrap_or(0);
+        let msg = match a.clear_error() {
+            Some(err) => format!("cleared the error state (it was: {err}); state stopped, last frame {last}"),
+            None if before == Some(State::Stopped) => format!("already stopped at frame {last}"),
+            None => format!("stopped at frame {last}"),
+        };
+        tracing::info!(device = %a.device, "{msg}");
+        Message::new("ok").with("message", msg)
+    }
+
     /// Runs the stall watchdog once.
     ///
     /// If the broker itself did not run for a while (SIGSTOP, a suspended machine, heavy
@@ -245,6 +349,11 @@ impl Broker {
         let now = monotonic_ns();
         let late = now.saturating_sub(self.last_tick_ns) > FROZEN_NS;
         self.last_tick_ns = now;
+        // Superseded ports: our own descriptor must not keep one alive once its readers left.
+        if !self.pins.is_empty() && now.saturating_sub(self.last_prune_ns) > PRUNE_NS {
+            self.last_prune_ns = now;
+            self.pins.prune();
+        }
         if let Some(a) = &self.current {
             if late {
                 a.rebase_watchdog(now);
@@ -259,6 +368,32 @@ impl Broker {
         if let Some(a) = self.current.as_mut() {
             a.stop(STOP_TIMEOUT);
         }
+    }
+}
+
+/// Opens (and configures) the device of an Acquire.
+fn open_device(
+    kind: &DeviceKind,
+    g: &bassclient::Geometry,
+    format: Option<crate::convert::SampleFormat>,
+) -> Result<Box<dyn Capture>, alsa::OpenError> {
+    match kind {
+        DeviceKind::Sim(kind) => {
+            Ok(Box::new(SimDevice::new(*kind, g.sample_rate, g.channels, g.frames_per_chunk)))
+        }
+        DeviceKind::File { path, looping } => {
+            device::file::open(path, *looping, g.sample_rate, g.channels, g.frames_per_chunk)
+                .map(|d| Box::new(d) as Box<dyn Capture>)
+                .map_err(|message| alsa::OpenError { code: error_code::CONFIG, message, busy: false })
+        }
+        DeviceKind::Alsa(name) => alsa::open(&alsa::OpenParams {
+            name,
+            rate: g.sample_rate,
+            channels: g.channels,
+            period: g.frames_per_chunk,
+            format,
+        })
+        .map(|d| Box::new(d) as Box<dyn Capture>),
     }
 }
 
@@ -591,7 +726,10 @@ fn serve_one(broker: &mut Broker, c: &OwnedFd) -> bool {
             ),
         ),
         Ok(Some(m)) => match Request::from_message(&m) {
-            Ok(r) => broker.handle(r),
+            Ok(r) => {
+                let uid = os::peer_credentials(c.as_raw_fd()).map_or(u32::MAX, |p| p.uid);
+                broker.handle_as(r, uid)
+            }
             Err(e) => Message::error(ErrorKind::Protocol, &e.to_string()),
         },
         Err(e) => Message::error(ErrorKind::Protocol, &e.to_string()),

@@ -176,7 +176,8 @@ impl Message {
 pub enum ErrorKind {
     /// A parameter is out of range or malformed; nothing was changed.
     InvalidArgument,
-    /// The device could not be opened or configured; the port shows the error.
+    /// The device could not be opened or configured; nothing was changed (the message says
+    /// what was kept).
     Device,
     /// The peer is not allowed to control this broker.
     Permission,
@@ -670,7 +671,14 @@ impl Client {
 
     /// Stops the acquisition (the port keeps its frames and shows Stopped).
     pub fn stop(&mut self) -> Result<()> {
-        self.request(&Request::Stop).map(drop)
+        self.stop_report().map(drop)
+    }
+
+    /// Stops the acquisition and returns what the broker did (its reply's `message`: "stopped
+    /// at frame N", "cleared the error state (it was: ...)", "nothing to stop"; empty from a
+    /// broker that does not say).
+    pub fn stop_report(&mut self) -> Result<String> {
+        self.request(&Request::Stop).map(|m| m.get("message").unwrap_or("").to_owned())
     }
 
     /// The broker's and the port's state.

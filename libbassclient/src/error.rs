@@ -112,6 +112,33 @@ pub enum Error {
     /// The broker answered with something this library does not understand.
     #[error("control protocol: {0}")]
     Protocol(String),
+    /// A port file opened by name is owned by a user the reader does not trust.
+    #[error(
+        "{} is owned by {owner}, not by {expected}: another user may have created it in \
+         place of the broker's port (set BASS_BROKER_UID to the broker's uid if this is expected)",
+        path.display()
+    )]
+    WrongOwner {
+        /// The port file.
+        path: PathBuf,
+        /// Its owner ("uid 65534 (nobody)").
+        owner: String,
+        /// Whom the reader expected ("uid 0 (root) or uid 1000 (ann)").
+        expected: String,
+    },
+    /// A port file whose header never became valid: version 0 although nothing has
+    /// written it for a while, so no writer is initialising it.
+    #[error(
+        "{} never became ready: its header is still unwritten (format version 0) {age_ms} ms \
+         after the file last changed; no writer is initialising it (a stale or foreign file)",
+        path.display()
+    )]
+    NeverReady {
+        /// The port file.
+        path: PathBuf,
+        /// Milliseconds since the file last changed.
+        age_ms: u64,
+    },
 }
 
 impl Error {

@@ -32,7 +32,7 @@ pub const MAGIC: u64 = u64::from_le_bytes(*b"BASSPORT");
 /// Major version: readers refuse any other major.
 pub const VERSION_MAJOR: u32 = 2;
 /// Minor version: additions that old readers may ignore.
-pub const VERSION_MINOR: u32 = 0;
+pub const VERSION_MINOR: u32 = 1;
 /// Size of the header, one page.
 pub const HEADER_SIZE: usize = 4096;
 /// Size of one chunk-table entry.
@@ -57,7 +57,8 @@ pub const DEVICE_LEN: usize = 128;
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum State {
-    /// Created, no chunk published yet.
+    /// No acquisition (the broker has not acquired since it started). Ports written by
+    /// format 1.0 writers also show it between creation and the first chunk.
     Idle = 0,
     /// Chunks are being published.
     Capturing = 1,
@@ -67,6 +68,9 @@ pub enum State {
     Error = 3,
     /// A newer acquisition replaced this port file; reopen the port by name.
     Superseded = 4,
+    /// Acquire accepted, the device is open, no chunk published yet (the port of a
+    /// brand-new acquisition). Added in format 2.1; values are never renumbered.
+    Starting = 5,
 }
 
 impl State {
@@ -78,6 +82,7 @@ impl State {
             2 => State::Stopped,
             3 => State::Error,
             4 => State::Superseded,
+            5 => State::Starting,
             _ => return None,
         })
     }

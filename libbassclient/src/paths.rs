@@ -76,12 +76,10 @@ pub fn lookup_dir(name: &str) -> PathBuf {
     }
 }
 
-/// Whether a client trusts a broker, port or socket owned by `uid`: root, the client's own
-/// user, or the uid in `$BASS_BROKER_UID`.
+/// Whether a client trusts a broker, port or socket owned by `uid` (see
+/// [`expected_port_owners`], the one definition of whom a client trusts).
 pub fn expected_owner_ok(uid: u32) -> bool {
-    uid == 0
-        || uid == rustix::process::geteuid().as_raw()
-        || std::env::var(BROKER_UID_ENV).ok().and_then(|v| v.trim().parse::<u32>().ok()) == Some(uid)
+    expected_port_owners().is_ok_and(|owners| owners.contains(&uid))
 }
 
 /// Path of the port file of `name`.
@@ -108,5 +106,48 @@ mod tests {
         if named.as_deref() != Some("4000000001") {
             assert!(!expected_owner_ok(4_000_000_001));
         }
+    }
+}
+
+/// The uids a client accepts as the owner of a port it opens by name or of a broker's
+/// control socket: root, the client's own effective uid, `$BASS_BROKER_UID` when set, and
+/// the owner of the runtime directory when nobody else can write that directory (only its
+/// owner and root can have put a file there, e.g. a `/run/bass` of a broker's own user).
+pub fn expected_port_owners() -> Result<Vec<u32>> {
+    let own = rustix::process::geteuid().as_raw();
+    let mut owners = vec![0, own];
+    match std::env::var(BROKER_UID_ENV) {
+        Ok(v) if !v.trim().is_empty() => {
+            let uid: u32 = v.trim().parse().map_err(|_| {
+                Error::InvalidArgument(format!("{BROKER_UID_ENV}={v:?} (expected a numeric uid)"))
+            })?;
+            owners.push(uid);
+        }
+        _ => {}
+    }
+    if let Ok(st) = rustix::fs::stat(runtime_dir()) {
+        if st.st_mode & 0o022 == 0 {
+            owners.push(st.st_uid);
+        }
+    }
+    owners.sort_unstable();
+    owners.dedup();
+    Ok(owners)
+}
+
+/// `uid N (name)` for messages; the name comes from /etc/passwd when it is there.
+pub fn describe_uid(uid: u32) -> String {
+    let name = std::fs::read_to_string("/etc/passwd").ok().and_then(|t| {
+        t.lines().find_map(|l| {
+            let mut f = l.split(':');
+            let name = f.next()?;
+            let id: u32 = f.nth(1)?.parse().ok()?;
+            (id == uid).then(|| name.to_owned())
+        })
+    });
+    match name {
+        // Debug formatting escapes anything odd a passwd entry might hold.
+        Some(n) => format!("uid {uid} ({})", n.escape_debug()),
+        None => format!("uid {uid}"),
     }
 }

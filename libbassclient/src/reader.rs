@@ -5,7 +5,7 @@
 //! one `Port` may be shared by any number of threads.
 
 use std::fs::{File, OpenOptions};
-use std::os::unix::fs::OpenOptionsExt;
+use std::os::unix::fs::{MetadataExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{fence, Ordering::Acquire, Ordering::Relaxed};
 use std::time::{Duration, Instant};
@@ -19,6 +19,25 @@ use crate::sys::{self, FutexWait};
 
 /// Longest futex wait between two checks that the writer process still exists.
 pub const LIVENESS_SLICE: Duration = Duration::from_millis(100);
+
+/// How long a port file may stay unwritten (format version 0) after it last changed before
+/// an opener stops reporting `NotReady` (retry) and reports `NeverReady` (give up). A writer
+/// of this library never shows version 0 under the port's name at all (it renames a
+/// complete file into place), so this only bounds the wait on stale or foreign files.
+pub const NOT_READY_GRACE: Duration = Duration::from_secs(2);
+
+/// `NotReady` while the file changed within [`NOT_READY_GRACE`], else `NeverReady`.
+fn not_ready(path: &Path, meta: &std::fs::Metadata) -> Error {
+    let changed_ns = |s: i64, ns: i64| (s.max(0) as u128) * 1_000_000_000 + ns.max(0) as u128;
+    let last = changed_ns(meta.mtime(), meta.mtime_nsec()).max(changed_ns(meta.ctime(), meta.ctime_nsec()));
+    let now = u128::from(sys::realtime_ns());
+    let age_ms = (now.saturating_sub(last) / 1_000_000) as u64;
+    if age_ms >= NOT_READY_GRACE.as_millis() as u64 {
+        Error::NeverReady { path: path.to_owned(), age_ms }
+    } else {
+        Error::NotReady
+    }
+}
 
 /// An open port (read-only mapping).
 pub struct Port {
@@ -108,31 +127,58 @@ pub struct View {
 }
 
 impl Port {
-    /// Opens the port `name` in the runtime directory.
+    /// Opens the port `name` in the runtime directory. The file must be owned by a user
+    /// the reader trusts ([`paths::expected_port_owners`]: root or the reader itself, or
+    /// `$BASS_BROKER_UID`), else [`Error::WrongOwner`]: a port name in a directory others can
+    /// write may have been taken by an impostor.
     pub fn open(name: &str) -> Result<Port> {
         let path = paths::port_path(name)?;
-        Port::open_path_named(&path, name)
+        Port::open_path_named(&path, name, Some(&paths::expected_port_owners()?))
     }
 
-    /// Opens the port file at `path`.
+    /// Opens the port file at `path` (the caller chose the file: its owner is not checked).
     pub fn open_path(path: &Path) -> Result<Port> {
-        Port::open_path_named(path, &path.display().to_string())
+        Port::open_path_named(path, &path.display().to_string(), None)
     }
 
-    fn open_path_named(path: &Path, name: &str) -> Result<Port> {
-        let file = match OpenOptions::new().read(true).custom_flags(libc::O_CLOEXEC).open(path) {
+    fn open_path_named(path: &Path, name: &str, owners: Option<&[u32]>) -> Result<Port> {
+        // By name: never through a symbolic link (nothing of bass puts one there).
+        let flags = if owners.is_some() { libc::O_CLOEXEC | libc::O_NOFOLLOW } else { libc::O_CLOEXEC };
+        let file = match OpenOptions::new().read(true).custom_flags(flags).open(path) {
             Ok(f) => f,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
                 return Err(Error::NotFound { name: name.to_owned(), path: path.to_owned() })
             }
+            Err(e) if e.raw_os_error() == Some(libc::ELOOP) => {
+                return Err(Error::Corrupt(format!(
+                    "{} is a symbolic link; a port opened by name is never read through a link \
+                     (another user may have planted it)",
+                    path.display()
+                )))
+            }
             Err(e) => return Err(Error::io(format!("open {}", path.display()), e)),
         };
-        let len = file.metadata().map_err(|e| Error::io("fstat of the port file", e))?.len();
+        let meta = file.metadata().map_err(|e| Error::io("fstat of the port file", e))?;
+        if let Some(owners) = owners {
+            if !owners.contains(&meta.uid()) {
+                let expected =
+                    owners.iter().map(|&u| paths::describe_uid(u)).collect::<Vec<_>>().join(" or ");
+                return Err(Error::WrongOwner {
+                    path: path.to_owned(),
+                    owner: paths::describe_uid(meta.uid()),
+                    expected,
+                });
+            }
+        }
+        let len = meta.len();
         if len == 0 {
             return Err(Error::Corrupt(format!("{} is empty", path.display())));
         }
         let mapping = Mapping::new(&file, len, false)?;
-        let v = format::validate(mapping.header(), len)?;
+        let v = match format::validate(mapping.header(), len) {
+            Err(Error::NotReady) => return Err(not_ready(path, &meta)),
+            other => other?,
+        };
         let epoch = mapping.header().epoch.load(Relaxed);
         Ok(Port {
             mapping,
@@ -153,6 +199,16 @@ impl Port {
     /// Geometry (fixed for the life of the port).
     pub fn geometry(&self) -> &Geometry {
         &self.geometry
+    }
+
+    /// The open port file (read-only).
+    pub fn file(&self) -> &File {
+        &self.file
+    }
+
+    /// Bytes of the port file the header describes.
+    pub fn size(&self) -> u64 {
+        self.layout.total_size
     }
 
     /// nFOP.
@@ -279,7 +335,7 @@ impl Port {
                     return Err(Error::Device { code: h.error_code.load(Relaxed), message: self.message() })
                 }
                 Some(State::Superseded) => return Err(Error::Restarted),
-                Some(State::Idle | State::Capturing) => {
+                Some(State::Idle | State::Starting | State::Capturing) => {
                     // A heartbeat (stored at every publish) younger than the liveness slice
                     // shows the writer alive without reading /proc/PID/stat (~15 µs per wait).
                     let beat = h.heartbeat_mono_ns.load(Relaxed);

@@ -2,8 +2,8 @@
 //!
 //! Used by the broker, and through the C ABI by simulators and test rigs.
 
-use std::fs::{File, OpenOptions};
-use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
+use std::fs::File;
+use std::os::fd::OwnedFd;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering::{Relaxed, Release};
 use std::sync::Arc;
@@ -11,6 +11,7 @@ use std::sync::Arc;
 use crate::error::{Error, Result};
 use crate::format::{self, ChunkEntry, Geometry, Header, Layout, State};
 use crate::paths;
+use crate::portfile;
 use crate::ring::{Ring, Source};
 use crate::shm::Mapping;
 use crate::sys;
@@ -52,7 +53,7 @@ pub struct Writer {
 impl Writer {
     /// Creates the port `name` in the runtime directory (see [`paths::runtime_dir`]).
     pub fn create(name: &str, params: &PortParams) -> Result<Writer> {
-        Writer::create_at(&paths::port_path(name)?, params)
+        Writer::prepare(name, params)?.commit()
     }
 
     /// Creates a port file at `path`, replacing (and marking superseded) any port there.
@@ -60,50 +61,51 @@ impl Writer {
     /// The file is built under a temporary name and renamed into place, and its version is
     /// written last, so no reader ever sees a half-initialised header.
     pub fn create_at(path: &Path, params: &PortParams) -> Result<Writer> {
+        Writer::prepare_at(path, params)?.commit()
+    }
+
+    /// Builds the port `name` without publishing it: see [`Writer::prepare_at`].
+    pub fn prepare(name: &str, params: &PortParams) -> Result<PendingPort> {
+        Writer::prepare_at(&paths::port_path(name)?, params)
+    }
+
+    /// Builds a complete port file for `path` under a temporary name — checked against the
+    /// free space, wholly allocated, header written except its epoch and version — and
+    /// touches nothing else: any port at `path` is only inspected. The broker prepares the
+    /// new port before it stops the old acquisition, so an Acquire that cannot have its port
+    /// fails with the old one intact. [`PendingPort::commit`] publishes it; dropping the
+    /// pending port removes the temporary file.
+    pub fn prepare_at(path: &Path, params: &PortParams) -> Result<PendingPort> {
         let geometry = params.geometry.clone();
         let layout = geometry.layout()?;
-        let previous = Previous::inspect(path)?;
-        let dir = path.parent().unwrap_or(Path::new("."));
-        let file_name = path.file_name().and_then(|f| f.to_str()).unwrap_or("port");
-        let tmp = dir.join(format!(".{file_name}.{}.tmp", std::process::id()));
-        let _ = std::fs::remove_file(&tmp);
-        let file = OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create_new(true)
-            .mode(0o640)
-            .custom_flags(libc::O_CLOEXEC)
-            .open(&tmp)
-            .map_err(|e| Error::io(format!("create {}", tmp.display()), e))?;
-        let built = (|| {
-            file.set_permissions(std::fs::Permissions::from_mode(0o640))
-                .map_err(|e| Error::io("chmod 0640 of the port file", e))?;
-            if let Some(gid) = params.group {
-                std::os::unix::fs::fchown(&file, None, Some(gid))
-                    .map_err(|e| Error::io(format!("chown of the port file to group {gid}"), e))?;
-            }
-            file.set_len(layout.total_size)
-                .map_err(|e| Error::io(format!("resize the port file to {} bytes", layout.total_size), e))?;
-            let mapping = Mapping::new(&file, layout.total_size, true)?;
-            let epoch = previous.as_ref().map_or(1, |p| p.epoch + 1);
-            init_header(mapping.header(), &geometry, &layout, epoch, &params.device);
-            std::fs::rename(&tmp, path)
-                .map_err(|e| Error::io(format!("rename {} to {}", tmp.display(), path.display()), e))?;
-            Ok((mapping, epoch))
-        })();
-        let (mapping, epoch) = match built {
-            Ok(v) => v,
-            Err(e) => {
-                let _ = std::fs::remove_file(&tmp);
-                return Err(e);
-            }
+        let dir_path = match path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_owned(),
+            _ => PathBuf::from("."),
         };
-        if let Some(p) = previous {
-            p.supersede();
-        }
-        let mapping = Arc::new(mapping);
-        let waker = Waker::new(mapping.clone());
-        Ok(Writer { mapping, waker, _file: file, path: path.to_owned(), geometry, layout, epoch })
+        let name = path
+            .file_name()
+            .and_then(|f| f.to_str())
+            .ok_or_else(|| Error::InvalidArgument(format!("port path {} has no file name", path.display())))?
+            .to_owned();
+        let dir = portfile::open_dir(&dir_path)?;
+        let previous = Previous::inspect(&dir, &name, path)?;
+        portfile::remove_stale_temps(&dir, &dir_path, &name);
+        portfile::check_space(&dir, &dir_path, layout.total_size)?;
+        let (tmp_name, file) = portfile::create_temp(&dir, &dir_path, &name)?;
+        let mut pending = PendingPort {
+            dir,
+            dir_path,
+            name,
+            tmp_name: Some(tmp_name),
+            path: path.to_owned(),
+            file,
+            mapping: None,
+            geometry,
+            layout,
+            previous,
+        };
+        pending.build(params)?;
+        Ok(pending)
     }
 
     /// Path of the port file.
@@ -187,7 +189,7 @@ impl Writer {
             h.gap_frames.fetch_add(nfpc as u64, Relaxed);
         }
         h.heartbeat_mono_ns.store(now_mono, Relaxed);
-        let bits = if h.state.load(Relaxed) == State::Idle as u32 {
+        let bits = if matches!(State::from_u32(h.state.load(Relaxed)), Some(State::Idle | State::Starting)) {
             h.state.store(State::Capturing as u32, Release);
             u32::MAX
         } else {
@@ -242,15 +244,103 @@ impl Writer {
 
     /// Stops the acquisition: the port keeps its frames and shows [`State::Stopped`].
     pub fn stop(&self) {
-        if matches!(self.state(), State::Idle | State::Capturing) {
+        if matches!(self.state(), State::Idle | State::Starting | State::Capturing) {
             self.set_state(State::Stopped, format::error_code::NONE, "");
         }
+    }
+
+    /// Stops an acquisition that ended on an error: the port shows [`State::Stopped`] (the
+    /// window stays), its error code is cleared and its message says what ended it.
+    /// Returns the error message it cleared, or None when the port was not in error.
+    pub fn clear_error(&self) -> Option<String> {
+        if self.state() != State::Error {
+            return None;
+        }
+        let old = format::read_text(&self.header().message);
+        self.set_state(State::Stopped, format::error_code::NONE, &format!("stopped after an error: {old}"));
+        Some(old)
     }
 
     /// Stops and removes the port file (readers that have it mapped keep their view).
     pub fn remove(self) -> Result<()> {
         self.stop();
         std::fs::remove_file(&self.path).map_err(|e| Error::io(format!("remove {}", self.path.display()), e))
+    }
+}
+
+/// A port built by [`Writer::prepare_at`] but not yet in place: its file exists only under a
+/// temporary name, which is removed if the pending port is dropped.
+pub struct PendingPort {
+    dir: OwnedFd,
+    dir_path: PathBuf,
+    name: String,
+    tmp_name: Option<String>,
+    path: PathBuf,
+    file: File,
+    mapping: Option<Mapping>,
+    geometry: Geometry,
+    layout: Layout,
+    previous: Option<Previous>,
+}
+
+impl PendingPort {
+    fn build(&mut self, params: &PortParams) -> Result<()> {
+        portfile::set_mode_group(&self.file, params.group)?;
+        portfile::allocate(&self.file, &self.dir_path, self.layout.total_size)?;
+        let mapping = Mapping::new(&self.file, self.layout.total_size, true)?;
+        init_header(mapping.header(), &self.geometry, &self.layout, &params.device);
+        self.mapping = Some(mapping);
+        Ok(())
+    }
+
+    /// Bytes the port file occupies (all allocated).
+    pub fn size(&self) -> u64 {
+        self.layout.total_size
+    }
+
+    /// The epoch of the port this one replaces, if any.
+    pub fn previous_epoch(&self) -> Option<u64> {
+        self.previous.as_ref().map(|p| p.epoch)
+    }
+
+    /// Publishes the port: epoch (the previous port's + 1), writer, version last, then the
+    /// rename into place; the port it replaces is marked superseded (its readers keep its
+    /// window).
+    pub fn commit(mut self) -> Result<Writer> {
+        let mapping = self.mapping.take().ok_or_else(|| Error::InvalidArgument("port not built".into()))?;
+        let epoch = self.previous.as_ref().map_or(1, |p| p.epoch + 1);
+        finish_header(mapping.header(), epoch);
+        let tmp = self.tmp_name.take().unwrap_or_default();
+        if let Err(e) = rustix::fs::renameat(&self.dir, tmp.as_str(), &self.dir, self.name.as_str()) {
+            let _ = rustix::fs::unlinkat(&self.dir, tmp.as_str(), rustix::fs::AtFlags::empty());
+            return Err(Error::io(
+                format!("rename {tmp} to {} in {}", self.name, self.dir_path.display()),
+                e.into(),
+            ));
+        }
+        if let Some(p) = self.previous.take() {
+            p.supersede();
+        }
+        let file = self.file.try_clone().map_err(|e| Error::io("dup of the port file", e))?;
+        let mapping = Arc::new(mapping);
+        let waker = Waker::new(mapping.clone());
+        Ok(Writer {
+            mapping,
+            waker,
+            _file: file,
+            path: self.path.clone(),
+            geometry: self.geometry.clone(),
+            layout: self.layout,
+            epoch,
+        })
+    }
+}
+
+impl Drop for PendingPort {
+    fn drop(&mut self) {
+        if let Some(tmp) = self.tmp_name.take() {
+            let _ = rustix::fs::unlinkat(&self.dir, tmp.as_str(), rustix::fs::AtFlags::empty());
+        }
     }
 }
 
@@ -273,7 +363,8 @@ fn write_entry(e: &ChunkEntry, first: u64, mono: u64, real: u64, flags: u32, fra
     e.frames.store(frames, Relaxed);
 }
 
-fn init_header(h: &Header, g: &Geometry, l: &Layout, epoch: u64, device: &str) {
+/// Writes everything but the epoch, the writer's identity and the version.
+fn init_header(h: &Header, g: &Geometry, l: &Layout, device: &str) {
     h.magic.store(format::MAGIC, Relaxed);
     h.version_minor.store(format::VERSION_MINOR, Relaxed);
     h.header_size.store(format::HEADER_SIZE as u32, Relaxed);
@@ -285,6 +376,13 @@ fn init_header(h: &Header, g: &Geometry, l: &Layout, epoch: u64, device: &str) {
     h.chunk_table_offset.store(l.chunk_table_offset, Relaxed);
     h.samples_offset.store(l.samples_offset, Relaxed);
     h.total_size.store(l.total_size, Relaxed);
+    h.state.store(State::Starting as u32, Relaxed);
+    format::write_text(&h.device, device);
+}
+
+/// Completes a header prepared by [`init_header`]: epoch, writer, clocks, and the version
+/// last (Release: a reader that sees the version sees everything above).
+fn finish_header(h: &Header, epoch: u64) {
     h.epoch.store(epoch, Relaxed);
     h.writer_pid.store(std::process::id(), Relaxed);
     h.writer_start_time.store(sys::own_start_time(), Relaxed);
@@ -292,9 +390,6 @@ fn init_header(h: &Header, g: &Geometry, l: &Layout, epoch: u64, device: &str) {
     let now = sys::monotonic_ns();
     h.started_mono_ns.store(now, Relaxed);
     h.heartbeat_mono_ns.store(now, Relaxed);
-    h.state.store(State::Idle as u32, Relaxed);
-    format::write_text(&h.device, device);
-    // Last, with Release: a reader that sees the version sees everything above.
     h.version_major.store(format::VERSION_MAJOR, Release);
 }
 
@@ -305,14 +400,15 @@ struct Previous {
 }
 
 impl Previous {
-    /// Looks at an existing file: a live port of another process is an error; a valid
-    /// port is remembered so its epoch continues and its readers can be told; anything
-    /// else (stale garbage) is simply replaced.
-    fn inspect(path: &Path) -> Result<Option<Previous>> {
-        let Ok(file) = OpenOptions::new().read(true).write(true).open(path) else {
+    /// Looks at an existing file, relative to the directory and without following a link:
+    /// a symbolic link, a non-regular file or a file of another owner is refused (see
+    /// [`portfile::open_existing`]); a live port of another process is an error; a valid
+    /// port is remembered so its epoch continues and its readers can be told; anything else
+    /// (stale garbage of our own user) is simply replaced.
+    fn inspect(dir: &OwnedFd, name: &str, path: &Path) -> Result<Option<Previous>> {
+        let Some((file, len)) = portfile::open_existing(dir, name, path)? else {
             return Ok(None);
         };
-        let Ok(len) = file.metadata().map(|m| m.len()) else { return Ok(None) };
         let Ok(mapping) = Mapping::new(&file, len, true) else { return Ok(None) };
         let h = mapping.header();
         if format::validate(h, len).is_err() {
@@ -321,7 +417,7 @@ impl Previous {
         let pid = h.writer_pid.load(Relaxed);
         let start = h.writer_start_time.load(Relaxed);
         let state = h.state.load(Relaxed);
-        let live = matches!(State::from_u32(state), Some(State::Idle | State::Capturing));
+        let live = matches!(State::from_u32(state), Some(State::Idle | State::Starting | State::Capturing));
         if live && pid != std::process::id() && sys::writer_alive(pid, start) {
             return Err(Error::InvalidArgument(format!(
                 "port {} is being written by live process {pid}",

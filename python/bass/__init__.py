@@ -36,12 +36,12 @@ RESULT_NAMES = {
     5: "NOT_READY", 6: "BAD_MAGIC", 7: "INCOMPATIBLE", 8: "CORRUPT", 9: "IO", 10: "TIMEOUT",
     11: "STOPPED", 12: "DEVICE", 13: "RESTARTED", 14: "WRITER_GONE", 15: "FRAME_LOST",
     16: "FRAME_NOT_YET", 17: "INTERRUPTED", 18: "BROKER", 19: "NO_BROKER", 20: "PROTOCOL",
-    21: "PANIC", 22: "BUFFER_TOO_SMALL",
+    21: "PANIC", 22: "BUFFER_TOO_SMALL", 23: "WRONG_OWNER", 24: "NEVER_READY",
 }
 for _code, _name in RESULT_NAMES.items():
     globals()["BASS_" + ("OK" if _code == 0 else "ERR_" + _name)] = _code
 
-STATE_NAMES = {0: "idle", 1: "capturing", 2: "stopped", 3: "error", 4: "superseded"}
+STATE_NAMES = {0: "idle", 1: "capturing", 2: "stopped", 3: "error", 4: "superseded", 5: "starting"}
 
 # Longest single wait inside the library, so that Ctrl-C (KeyboardInterrupt) is seen promptly.
 WAIT_SLICE_MS = 100

@@ -48,6 +48,8 @@ pub struct OpenError {
     pub code: u32,
     /// The message for the client and the port.
     pub message: String,
+    /// The PCM was busy (EBUSY): another stream, perhaps our own running capture, holds it.
+    pub busy: bool,
 }
 
 fn errno_text(e: &alsa::Error) -> String {
@@ -84,9 +86,11 @@ pub struct OpenParams<'a> {
 /// Opens and configures `p.name` for capture.
 pub fn open(p: &OpenParams<'_>) -> Result<AlsaDevice, OpenError> {
     let name = p.name;
-    let config = |message: String| OpenError { code: error_code::CONFIG, message };
-    let pcm = PCM::new(name, Direction::Capture, true)
-        .map_err(|e| config(format!("cannot open ALSA capture device {name:?}: {}", errno_text(&e))))?;
+    let config = |message: String| OpenError { code: error_code::CONFIG, message, busy: false };
+    let pcm = PCM::new(name, Direction::Capture, true).map_err(|e| OpenError {
+        busy: e.errno().abs() == libc::EBUSY,
+        ..config(format!("cannot open ALSA capture device {name:?}: {}", errno_text(&e)))
+    })?;
     let alsa_err =
         |what: &str, e: alsa::Error| config(format!("device {name:?}: {what}: {}", errno_text(&e)));
     let format;

@@ -81,6 +81,12 @@ pub enum bass_result {
     BASS_ERR_PANIC = 21,
     /// An output buffer is too small.
     BASS_ERR_BUFFER_TOO_SMALL = 22,
+    /// The port file (opened by name) is owned by a user the reader does not expect
+    /// (default: root or the reader itself; `BASS_BROKER_UID` names another).
+    BASS_ERR_WRONG_OWNER = 23,
+    /// A port file whose header never became valid (format version 0 long after it was
+    /// last written): no writer is initialising it; retrying will not help.
+    BASS_ERR_NEVER_READY = 24,
 }
 
 use bass_result::*;
@@ -113,6 +119,8 @@ pub const BASS_STATE_STOPPED: u32 = 2;
 pub const BASS_STATE_ERROR: u32 = 3;
 /// Port state: replaced by a newer acquisition.
 pub const BASS_STATE_SUPERSEDED: u32 = 4;
+/// Port state: Acquire accepted, device open, no chunk published yet (format 2.1).
+pub const BASS_STATE_STARTING: u32 = 5;
 /// Chunk flag: zero-filled chunk standing for frames the device did not deliver.
 pub const BASS_CHUNK_GAP: u32 = 1;
 /// Chunk flag: first chunk after a recovered overrun.
@@ -139,6 +147,7 @@ const _: () = assert!(
         && BASS_STATE_STOPPED == State::Stopped as u32
         && BASS_STATE_ERROR == State::Error as u32
         && BASS_STATE_SUPERSEDED == State::Superseded as u32
+        && BASS_STATE_STARTING == State::Starting as u32
         && BASS_CHUNK_GAP == chunk_flags::GAP
         && BASS_CHUNK_DISCONTINUITY == chunk_flags::DISCONTINUITY
         && BASS_CHUNK_TIME_ESTIMATED == chunk_flags::TIME_ESTIMATED
@@ -185,6 +194,8 @@ impl Failure {
                 Error::Broker(_) => BASS_ERR_BROKER,
                 Error::NoBroker { .. } => BASS_ERR_NO_BROKER,
                 Error::Protocol(_) => BASS_ERR_PROTOCOL,
+                Error::WrongOwner { .. } => BASS_ERR_WRONG_OWNER,
+                Error::NeverReady { .. } => BASS_ERR_NEVER_READY,
             },
         }
     }
@@ -350,6 +361,8 @@ pub extern "C" fn bass_result_str(code: c_int) -> *const c_char {
         20 => c"control protocol error",
         21 => c"internal error (panic caught)",
         22 => c"output buffer too small",
+        23 => c"the port file is owned by an unexpected user",
+        24 => c"the port file never became ready (no writer is initialising it)",
         _ => c"unknown result code",
     };
     s.as_ptr()

@@ -119,7 +119,11 @@ fn check_disjoint(ptrs: &[*mut i32], len: usize) -> Result<(), Failure> {
     Ok(())
 }
 
-/// Opens the port `name` (in `$BASS_RUNTIME_DIR`, default /dev/shm) read-only.
+/// Opens the port `name` (in `$BASS_RUNTIME_DIR`, default /dev/shm) read-only. The file is
+/// not opened through a symbolic link, and its owner must be root, the caller (or
+/// `$BASS_BROKER_UID`) or the owner of a runtime directory nobody else can write, else
+/// `BASS_ERR_WRONG_OWNER`. A file whose header stays unwritten is `BASS_ERR_NOT_READY` for
+/// 2 s after its last change, then `BASS_ERR_NEVER_READY`.
 ///
 /// # Safety
 /// `name` must be NULL or a NUL-terminated string; `out_port` NULL or valid for a write.

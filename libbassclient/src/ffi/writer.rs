@@ -181,10 +181,10 @@ pub unsafe extern "C" fn bass_writer_set_state(
     boundary("bass_writer_set_state", || {
         let w = self::writer(writer)?;
         let st = match State::from_u32(state) {
-            Some(s @ (State::Idle | State::Capturing | State::Stopped | State::Error)) => s,
+            Some(s @ (State::Idle | State::Capturing | State::Stopped | State::Error | State::Starting)) => s,
             _ => {
                 return Err(Error::InvalidArgument(format!(
-                    "state = {state} (use BASS_STATE_IDLE..BASS_STATE_ERROR)"
+                    "state = {state} (use BASS_STATE_IDLE..BASS_STATE_ERROR or BASS_STATE_STARTING)"
                 ))
                 .into())
             }

@@ -74,6 +74,7 @@ fn main() {
         "control-victim" => control_victim(&args),
         "follow" => follow(&args),
         "hold-connections" => hold_connections(&args),
+        "pin-loop" => pin_loop(&args),
         _ => {
             eprintln!(
                 "usage: bass-fault-agent writer|reader|stepped|victim|poke|shrink-victim --port PATH ..."
@@ -453,6 +454,43 @@ fn control_victim(a: &Args) {
     loop {
         let _ = c.status();
     }
+}
+
+/// Issue 14 item 4: Acquire, open the new port and keep it mapped, `--rounds` times; prints
+/// one line per round (`ROUND i ok epoch=E` or `ROUND i refused ...`), then `RESULT` and
+/// holds every mapping until stdin closes.
+fn pin_loop(a: &Args) {
+    let socket = PathBuf::from(a.s("socket", ""));
+    let mut c = bassclient::control::Client::connect_path(&socket, &a.s("name", "default")).expect("connect");
+    let req = bassclient::control::AcquireRequest {
+        device: a.s("device", "sim:silence"),
+        sample_rate: a.u("rate", 48000) as u32,
+        frames_per_chunk: a.u("nfpc", 480) as u32,
+        chunks_on_port: a.u("ncop", 100) as u32,
+        channels: a.u("channels", 2) as u32,
+        format: None,
+    };
+    let mut held = Vec::new();
+    let (mut ok, mut refused) = (0, 0);
+    for i in 0..a.u("rounds", 10) {
+        match c.acquire(&req) {
+            Ok(acq) => {
+                ok += 1;
+                held.push(Port::open_path(&acq.port).expect("open the new port"));
+                println!("ROUND {i} ok epoch={}", acq.epoch);
+            }
+            Err(e) => {
+                refused += 1;
+                println!("ROUND {i} refused {}", e.to_string().replace('\n', " "));
+            }
+        }
+    }
+    println!("RESULT acquired={ok} refused={refused} held={}", held.len());
+    let stop = stdin_stop_flag();
+    while !stop.load(Ordering::Relaxed) {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    drop(held);
 }
 
 fn mono_ns() -> u64 {
