@@ -94,21 +94,6 @@ pub fn socket_path(name: &str) -> Result<PathBuf> {
     Ok(lookup_dir(name).join(format!("bass-{name}.sock")))
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn root_and_the_own_user_are_trusted_others_only_when_named() {
-        assert!(expected_owner_ok(0));
-        assert!(expected_owner_ok(rustix::process::geteuid().as_raw()));
-        let named = std::env::var(BROKER_UID_ENV).ok();
-        if named.as_deref() != Some("4000000001") {
-            assert!(!expected_owner_ok(4_000_000_001));
-        }
-    }
-}
-
 /// The uids a client accepts as the owner of a port it opens by name or of a broker's
 /// control socket: root, the client's own effective uid, `$BASS_BROKER_UID` when set, and
 /// the owner of the runtime directory when nobody else can write that directory (only its
@@ -149,5 +134,20 @@ pub fn describe_uid(uid: u32) -> String {
         // Debug formatting escapes anything odd a passwd entry might hold.
         Some(n) => format!("uid {uid} ({})", n.escape_debug()),
         None => format!("uid {uid}"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn root_and_the_own_user_are_trusted_others_only_when_named() {
+        assert!(expected_owner_ok(0));
+        assert!(expected_owner_ok(rustix::process::geteuid().as_raw()));
+        let named = std::env::var(BROKER_UID_ENV).ok();
+        if named.as_deref() != Some("4000000001") {
+            assert!(!expected_owner_ok(4_000_000_001));
+        }
     }
 }
