@@ -43,7 +43,8 @@ fn the_meter_redraws_in_place_on_a_terminal() {
 #[test]
 fn the_meter_prints_one_json_object_per_update_for_1_to_64_channels() {
     let dir = TempDir::new("meter-json");
-    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    // 64 channels are above the broker's default bound (32): the operator widens it.
+    let b = Bassd::start(dir.path(), "default", &["--max-channels", "64"], &[]);
     for ch in [1u32, 2, 64] {
         b.client().acquire(&req("sim:sine", 8000, 80, 100, ch)).unwrap();
         let o = meter(&b, &["--json", "-n", "3", "-i", "0.05"]);
