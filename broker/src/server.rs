@@ -1,7 +1,7 @@
 //! The broker's control loop: the instance lock, the control socket, peer checks, request
 //! dispatch (ListDevices, Acquire, Stop, Status), the stall watchdog and the signals.
 //!
-//! One thread runs everything here with `poll` over the listening socket, a signalfd and
+//! One thread runs everything here with `poll` over the listening socket, the signals' wake-up and
 //! the client connections; the capture runs on its own thread (see [`crate::capture`]).
 
 use std::fs::File;
@@ -11,7 +11,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::{bail, Context};
-use bassclient::control::{self, AcquireRequest, ErrorKind, Message, Request, Status, PROTOCOL_MAJOR};
+use bassclient::control::{self, AcquireRequest, Acquired, ErrorKind, Reply, Request, Status, WireError};
 use bassclient::format::{error_code, State};
 use bassclient::paths;
 use bassclient::reader::Port;
@@ -98,16 +98,18 @@ impl Broker {
     }
 
     /// Answers one request.
-    pub fn handle(&mut self, req: Request) -> Message {
+    pub fn handle(&mut self, req: Request) -> Reply {
         match req {
-            Request::ListDevices => control::devices_to_message(&device::list()),
-            Request::Status => self.status().to_message(),
+            Request::ListDevices => Reply::Devices { devices: device::list() },
+            Request::Status => Reply::Status(self.status()),
             Request::Stop => {
+                let mut message = "no acquisition to stop".to_owned();
                 if let Some(a) = self.current.as_mut() {
                     a.stop(STOP_TIMEOUT);
                     tracing::info!(device = %a.device, "acquisition stopped");
+                    message = format!("stopped the acquisition of {}", a.device);
                 }
-                Message::new("ok")
+                Reply::Stopped { message }
             }
             Request::Acquire(r) => self.acquire(&r),
         }
@@ -139,7 +141,8 @@ impl Broker {
                 s.xruns = i.xruns;
                 s.gap_frames = i.gap_frames;
                 s.chunks_published = i.chunks_published;
-                s.rate_estimate_hz = i.rate_estimate_hz;
+                // JSON has no NaN or infinity: a value the port cannot hold reads as "none yet".
+                s.rate_estimate_hz = if i.rate_estimate_hz.is_finite() { i.rate_estimate_hz } else { 0.0 };
                 s.device = i.device;
                 s.message = i.message;
             }
@@ -152,18 +155,18 @@ impl Broker {
         s
     }
 
-    fn acquire(&mut self, r: &AcquireRequest) -> Message {
+    fn acquire(&mut self, r: &AcquireRequest) -> Reply {
         let requested_ns = monotonic_ns();
         let checked = match request::check(r, self.cfg.max_port_bytes, &self.cfg.limits) {
             Ok(c) => c,
             Err(msg) => {
                 tracing::warn!("Acquire refused (nothing changed): {msg}");
-                return Message::error(ErrorKind::InvalidArgument, &msg);
+                return Reply::error(ErrorKind::InvalidArgument, &msg);
             }
         };
         if let Err(msg) = self.cfg.policy.check(&r.device, device::list) {
             tracing::warn!("Acquire refused by the device policy (nothing changed): {msg}");
-            return Message::error(ErrorKind::Permission, &msg);
+            return Reply::error(ErrorKind::Permission, &msg);
         }
         // From here on the running acquisition is replaced, whatever happens.
         if let Some(mut old) = self.current.take() {
@@ -189,7 +192,7 @@ impl Broker {
             Err(e) => {
                 let msg = format!("cannot create the port: {e}");
                 tracing::error!("{msg}");
-                return Message::error(ErrorKind::Internal, &msg);
+                return Reply::error(ErrorKind::Internal, &msg);
             }
         };
         let epoch = writer.epoch();
@@ -202,7 +205,7 @@ impl Broker {
                     Ok(a) => self.current = Some(a),
                     Err(e2) => tracing::error!("cannot keep the failed port: {e2}"),
                 }
-                return Message::error(ErrorKind::Device, &e.message);
+                return Reply::error(ErrorKind::Device, &e.message);
             }
         };
         let format = dev.format_name();
@@ -225,9 +228,9 @@ impl Broker {
                     "acquisition started"
                 );
                 self.current = Some(a);
-                Message::new("ok").with("epoch", epoch).with("port", port_path).with("format", format)
+                Reply::Acquired(Acquired { epoch, port: port_path.into(), format: format.into() })
             }
-            Err(e) => Message::error(ErrorKind::Internal, &format!("cannot start the capture thread: {e}")),
+            Err(e) => Reply::error(ErrorKind::Internal, &format!("cannot start the capture thread: {e}")),
         }
     }
 
@@ -349,7 +352,7 @@ fn take_instance(cfg: &Config) -> anyhow::Result<Files> {
 
 /// Runs the broker until SIGTERM / SIGINT.
 pub fn run(cfg: Config) -> anyhow::Result<()> {
-    // Block the termination signals before any thread exists, so only the signalfd sees them.
+    // Catch the termination signals before any thread exists (a wake-up socket the loop polls).
     let sigfd = os::signalfd_for_termination().context("setting up the signal handling")?;
     let files = take_instance(&cfg)?;
     let mode = if cfg.group.is_some() { 0o660 } else { 0o600 };
@@ -359,9 +362,8 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
     let own_uid = os::euid();
     let mut broker = Broker::new(cfg.clone());
     if let Some(r) = &cfg.acquire {
-        let reply = broker.handle(Request::Acquire(r.clone()));
-        if reply.verb != "ok" {
-            tracing::error!("start-up Acquire failed: {}", reply.get("message").unwrap_or(""));
+        if let Reply::Error { message, .. } = broker.handle(Request::Acquire(r.clone())) {
+            tracing::error!("start-up Acquire failed: {message}");
         }
     }
     let mut clients: Vec<Conn> = Vec::new();
@@ -460,7 +462,7 @@ impl Acceptor {
             self.spare = os::spare_fd().ok();
         }
         loop {
-            match os::accept(listener.as_raw_fd()) {
+            match os::accept(listener) {
                 Ok(Some(c)) => {
                     if self.out_of_fds && self.spare.is_some() {
                         self.out_of_fds = false;
@@ -495,15 +497,15 @@ impl Acceptor {
         while refused_now < 64 {
             let Some(spare) = self.spare.take() else { break };
             drop(spare);
-            let accepted = os::accept(listener.as_raw_fd());
+            let accepted = os::accept(listener);
             let got_one = matches!(accepted, Ok(Some(_)));
             if let Ok(Some(c)) = &accepted {
-                let m = Message::error(
+                let m = Reply::error(
                     ErrorKind::Internal,
                     "the broker is out of file descriptors; try again later",
                 );
-                let _ = control::send_message(c.as_fd(), &m);
-                os::drain(c.as_raw_fd());
+                let _ = control::send_reply(c.as_fd(), &m);
+                os::drain(c.as_fd());
                 refused_now += 1;
             }
             drop(accepted);
@@ -531,7 +533,7 @@ impl Acceptor {
 
 /// Checks a new connection's peer and the connection limits; keeps it or refuses it with a reply.
 fn admit(c: OwnedFd, clients: &mut Vec<Conn>, own_uid: u32, group: Option<u32>) {
-    let fd = c.as_raw_fd();
+    let fd = c.as_fd();
     let _ = os::set_send_timeout(fd, Duration::from_secs(1));
     let peer = match os::peer_credentials(fd) {
         Ok(p) if peer_allowed(&p, own_uid, group) => Some(p),
@@ -545,7 +547,7 @@ fn admit(c: OwnedFd, clients: &mut Vec<Conn>, own_uid: u32, group: Option<u32>) 
         }
     };
     let refuse = |kind, text: &str| {
-        let _ = control::send_message(c.as_fd(), &Message::error(kind, text));
+        let _ = control::send_reply(c.as_fd(), &Reply::error(kind, text));
         os::drain(fd);
     };
     let Some(peer) = peer else {
@@ -575,23 +577,33 @@ fn admit(c: OwnedFd, clients: &mut Vec<Conn>, own_uid: u32, group: Option<u32>) 
 }
 
 /// Reads one request from `c` and answers it; false when the connection is finished.
+///
+/// A request in the version-1 text form is answered in that form (`code=version`), the one
+/// reply a version-1 client can read; any other version gets a version-2 `error` naming both.
 fn serve_one(broker: &mut Broker, c: &OwnedFd) -> bool {
-    let reply = match control::recv_message(c.as_fd()) {
+    let bytes = match control::recv_datagram(c.as_fd()) {
         Ok(None) => return false,
-        Ok(Some(m)) if m.major != PROTOCOL_MAJOR => Message::error(
-            ErrorKind::Version,
-            &format!(
-                "this broker speaks control protocol {PROTOCOL_MAJOR}, the request is version {}",
-                m.major
-            ),
-        ),
-        Ok(Some(m)) => match Request::from_message(&m) {
-            Ok(r) => broker.handle(r),
-            Err(e) => Message::error(ErrorKind::Protocol, &e.to_string()),
-        },
-        Err(e) => Message::error(ErrorKind::Protocol, &e.to_string()),
+        Ok(Some(b)) => b,
+        Err(e) => {
+            let reply = Reply::error(ErrorKind::Protocol, &e.to_string());
+            return control::send_reply(c.as_fd(), &reply).is_ok();
+        }
     };
-    control::send_message(c.as_fd(), &reply).is_ok()
+    let reply = match control::wire::decode_request(&bytes) {
+        Ok(r) => broker.handle(r),
+        Err(WireError::Version { found }) => {
+            let text = format!(
+                "this broker speaks {}, the request is {found}: update the client library",
+                control::PROTOCOL
+            );
+            if control::wire::is_v1_text(&bytes) {
+                return control::send_datagram(c.as_fd(), &control::wire::v1_error(&text)).is_ok();
+            }
+            Reply::error(ErrorKind::Version, &text)
+        }
+        Err(WireError::Malformed(e)) => Reply::error(ErrorKind::Protocol, &e),
+    };
+    control::send_reply(c.as_fd(), &reply).is_ok()
 }
 
 #[cfg(test)]
