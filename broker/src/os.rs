@@ -43,8 +43,9 @@ pub fn poll(fds: &mut [libc::pollfd], timeout: Option<Duration>) -> io::Result<u
     loop {
         match alsa::poll::poll(fds, ms) {
             Ok(n) => return Ok(n),
-            Err(e) if e.errno() == libc::EINTR => continue,
-            Err(e) => return Err(io::Error::from_raw_os_error(e.errno())),
+            // The alsa crate keeps poll's errno negated, as ALSA's own codes are.
+            Err(e) if e.errno().abs() == libc::EINTR => continue,
+            Err(e) => return Err(io::Error::from_raw_os_error(e.errno().abs())),
         }
     }
 }
