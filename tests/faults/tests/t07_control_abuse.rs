@@ -23,12 +23,10 @@ fn connect(path: &std::path::Path) -> OwnedFd {
     fd
 }
 
+/// Sends `bytes` as one datagram as it is (no size check: oversized datagrams must reach
+/// the broker, or be refused by the kernel).
 fn send_raw(fd: &OwnedFd, bytes: &[u8]) -> std::io::Result<()> {
-    match control::send_datagram(fd.as_fd_ref(), bytes) {
-        Ok(()) => Ok(()),
-        Err(bassclient::Error::Io { source, .. }) => Err(source),
-        Err(e) => Err(std::io::Error::other(e.to_string())),
-    }
+    rustix::net::send(fd, bytes, rustix::net::SendFlags::NOSIGNAL).map(drop).map_err(Into::into)
 }
 
 /// A well-formed status request.
