@@ -127,3 +127,46 @@ pub fn set_timeouts(
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::os::fd::AsFd;
+
+    fn pair() -> (OwnedFd, OwnedFd) {
+        rustix::net::socketpair(AddressFamily::UNIX, SocketType::SEQPACKET, SocketFlags::CLOEXEC, None)
+            .unwrap()
+    }
+
+    #[test]
+    fn a_version_1_broker_s_reply_is_refused_naming_both_versions() {
+        let (client, broker) = pair();
+        send_datagram(broker.as_fd(), b"bass-control/1 error\ncode=protocol\nmessage=first line ...\n")
+            .unwrap();
+        let e = recv_reply(client.as_fd()).unwrap_err();
+        let text = e.to_string();
+        assert!(matches!(e, Error::Protocol(_)), "{e:?}");
+        assert!(text.contains("bass-control/1") && text.contains("bass-control/2"), "{text}");
+    }
+
+    #[test]
+    fn replies_cross_the_socket_typed_and_a_closed_peer_reads_as_none() {
+        let (client, broker) = pair();
+        let r = Reply::Stopped { message: "stopped the acquisition of sim:sine".into() };
+        send_reply(broker.as_fd(), &r).unwrap();
+        assert_eq!(recv_reply(client.as_fd()).unwrap(), Some(r));
+        drop(broker);
+        assert_eq!(recv_reply(client.as_fd()).unwrap(), None);
+    }
+
+    #[test]
+    fn oversized_datagrams_are_refused_on_both_sides() {
+        let (a, b) = pair();
+        let big = vec![b' '; MAX_MESSAGE + 1];
+        assert!(matches!(send_datagram(a.as_fd(), &big), Err(Error::Protocol(_))));
+        // Sent past the check, it is refused on receipt with its real length.
+        rustix::net::send(&a, &big, SendFlags::NOSIGNAL).unwrap();
+        let e = recv_datagram(b.as_fd()).unwrap_err();
+        assert!(e.to_string().contains(&format!("{} bytes", MAX_MESSAGE + 1)), "{e}");
+    }
+}
