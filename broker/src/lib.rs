@@ -8,7 +8,7 @@
 //! - [`policy`]: which device names a client may make the broker open;
 //! - [`convert`]: device sample formats to left-justified S32;
 //! - [`dll`]: the device-clock rate estimator;
-//! - [`os`]: the Linux edge (eventfd, signalfd, sleeps, scheduling, credentials, lock);
+//! - [`os`]: the Linux edge on rustix (eventfd, signals, sleeps, scheduling, credentials, lock);
 //! - [`cli`]: the small argument parser both binaries use.
 
 pub mod capture;

@@ -82,7 +82,7 @@ impl AsRawFd for TermSignals {
 /// Catches SIGTERM, SIGINT and SIGHUP (through signal-hook: the handler records the signal
 /// and writes to a socket pair the control loop polls), and ignores SIGPIPE (writing to a
 /// broken control connection must not kill the broker).
-pub fn signalfd_for_termination() -> io::Result<TermSignals> {
+pub fn catch_termination_signals() -> io::Result<TermSignals> {
     use signal_hook::consts::{SIGHUP, SIGINT, SIGPIPE, SIGTERM};
     let (wake, write) = UnixStream::pair()?;
     wake.set_nonblocking(true)?;

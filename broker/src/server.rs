@@ -353,7 +353,7 @@ fn take_instance(cfg: &Config) -> anyhow::Result<Files> {
 /// Runs the broker until SIGTERM / SIGINT.
 pub fn run(cfg: Config) -> anyhow::Result<()> {
     // Catch the termination signals before any thread exists (a wake-up socket the loop polls).
-    let sigfd = os::signalfd_for_termination().context("setting up the signal handling")?;
+    let signals = os::catch_termination_signals().context("setting up the signal handling")?;
     let files = take_instance(&cfg)?;
     let mode = if cfg.group.is_some() { 0o660 } else { 0o600 };
     let listener = os::listen_seqpacket_at(&files.dir, &files.socket_name, &files.socket, mode, cfg.group)
@@ -373,12 +373,12 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
         let listening = monotonic_ns() >= acceptor.paused_until_ns;
         // A negative descriptor is ignored by poll: while backing off, the listener is not watched.
         let lfd = if listening { listener.as_raw_fd() } else { -1 };
-        let mut fds = vec![os::pollin(lfd), os::pollin(sigfd.as_raw_fd())];
+        let mut fds = vec![os::pollin(lfd), os::pollin(signals.as_raw_fd())];
         fds.extend(clients.iter().map(|c| os::pollin(c.fd.as_raw_fd())));
         os::poll(&mut fds, Some(TICK)).context("poll")?;
         broker.tick();
         if fds[1].revents != 0 {
-            if let Some(sig) = os::read_signal(&sigfd) {
+            if let Some(sig) = os::read_signal(&signals) {
                 tracing::info!(signal = sig, "terminating: stopping the capture");
                 broker.shutdown();
                 drop(files);
