@@ -186,6 +186,14 @@ mod tests {
     }
 
     #[test]
+    fn error_kind_names_are_the_serde_names() {
+        use ErrorKind::*;
+        for k in [InvalidArgument, Device, Permission, Version, Protocol, Internal] {
+            assert_eq!(serde_json::to_value(k).unwrap(), k.as_str(), "{k:?}");
+        }
+    }
+
+    #[test]
     fn v1_errors_are_v1_text() {
         let e = v1_error("this broker speaks bass-control/2");
         assert_eq!(e, b"bass-control/1 error\ncode=version\nmessage=this broker speaks bass-control/2\n");
