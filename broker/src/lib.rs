@@ -9,7 +9,7 @@
 //! - [`convert`]: device sample formats to left-justified S32;
 //! - [`dll`]: the device-clock rate estimator;
 //! - [`pins`]: superseded ports still mapped by readers, and the bound on them;
-//! - [`os`]: the Linux edge (eventfd, signalfd, sleeps, scheduling, credentials, lock);
+//! - [`os`]: the Linux edge on rustix (eventfd, signals, sleeps, scheduling, credentials, lock);
 //! - [`cli`]: the small argument parser both binaries use.
 
 pub mod capture;

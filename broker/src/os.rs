@@ -1,20 +1,18 @@
-//! The Linux edge of the broker: eventfd, signalfd, absolute sleeps, real-time scheduling,
-//! peer credentials and the instance lock. Every `unsafe` of the broker outside the ALSA
-//! crate lives here.
+//! The Linux edge of the broker: eventfd, termination signals, absolute sleeps, real-time
+//! scheduling, peer credentials, the control socket's listener and the instance lock.
+//! System calls go through rustix (and signal-hook for the signals); the few `unsafe`
+//! blocks left are calls neither wraps (SCHED_FIFO, SO_PEERGROUPS, getgrnam).
 
 use std::fs::File;
 use std::io;
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd, RawFd};
+use std::os::fd::{AsRawFd, BorrowedFd, OwnedFd, RawFd};
+use std::os::unix::net::UnixStream;
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::Arc;
 use std::time::Duration;
 
-fn check(r: libc::c_int) -> io::Result<libc::c_int> {
-    if r < 0 {
-        Err(io::Error::last_os_error())
-    } else {
-        Ok(r)
-    }
-}
+use rustix::io::Errno;
 
 /// A non-blocking eventfd used to wake a thread out of `poll`.
 pub struct EventFd(OwnedFd);
@@ -22,17 +20,14 @@ pub struct EventFd(OwnedFd);
 impl EventFd {
     /// Creates an eventfd (close-on-exec, non-blocking).
     pub fn new() -> io::Result<EventFd> {
-        // SAFETY: plain eventfd(2) call; the result is checked.
-        let fd = check(unsafe { libc::eventfd(0, libc::EFD_CLOEXEC | libc::EFD_NONBLOCK) })?;
-        // SAFETY: `fd` is a fresh descriptor owned by nobody else.
-        Ok(EventFd(unsafe { OwnedFd::from_raw_fd(fd) }))
+        use rustix::event::EventfdFlags;
+        Ok(EventFd(rustix::event::eventfd(0, EventfdFlags::CLOEXEC | EventfdFlags::NONBLOCK)?))
     }
 
     /// Makes the eventfd readable (wakes pollers); idempotent.
     pub fn signal(&self) {
-        let one: u64 = 1;
-        // SAFETY: writes 8 bytes from a valid u64 to an open eventfd.
-        unsafe { libc::write(self.0.as_raw_fd(), (&one as *const u64).cast(), 8) };
+        // EAGAIN (the counter is full) still leaves the eventfd readable: nothing to do.
+        let _ = rustix::io::write(&self.0, &1u64.to_ne_bytes());
     }
 
     /// The descriptor, for `poll`.
@@ -41,18 +36,16 @@ impl EventFd {
     }
 }
 
-/// `poll(2)` over `fds`, retrying on EINTR; `timeout` None waits forever.
+/// `poll(2)` over `fds`, retrying on EINTR; `timeout` None waits forever. Raw `pollfd`s,
+/// because ALSA hands out its descriptors that way; the call is the alsa crate's wrapper.
 pub fn poll(fds: &mut [libc::pollfd], timeout: Option<Duration>) -> io::Result<usize> {
-    let ms = timeout.map_or(-1, |t| t.as_millis().min(i32::MAX as u128) as libc::c_int);
+    let ms = timeout.map_or(-1, |t| t.as_millis().min(i32::MAX as u128) as i32);
     loop {
-        // SAFETY: `fds` is a valid slice of pollfd for the duration of the call.
-        let r = unsafe { libc::poll(fds.as_mut_ptr(), fds.len() as libc::nfds_t, ms) };
-        if r >= 0 {
-            return Ok(r as usize);
-        }
-        let e = io::Error::last_os_error();
-        if e.kind() != io::ErrorKind::Interrupted {
-            return Err(e);
+        match alsa::poll::poll(fds, ms) {
+            Ok(n) => return Ok(n),
+            // The alsa crate keeps poll's errno negated, as ALSA's own codes are.
+            Err(e) if e.errno().abs() == libc::EINTR => continue,
+            Err(e) => return Err(io::Error::from_raw_os_error(e.errno().abs())),
         }
     }
 }
@@ -64,61 +57,62 @@ pub fn pollin(fd: RawFd) -> libc::pollfd {
 
 /// Sleeps until CLOCK_MONOTONIC reaches `deadline_ns` (absolute, `TIMER_ABSTIME`).
 pub fn sleep_until_mono(deadline_ns: u64) {
-    let ts = libc::timespec {
-        tv_sec: (deadline_ns / 1_000_000_000) as libc::time_t,
-        tv_nsec: (deadline_ns % 1_000_000_000) as libc::c_long,
+    let ts = rustix::time::Timespec {
+        tv_sec: (deadline_ns / 1_000_000_000) as i64,
+        tv_nsec: (deadline_ns % 1_000_000_000) as _,
     };
-    loop {
-        // SAFETY: `ts` is a valid timespec; the remaining-time pointer may be null with
-        // TIMER_ABSTIME.
-        let r = unsafe {
-            libc::clock_nanosleep(libc::CLOCK_MONOTONIC, libc::TIMER_ABSTIME, &ts, std::ptr::null_mut())
-        };
-        if r != libc::EINTR {
-            return;
-        }
+    while let Err(Errno::INTR) =
+        rustix::thread::clock_nanosleep_absolute(rustix::thread::ClockId::Monotonic, &ts)
+    {}
+}
+
+/// SIGTERM, SIGINT and SIGHUP, caught: a pollable descriptor that becomes readable when
+/// one arrives, and the number of the last one.
+pub struct TermSignals {
+    wake: UnixStream,
+    last: Arc<AtomicUsize>,
+}
+
+impl AsRawFd for TermSignals {
+    fn as_raw_fd(&self) -> RawFd {
+        self.wake.as_raw_fd()
     }
 }
 
-/// Blocks SIGTERM, SIGINT and SIGHUP in this thread (and the threads it spawns later) and
-/// returns a signalfd that reads them.
-pub fn signalfd_for_termination() -> io::Result<OwnedFd> {
-    // SAFETY: sigset_t is plain data; sigemptyset initialises it.
-    let mut set: libc::sigset_t = unsafe { std::mem::zeroed() };
-    // SAFETY: `set` is a valid sigset_t; the signal numbers are valid.
-    unsafe {
-        libc::sigemptyset(&mut set);
-        libc::sigaddset(&mut set, libc::SIGTERM);
-        libc::sigaddset(&mut set, libc::SIGINT);
-        libc::sigaddset(&mut set, libc::SIGHUP);
+/// Catches SIGTERM, SIGINT and SIGHUP (through signal-hook: the handler records the signal
+/// and writes to a socket pair the control loop polls), and ignores SIGPIPE (writing to a
+/// broken control connection must not kill the broker).
+pub fn catch_termination_signals() -> io::Result<TermSignals> {
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGPIPE, SIGTERM};
+    let (wake, write) = UnixStream::pair()?;
+    wake.set_nonblocking(true)?;
+    write.set_nonblocking(true)?;
+    let last = Arc::new(AtomicUsize::new(0));
+    for sig in [SIGTERM, SIGINT, SIGHUP] {
+        // Registered in this order, the actions run in this order: the number is stored
+        // before the wake-up is written.
+        signal_hook::flag::register_usize(sig, Arc::clone(&last), sig as usize)?;
+        signal_hook::low_level::pipe::register(sig, write.try_clone()?)?;
     }
-    // SAFETY: `set` is initialised; the old-set pointer may be null.
-    let r = unsafe { libc::pthread_sigmask(libc::SIG_BLOCK, &set, std::ptr::null_mut()) };
-    if r != 0 {
-        return Err(io::Error::from_raw_os_error(r));
-    }
-    // SAFETY: writing to a broken control connection must not kill the broker.
-    unsafe { libc::signal(libc::SIGPIPE, libc::SIG_IGN) };
-    // SAFETY: `set` is initialised; -1 creates a new signalfd.
-    let fd = check(unsafe { libc::signalfd(-1, &set, libc::SFD_CLOEXEC | libc::SFD_NONBLOCK) })?;
-    // SAFETY: `fd` is a fresh descriptor owned by nobody else.
-    Ok(unsafe { OwnedFd::from_raw_fd(fd) })
+    signal_hook::flag::register(SIGPIPE, Arc::new(AtomicBool::new(false)))?;
+    Ok(TermSignals { wake, last })
 }
 
-/// Reads one signal number from a signalfd, if any is pending.
-pub fn read_signal(fd: &OwnedFd) -> Option<u32> {
-    // SAFETY: signalfd_siginfo is plain data.
-    let mut info: libc::signalfd_siginfo = unsafe { std::mem::zeroed() };
-    let size = std::mem::size_of::<libc::signalfd_siginfo>();
-    // SAFETY: `info` is valid for `size` bytes; `fd` is an open signalfd.
-    let r = unsafe { libc::read(fd.as_raw_fd(), (&mut info as *mut libc::signalfd_siginfo).cast(), size) };
-    (r == size as isize).then_some(info.ssi_signo)
+/// The termination signal that arrived, if any (drains the wake-ups).
+pub fn read_signal(s: &TermSignals) -> Option<u32> {
+    let mut buf = [0u8; 64];
+    while matches!(rustix::io::read(&s.wake, &mut buf), Ok(n) if n > 0) {}
+    match s.last.swap(0, Ordering::AcqRel) {
+        0 => None,
+        sig => u32::try_from(sig).ok(),
+    }
 }
 
 /// Tries SCHED_FIFO at `priority` for the calling thread.
 pub fn set_realtime(priority: i32) -> io::Result<()> {
     let param = libc::sched_param { sched_priority: priority };
-    // SAFETY: `param` is valid; pthread_self() is the calling thread.
+    // SAFETY: `param` is valid for the call; pthread_self() is the calling thread (rustix
+    // has no wrapper for the scheduling policy).
     let r = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) };
     if r == 0 {
         Ok(())
@@ -144,33 +138,28 @@ pub struct Peer {
 const SO_PEERGROUPS: libc::c_int = 59;
 
 /// Reads SO_PEERCRED (and SO_PEERGROUPS where available) of a connected socket.
-pub fn peer_credentials(fd: RawFd) -> io::Result<Peer> {
-    let mut cred = libc::ucred { pid: 0, uid: 0, gid: 0 };
-    let mut len = std::mem::size_of::<libc::ucred>() as libc::socklen_t;
-    // SAFETY: `cred` is valid for `len` bytes; `fd` is an open socket.
-    check(unsafe {
-        libc::getsockopt(
-            fd,
-            libc::SOL_SOCKET,
-            libc::SO_PEERCRED,
-            (&mut cred as *mut libc::ucred).cast(),
-            &mut len,
-        )
-    })?;
+pub fn peer_credentials(fd: BorrowedFd<'_>) -> io::Result<Peer> {
+    let cred = rustix::net::sockopt::socket_peercred(fd)?;
     let mut groups = vec![0u32; 256];
     let mut glen = (groups.len() * 4) as libc::socklen_t;
-    // SAFETY: `groups` is valid for `glen` bytes; failure (old kernel) leaves an empty list.
+    // SAFETY: `groups` is valid for `glen` bytes; `fd` is an open socket; failure (old
+    // kernel) leaves an empty list. rustix has no SO_PEERGROUPS.
     let r = unsafe {
-        libc::getsockopt(fd, libc::SOL_SOCKET, SO_PEERGROUPS, groups.as_mut_ptr().cast(), &mut glen)
+        libc::getsockopt(
+            fd.as_raw_fd(),
+            libc::SOL_SOCKET,
+            SO_PEERGROUPS,
+            groups.as_mut_ptr().cast(),
+            &mut glen,
+        )
     };
     groups.truncate(if r == 0 { glen as usize / 4 } else { 0 });
-    Ok(Peer { pid: cred.pid, uid: cred.uid, gid: cred.gid, groups })
+    Ok(Peer { pid: cred.pid.as_raw_nonzero().get(), uid: cred.uid.as_raw(), gid: cred.gid.as_raw(), groups })
 }
 
 /// This process's effective user id.
 pub fn euid() -> u32 {
-    // SAFETY: geteuid cannot fail.
-    unsafe { libc::geteuid() }
+    rustix::process::geteuid().as_raw()
 }
 
 /// The group id of group `name` (or a number).
@@ -180,7 +169,8 @@ pub fn group_id(name: &str) -> io::Result<u32> {
     }
     let cname = std::ffi::CString::new(name).map_err(|_| io::Error::from(io::ErrorKind::InvalidInput))?;
     // SAFETY: getgrnam with a valid C string; the result is only read immediately (the
-    // broker resolves groups once, at start-up, before spawning threads).
+    // broker resolves groups once, at start-up, before spawning threads). rustix has no
+    // name service calls.
     let g = unsafe { libc::getgrnam(cname.as_ptr()) };
     if g.is_null() {
         return Err(io::Error::new(io::ErrorKind::NotFound, format!("no group named {name:?}")));
@@ -318,11 +308,10 @@ pub fn listen_seqpacket_at(
 ) -> io::Result<OwnedFd> {
     use rustix::fs::{AtFlags, FileType, Mode};
     let fd = bassclient::control::seqpacket_socket()?;
-    let (addr, len) = bassclient::control::sockaddr(path)?;
+    let addr = bassclient::control::socket::unix_addr(path)?;
     // Called at start-up, before any other thread exists: the process-wide umask is ours.
     let old = rustix::process::umask(Mode::from_raw_mode(!mode & 0o777));
-    // SAFETY: `addr` is a valid sockaddr_un of `len` bytes; `fd` is open.
-    let r = check(unsafe { libc::bind(fd.as_raw_fd(), (&addr as *const libc::sockaddr_un).cast(), len) });
+    let r = rustix::net::bind(&fd, &addr);
     rustix::process::umask(old);
     r?;
     if let Some(gid) = group {
@@ -330,65 +319,35 @@ pub fn listen_seqpacket_at(
         rustix::fs::chownat(dir, name, None, Some(gid), AtFlags::SYMLINK_NOFOLLOW)?;
     }
     check_own(name, &rustix::fs::statat(dir, name, AtFlags::SYMLINK_NOFOLLOW)?, FileType::Socket)?;
-    // SAFETY: listen on a bound socket.
-    check(unsafe { libc::listen(fd.as_raw_fd(), 64) })?;
-    set_nonblocking(fd.as_raw_fd())?;
+    rustix::net::listen(&fd, 64)?;
+    rustix::io::ioctl_fionbio(&fd, true)?;
     Ok(fd)
 }
 
 /// Accepts one connection (close-on-exec); `Ok(None)` if none is pending.
-pub fn accept(listener: RawFd) -> io::Result<Option<OwnedFd>> {
+pub fn accept(listener: BorrowedFd<'_>) -> io::Result<Option<OwnedFd>> {
     loop {
-        // SAFETY: accept4 on a listening socket; the peer address is not requested.
-        let r = unsafe {
-            libc::accept4(listener, std::ptr::null_mut(), std::ptr::null_mut(), libc::SOCK_CLOEXEC)
-        };
-        if r >= 0 {
-            // SAFETY: `r` is a fresh descriptor owned by nobody else.
-            return Ok(Some(unsafe { OwnedFd::from_raw_fd(r) }));
-        }
-        let e = io::Error::last_os_error();
-        match e.kind() {
-            io::ErrorKind::Interrupted => continue,
-            io::ErrorKind::WouldBlock => return Ok(None),
-            _ => return Err(e),
+        match rustix::net::accept_with(listener, rustix::net::SocketFlags::CLOEXEC) {
+            Ok(fd) => return Ok(Some(fd)),
+            Err(Errno::INTR) => continue,
+            Err(Errno::WOULDBLOCK) => return Ok(None),
+            Err(e) => return Err(e.into()),
         }
     }
 }
 
-fn set_nonblocking(fd: RawFd) -> io::Result<()> {
-    // SAFETY: fcntl on an open descriptor.
-    let flags = check(unsafe { libc::fcntl(fd, libc::F_GETFL) })?;
-    // SAFETY: fcntl on an open descriptor with valid flags.
-    check(unsafe { libc::fcntl(fd, libc::F_SETFL, flags | libc::O_NONBLOCK) })?;
-    Ok(())
-}
-
 /// Sets a send timeout on a socket, so that a client that never reads cannot block the broker.
-pub fn set_send_timeout(fd: RawFd, t: Duration) -> io::Result<()> {
-    let tv = libc::timeval {
-        tv_sec: t.as_secs() as libc::time_t,
-        tv_usec: t.subsec_micros() as libc::suseconds_t,
-    };
-    // SAFETY: `tv` is a valid timeval for the call; `fd` is an open socket.
-    check(unsafe {
-        libc::setsockopt(
-            fd,
-            libc::SOL_SOCKET,
-            libc::SO_SNDTIMEO,
-            (&tv as *const libc::timeval).cast(),
-            std::mem::size_of::<libc::timeval>() as libc::socklen_t,
-        )
-    })?;
-    Ok(())
+pub fn set_send_timeout(fd: BorrowedFd<'_>, t: Duration) -> io::Result<()> {
+    bassclient::control::socket::set_timeouts(fd, None, Some(t))
 }
 
 /// Discards whatever the peer already sent on `fd` (before closing a refused connection,
 /// so that the kernel does not turn our close into a reset that hides our reply).
-pub fn drain(fd: RawFd) {
+pub fn drain(fd: BorrowedFd<'_>) {
     let mut buf = [0u8; 512];
-    // SAFETY: `buf` is valid for writes of its length; MSG_DONTWAIT never blocks.
-    while unsafe { libc::recv(fd, buf.as_mut_ptr().cast(), buf.len(), libc::MSG_DONTWAIT) } > 0 {}
+    while matches!(rustix::net::recv(fd, &mut buf[..], rustix::net::RecvFlags::DONTWAIT), Ok((_, n)) if n > 0)
+    {
+    }
 }
 
 /// Whether an `accept` error means the process or the system ran out of descriptors (or

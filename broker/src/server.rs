@@ -1,7 +1,7 @@
 //! The broker's control loop: the instance lock, the control socket, peer checks, request
 //! dispatch (ListDevices, Acquire, Stop, Status), the stall watchdog and the signals.
 //!
-//! One thread runs everything here with `poll` over the listening socket, a signalfd and
+//! One thread runs everything here with `poll` over the listening socket, the signals' wake-up and
 //! the client connections; the capture runs on its own thread (see [`crate::capture`]).
 
 use std::fs::File;
@@ -11,7 +11,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::{bail, Context};
-use bassclient::control::{self, AcquireRequest, ErrorKind, Message, Request, Status, PROTOCOL_MAJOR};
+use bassclient::control::{self, AcquireRequest, Acquired, ErrorKind, Reply, Request, Status, WireError};
 use bassclient::format::{error_code, State};
 use bassclient::paths;
 use bassclient::reader::Port;
@@ -113,15 +113,15 @@ impl Broker {
     }
 
     /// Answers one request of the broker's own user.
-    pub fn handle(&mut self, req: Request) -> Message {
+    pub fn handle(&mut self, req: Request) -> Reply {
         self.handle_as(req, self.own_uid)
     }
 
     /// Answers one request of a client running as `peer_uid`.
-    pub fn handle_as(&mut self, req: Request, peer_uid: u32) -> Message {
+    pub fn handle_as(&mut self, req: Request, peer_uid: u32) -> Reply {
         match req {
-            Request::ListDevices => control::devices_to_message(&device::list()),
-            Request::Status => self.status().to_message(),
+            Request::ListDevices => Reply::Devices { devices: device::list() },
+            Request::Status => Reply::Status(self.status()),
             Request::Stop => self.stop(),
             Request::Acquire(r) => self.acquire(&r, peer_uid),
         }
@@ -153,7 +153,8 @@ impl Broker {
                 s.xruns = i.xruns;
                 s.gap_frames = i.gap_frames;
                 s.chunks_published = i.chunks_published;
-                s.rate_estimate_hz = i.rate_estimate_hz;
+                // JSON has no NaN or infinity: a value the port cannot hold reads as "none yet".
+                s.rate_estimate_hz = if i.rate_estimate_hz.is_finite() { i.rate_estimate_hz } else { 0.0 };
                 s.device = i.device;
                 s.message = i.message;
             }
@@ -190,31 +191,31 @@ impl Broker {
     /// the running acquisition holds it (an ALSA hw device opens once). Then the running
     /// capture is stopped (its port keeps its window, state stopped) and the open retried
     /// once; if that fails too, the old port stays stopped, with its epoch and frames.
-    fn acquire(&mut self, r: &AcquireRequest, peer_uid: u32) -> Message {
+    fn acquire(&mut self, r: &AcquireRequest, peer_uid: u32) -> Reply {
         let requested_ns = monotonic_ns();
         let checked = match request::check(r, self.cfg.max_port_bytes, &self.cfg.limits) {
             Ok(c) => c,
             Err(msg) => {
                 tracing::warn!("Acquire refused (nothing changed): {msg}");
-                return Message::error(ErrorKind::InvalidArgument, &msg);
+                return Reply::error(ErrorKind::InvalidArgument, &msg);
             }
         };
         if let Err(msg) = self.cfg.policy.check(&r.device, device::list) {
             tracing::warn!("Acquire refused by the device policy (nothing changed): {msg}");
-            return Message::error(ErrorKind::Permission, &msg);
+            return Reply::error(ErrorKind::Permission, &msg);
         }
         let g = checked.geometry.clone();
         let params = PortParams { geometry: g.clone(), device: r.device.clone(), group: self.cfg.group };
         if let Err(msg) = self.check_pin_budget(peer_uid, g.layout().map_or(0, |l| l.total_size)) {
             tracing::warn!(uid = peer_uid, "{msg}");
-            return Message::error(ErrorKind::InvalidArgument, &msg);
+            return Reply::error(ErrorKind::InvalidArgument, &msg);
         }
         let pending = match Writer::prepare(&self.cfg.name, &params) {
             Ok(p) => p,
             Err(e) => {
                 let msg = format!("Acquire refused: cannot create the port: {e}; {}", self.unchanged());
                 tracing::error!("{msg}");
-                return Message::error(ErrorKind::Internal, &msg);
+                return Reply::error(ErrorKind::Internal, &msg);
             }
         };
         let mut opened = open_device(&checked.device, &g, checked.format);
@@ -241,7 +242,7 @@ impl Broker {
                     format!("{}; {kept}", e.message)
                 };
                 tracing::error!("Acquire failed: {msg}");
-                return Message::error(ErrorKind::Device, &msg);
+                return Reply::error(ErrorKind::Device, &msg);
             }
         };
         // The switch: the old capture stops, then the new port takes the name.
@@ -254,7 +255,7 @@ impl Broker {
                 // The rename failed: the old acquisition stays current (stopped, its window kept).
                 let msg = format!("cannot put the new port in place: {e}; {}", self.unchanged());
                 tracing::error!("{msg}");
-                return Message::error(ErrorKind::Internal, &msg);
+                return Reply::error(ErrorKind::Internal, &msg);
             }
         };
         if let Some(old) = self.current.take() {
@@ -284,9 +285,9 @@ impl Broker {
                     "acquisition started"
                 );
                 self.current = Some(a);
-                Message::new("ok").with("epoch", epoch).with("port", port_path).with("format", format)
+                Reply::Acquired(Acquired { epoch, port: port_path.into(), format: format.into() })
             }
-            Err(e) => Message::error(ErrorKind::Internal, &format!("cannot start the capture thread: {e}")),
+            Err(e) => Reply::error(ErrorKind::Internal, &format!("cannot start the capture thread: {e}")),
         }
     }
 
@@ -323,10 +324,11 @@ impl Broker {
     /// Stop: ends the capture (the port keeps its window, state stopped); an acquisition
     /// that had ended on an error is moved out of the error state. The reply's `message`
     /// says what was done.
-    fn stop(&mut self) -> Message {
+    fn stop(&mut self) -> Reply {
         let Some(a) = self.current.as_mut() else {
-            return Message::new("ok")
-                .with("message", "nothing to stop: no acquisition since the broker started");
+            return Reply::Stopped {
+                message: "nothing to stop: no acquisition since the broker started".into(),
+            };
         };
         let before = a.port.info().ok().and_then(|i| i.state);
         a.stop(STOP_TIMEOUT);
@@ -337,7 +339,7 @@ impl Broker {
             None => format!("stopped at frame {last}"),
         };
         tracing::info!(device = %a.device, "{msg}");
-        Message::new("ok").with("message", msg)
+        Reply::Stopped { message: msg }
     }
 
     /// Runs the stall watchdog once.
@@ -489,8 +491,8 @@ fn take_instance(cfg: &Config) -> anyhow::Result<Files> {
 
 /// Runs the broker until SIGTERM / SIGINT.
 pub fn run(cfg: Config) -> anyhow::Result<()> {
-    // Block the termination signals before any thread exists, so only the signalfd sees them.
-    let sigfd = os::signalfd_for_termination().context("setting up the signal handling")?;
+    // Catch the termination signals before any thread exists (a wake-up socket the loop polls).
+    let signals = os::catch_termination_signals().context("setting up the signal handling")?;
     let files = take_instance(&cfg)?;
     let mode = if cfg.group.is_some() { 0o660 } else { 0o600 };
     let listener = os::listen_seqpacket_at(&files.dir, &files.socket_name, &files.socket, mode, cfg.group)
@@ -499,9 +501,8 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
     let own_uid = os::euid();
     let mut broker = Broker::new(cfg.clone());
     if let Some(r) = &cfg.acquire {
-        let reply = broker.handle(Request::Acquire(r.clone()));
-        if reply.verb != "ok" {
-            tracing::error!("start-up Acquire failed: {}", reply.get("message").unwrap_or(""));
+        if let Reply::Error { message, .. } = broker.handle(Request::Acquire(r.clone())) {
+            tracing::error!("start-up Acquire failed: {message}");
         }
     }
     let mut clients: Vec<Conn> = Vec::new();
@@ -511,12 +512,12 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
         let listening = monotonic_ns() >= acceptor.paused_until_ns;
         // A negative descriptor is ignored by poll: while backing off, the listener is not watched.
         let lfd = if listening { listener.as_raw_fd() } else { -1 };
-        let mut fds = vec![os::pollin(lfd), os::pollin(sigfd.as_raw_fd())];
+        let mut fds = vec![os::pollin(lfd), os::pollin(signals.as_raw_fd())];
         fds.extend(clients.iter().map(|c| os::pollin(c.fd.as_raw_fd())));
         os::poll(&mut fds, Some(TICK)).context("poll")?;
         broker.tick();
         if fds[1].revents != 0 {
-            if let Some(sig) = os::read_signal(&sigfd) {
+            if let Some(sig) = os::read_signal(&signals) {
                 tracing::info!(signal = sig, "terminating: stopping the capture");
                 broker.shutdown();
                 drop(files);
@@ -600,7 +601,7 @@ impl Acceptor {
             self.spare = os::spare_fd().ok();
         }
         loop {
-            match os::accept(listener.as_raw_fd()) {
+            match os::accept(listener) {
                 Ok(Some(c)) => {
                     if self.out_of_fds && self.spare.is_some() {
                         self.out_of_fds = false;
@@ -635,15 +636,15 @@ impl Acceptor {
         while refused_now < 64 {
             let Some(spare) = self.spare.take() else { break };
             drop(spare);
-            let accepted = os::accept(listener.as_raw_fd());
+            let accepted = os::accept(listener);
             let got_one = matches!(accepted, Ok(Some(_)));
             if let Ok(Some(c)) = &accepted {
-                let m = Message::error(
+                let m = Reply::error(
                     ErrorKind::Internal,
                     "the broker is out of file descriptors; try again later",
                 );
-                let _ = control::send_message(c.as_fd(), &m);
-                os::drain(c.as_raw_fd());
+                let _ = control::send_reply(c.as_fd(), &m);
+                os::drain(c.as_fd());
                 refused_now += 1;
             }
             drop(accepted);
@@ -671,7 +672,7 @@ impl Acceptor {
 
 /// Checks a new connection's peer and the connection limits; keeps it or refuses it with a reply.
 fn admit(c: OwnedFd, clients: &mut Vec<Conn>, own_uid: u32, group: Option<u32>) {
-    let fd = c.as_raw_fd();
+    let fd = c.as_fd();
     let _ = os::set_send_timeout(fd, Duration::from_secs(1));
     let peer = match os::peer_credentials(fd) {
         Ok(p) if peer_allowed(&p, own_uid, group) => Some(p),
@@ -685,7 +686,7 @@ fn admit(c: OwnedFd, clients: &mut Vec<Conn>, own_uid: u32, group: Option<u32>) 
         }
     };
     let refuse = |kind, text: &str| {
-        let _ = control::send_message(c.as_fd(), &Message::error(kind, text));
+        let _ = control::send_reply(c.as_fd(), &Reply::error(kind, text));
         os::drain(fd);
     };
     let Some(peer) = peer else {
@@ -715,26 +716,36 @@ fn admit(c: OwnedFd, clients: &mut Vec<Conn>, own_uid: u32, group: Option<u32>) 
 }
 
 /// Reads one request from `c` and answers it; false when the connection is finished.
+///
+/// A request in the version-1 text form is answered in that form (`code=version`), the one
+/// reply a version-1 client can read; any other version gets a version-2 `error` naming both.
 fn serve_one(broker: &mut Broker, c: &OwnedFd) -> bool {
-    let reply = match control::recv_message(c.as_fd()) {
+    let bytes = match control::recv_datagram(c.as_fd()) {
         Ok(None) => return false,
-        Ok(Some(m)) if m.major != PROTOCOL_MAJOR => Message::error(
-            ErrorKind::Version,
-            &format!(
-                "this broker speaks control protocol {PROTOCOL_MAJOR}, the request is version {}",
-                m.major
-            ),
-        ),
-        Ok(Some(m)) => match Request::from_message(&m) {
-            Ok(r) => {
-                let uid = os::peer_credentials(c.as_raw_fd()).map_or(u32::MAX, |p| p.uid);
-                broker.handle_as(r, uid)
-            }
-            Err(e) => Message::error(ErrorKind::Protocol, &e.to_string()),
-        },
-        Err(e) => Message::error(ErrorKind::Protocol, &e.to_string()),
+        Ok(Some(b)) => b,
+        Err(e) => {
+            let reply = Reply::error(ErrorKind::Protocol, &e.to_string());
+            return control::send_reply(c.as_fd(), &reply).is_ok();
+        }
     };
-    control::send_message(c.as_fd(), &reply).is_ok()
+    let reply = match control::wire::decode_request(&bytes) {
+        Ok(r) => {
+            let uid = os::peer_credentials(c.as_fd()).map_or(u32::MAX, |p| p.uid);
+            broker.handle_as(r, uid)
+        }
+        Err(WireError::Version { found }) => {
+            let text = format!(
+                "this broker speaks {}, the request is {found}: update the client library",
+                control::PROTOCOL
+            );
+            if control::wire::is_v1_text(&bytes) {
+                return control::send_datagram(c.as_fd(), &control::wire::v1_error(&text)).is_ok();
+            }
+            Reply::error(ErrorKind::Version, &text)
+        }
+        Err(WireError::Malformed(e)) => Reply::error(ErrorKind::Protocol, &e),
+    };
+    control::send_reply(c.as_fd(), &reply).is_ok()
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@ mod common;
 use std::os::fd::AsFd;
 use std::process::Command;
 
-use bassclient::control::{self, Message};
+use bassclient::control;
 use bassclient::format::State;
 use bassclient::testsignal::pattern_sample;
 use bassclient::Error;
@@ -133,23 +133,28 @@ fn the_protocol_refuses_other_versions_and_garbage() {
     let dir = TempDir::new("proto");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
     let mut c = b.client();
-    let r = c.call(&Message { major: 2, verb: "status".into(), fields: vec![] }).unwrap();
-    assert_eq!((r.verb.as_str(), r.get("code")), ("error", Some("version")));
-    let r = c.call(&Message::new("frobnicate")).unwrap();
-    assert_eq!((r.verb.as_str(), r.get("code")), ("error", Some("protocol")));
-    let r = c.call(&Message::new("acquire").with("sample_rate", "fast")).unwrap();
-    assert_eq!((r.verb.as_str(), r.get("code")), ("error", Some("protocol")));
+    let code = |r: control::Reply| match r {
+        control::Reply::Error { kind, .. } => kind,
+        other => panic!("expected an error reply, got {other:?}"),
+    };
+    let r = c.call_raw(br#"{"version":"bass-control/3","request":"status"}"#).unwrap();
+    assert_eq!(code(r), control::ErrorKind::Version);
+    let r = c.call_raw(br#"{"version":"bass-control/2","request":"frobnicate"}"#).unwrap();
+    assert_eq!(code(r), control::ErrorKind::Protocol);
+    let r = c.call_raw(br#"{"version":"bass-control/2","request":"acquire","sample_rate":"fast"}"#).unwrap();
+    assert_eq!(code(r), control::ErrorKind::Protocol);
     // Raw bytes that are not a message at all, on a fresh connection.
-    let fd = control::seqpacket_socket().unwrap();
-    let (addr, len) = control::sockaddr(&b.socket()).unwrap();
-    // SAFETY: connect with a valid sockaddr_un; send a valid buffer.
-    unsafe {
-        use std::os::fd::AsRawFd;
-        assert_eq!(libc::connect(fd.as_raw_fd(), (&addr as *const libc::sockaddr_un).cast(), len), 0);
-        assert_eq!(libc::send(fd.as_raw_fd(), b"hello\n".as_ptr().cast(), 6, 0), 6);
-    }
-    let r = control::recv_message(fd.as_fd()).unwrap().unwrap();
-    assert_eq!((r.verb.as_str(), r.get("code")), ("error", Some("protocol")));
+    let fd = control::socket::connect(&b.socket()).unwrap();
+    control::send_datagram(fd.as_fd(), b"hello\n").unwrap();
+    let r = control::recv_reply(fd.as_fd()).unwrap().unwrap();
+    assert_eq!(code(r), control::ErrorKind::Protocol);
+    // A version-1 client (key=value text) is answered in its own form, naming both versions.
+    let fd = control::socket::connect(&b.socket()).unwrap();
+    control::send_datagram(fd.as_fd(), b"bass-control/1 status\n").unwrap();
+    let r = control::recv_datagram(fd.as_fd()).unwrap().unwrap();
+    let text = String::from_utf8(r).unwrap();
+    assert!(text.starts_with("bass-control/1 error\ncode=version\nmessage="), "{text}");
+    assert!(text.contains("bass-control/2") && text.contains("bass-control/1"), "{text}");
     // The broker is still fine.
     assert_eq!(c.status().unwrap().state, State::Idle as u32);
 }
@@ -344,9 +349,9 @@ fn idle_control_connections_are_closed_and_clients_reconnect() {
     let slice = Some(std::time::Duration::from_millis(100));
     rustix::net::sockopt::set_socket_timeout(&raw, rustix::net::sockopt::Timeout::Recv, slice).unwrap();
     let closed =
-        eventually("the idle connection to be closed", || match control::recv_message(raw.as_fd()) {
+        eventually("the idle connection to be closed", || match control::recv_datagram(raw.as_fd()) {
             Ok(None) => Some(true),
-            Ok(Some(m)) => panic!("unexpected message {m:?}"),
+            Ok(Some(m)) => panic!("unexpected message {:?}", String::from_utf8_lossy(&m)),
             Err(_) => None,
         });
     assert!(closed);

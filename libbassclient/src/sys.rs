@@ -1,7 +1,13 @@
-//! Thin, checked wrappers over the Linux calls bass needs: futex, clocks, process liveness.
+//! Thin, checked wrappers over the Linux calls bass needs: futex, clocks, process liveness
+//! (all through rustix: no `unsafe` here).
 
+use std::num::NonZeroU32;
 use std::sync::atomic::AtomicU32;
 use std::time::Duration;
+
+use rustix::io::Errno;
+use rustix::thread::futex::{self, Timespec};
+use rustix::time::ClockId;
 
 /// Outcome of a futex wait.
 #[derive(Debug, PartialEq, Eq)]
@@ -28,89 +34,53 @@ pub fn chunk_bit(chunk: u64) -> u32 {
     1 << (chunk % 31)
 }
 
-/// Like [`futex_wait`], but only woken by wakes whose bits intersect `bits`.
+/// Like [`futex_wait`], but only woken by wakes whose bits intersect `bits` (0 waits for
+/// nothing and returns at once).
 pub fn futex_wait_bits(word: &AtomicU32, expected: u32, timeout: Duration, bits: u32) -> FutexWait {
+    let Some(bits) = NonZeroU32::new(bits) else { return FutexWait::Woken };
     // FUTEX_WAIT_BITSET takes an absolute CLOCK_MONOTONIC deadline.
     let deadline = monotonic_ns().saturating_add(u64::try_from(timeout.as_nanos()).unwrap_or(u64::MAX));
-    let ts = libc::timespec {
-        tv_sec: (deadline / 1_000_000_000).min(i64::MAX as u64) as libc::time_t,
-        tv_nsec: (deadline % 1_000_000_000) as libc::c_long,
+    let ts = Timespec {
+        tv_sec: (deadline / 1_000_000_000).min(i64::MAX as u64) as i64,
+        tv_nsec: (deadline % 1_000_000_000) as _,
     };
-    // SAFETY: `word` is a valid, aligned u32 for the duration of the call; the kernel only
-    // reads it for FUTEX_WAIT_BITSET; `ts` outlives the call; `bits` is non-zero by
-    // construction of the callers; the unused argument is null.
-    let r = unsafe {
-        libc::syscall(
-            libc::SYS_futex,
-            word.as_ptr(),
-            libc::FUTEX_WAIT_BITSET,
-            expected,
-            &ts as *const libc::timespec,
-            std::ptr::null::<u32>(),
-            bits,
-        )
-    };
-    if r == 0 {
-        return FutexWait::Woken;
-    }
-    match std::io::Error::last_os_error().raw_os_error() {
-        Some(libc::ETIMEDOUT) => FutexWait::TimedOut,
-        Some(libc::EINTR) => FutexWait::Interrupted,
+    // Flags::empty(): a shared futex (no FUTEX_PRIVATE_FLAG), keyed on the mapped page, so
+    // it works across processes and on a read-only mapping (the kernel only reads the word).
+    match futex::wait_bitset(word, futex::Flags::empty(), expected, Some(&ts), bits) {
+        Ok(()) => FutexWait::Woken,
+        Err(Errno::TIMEDOUT) => FutexWait::TimedOut,
+        Err(Errno::INTR) => FutexWait::Interrupted,
         // EAGAIN: the value already changed.
-        _ => FutexWait::Woken,
+        Err(_) => FutexWait::Woken,
     }
 }
 
 /// Wakes the processes waiting on `word` whose bits intersect `bits`.
 pub fn futex_wake_bits(word: &AtomicU32, bits: u32) -> u32 {
-    // SAFETY: as in `futex_wake_all`.
-    let r = unsafe {
-        libc::syscall(
-            libc::SYS_futex,
-            word.as_ptr(),
-            libc::FUTEX_WAKE_BITSET,
-            i32::MAX,
-            std::ptr::null::<libc::timespec>(),
-            std::ptr::null::<u32>(),
-            bits,
-        )
-    };
+    let Some(bits) = NonZeroU32::new(bits) else { return 0 };
+    let woken = futex::wake_bitset(word, futex::Flags::empty(), i32::MAX as u32, bits);
     // The number of processes woken (an error, impossible with these arguments, counts as 0).
-    u32::try_from(r).unwrap_or(0)
+    woken.map_or(0, |n| u32::try_from(n).unwrap_or(u32::MAX))
 }
 
 /// Wakes every process waiting on `word`.
 pub fn futex_wake_all(word: &AtomicU32) {
-    // SAFETY: `word` is a valid, aligned u32 in a shared mapping; FUTEX_WAKE does not
-    // access memory beyond computing the futex key.
-    unsafe {
-        libc::syscall(
-            libc::SYS_futex,
-            word.as_ptr(),
-            libc::FUTEX_WAKE,
-            i32::MAX,
-            std::ptr::null::<libc::timespec>(),
-            std::ptr::null::<u32>(),
-            0u32,
-        );
-    }
+    let _ = futex::wake(word, futex::Flags::empty(), i32::MAX as u32);
 }
 
-fn clock_ns(clock: libc::clockid_t) -> u64 {
-    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
-    // SAFETY: `ts` is a valid out-pointer; the clock ids used here always exist on Linux.
-    unsafe { libc::clock_gettime(clock, &mut ts) };
+fn clock_ns(clock: ClockId) -> u64 {
+    let ts = rustix::time::clock_gettime(clock);
     (ts.tv_sec as u64).wrapping_mul(1_000_000_000).wrapping_add(ts.tv_nsec as u64)
 }
 
 /// CLOCK_MONOTONIC in nanoseconds.
 pub fn monotonic_ns() -> u64 {
-    clock_ns(libc::CLOCK_MONOTONIC)
+    clock_ns(ClockId::Monotonic)
 }
 
 /// CLOCK_REALTIME in nanoseconds.
 pub fn realtime_ns() -> u64 {
-    clock_ns(libc::CLOCK_REALTIME)
+    clock_ns(ClockId::Realtime)
 }
 
 /// Start time (clock ticks after boot) and state letter of process `pid`, from /proc.
@@ -141,10 +111,10 @@ pub fn writer_alive(pid: u32, start_time: u64) -> bool {
     }
     match process_start(pid) {
         Some((start, state)) => state != 'Z' && state != 'X' && (start_time == 0 || start == start_time),
-        None => {
-            // SAFETY: kill with signal 0 only checks for existence and permission.
-            let r = unsafe { libc::kill(pid as libc::pid_t, 0) };
-            r == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM)
-        }
+        None => match rustix::process::Pid::from_raw(pid as i32) {
+            // kill(pid, 0): exists (EPERM: exists, but is another user's).
+            Some(p) => matches!(rustix::process::test_kill_process(p), Ok(()) | Err(Errno::PERM)),
+            None => false,
+        },
     }
 }

@@ -10,41 +10,28 @@
 //! 0 gap frames; the reader gets 0 corrupted samples and exact accounting; the broker's
 //! file descriptors return to their count before the abuse.
 
-use std::os::fd::{AsRawFd, OwnedFd};
+use std::os::fd::OwnedFd;
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::time::{Duration, Instant};
 
 use bass_faults::{acquire_req, fd_count, figure, median_max, Agent, Bassd, TempDir};
-use bassclient::control::{self, Message};
+use bassclient::control;
 
 fn connect(path: &std::path::Path) -> OwnedFd {
-    let fd = control::seqpacket_socket().expect("socket");
-    let (addr, len) = control::sockaddr(path).expect("sockaddr");
-    // SAFETY: valid sockaddr_un of length `len`; `fd` is open.
-    let r = unsafe { libc::connect(fd.as_raw_fd(), (&addr as *const libc::sockaddr_un).cast(), len) };
-    assert_eq!(r, 0, "connect: {}", std::io::Error::last_os_error());
-    let tv = libc::timeval { tv_sec: 5, tv_usec: 0 };
-    // SAFETY: valid timeval for the call.
-    unsafe {
-        libc::setsockopt(
-            fd.as_raw_fd(),
-            libc::SOL_SOCKET,
-            libc::SO_RCVTIMEO,
-            (&tv as *const libc::timeval).cast(),
-            std::mem::size_of::<libc::timeval>() as libc::socklen_t,
-        )
-    };
+    let fd = control::socket::connect(path).expect("connect");
+    control::socket::set_timeouts(fd.as_fd_ref(), Some(Duration::from_secs(5)), None).expect("SO_RCVTIMEO");
     fd
 }
 
+/// Sends `bytes` as one datagram as it is (no size check: oversized datagrams must reach
+/// the broker, or be refused by the kernel).
 fn send_raw(fd: &OwnedFd, bytes: &[u8]) -> std::io::Result<()> {
-    // SAFETY: `bytes` valid for its length; `fd` open.
-    let r = unsafe { libc::send(fd.as_raw_fd(), bytes.as_ptr().cast(), bytes.len(), libc::MSG_NOSIGNAL) };
-    if r < 0 {
-        Err(std::io::Error::last_os_error())
-    } else {
-        Ok(())
-    }
+    rustix::net::send(fd, bytes, rustix::net::SendFlags::NOSIGNAL).map(drop).map_err(Into::into)
+}
+
+/// A well-formed status request.
+fn status_request() -> Vec<u8> {
+    control::wire::encode_request(&control::Request::Status)
 }
 
 /// What the broker did with one raw datagram on a fresh connection.
@@ -61,11 +48,17 @@ fn one_shot(path: &std::path::Path, bytes: &[u8]) -> Answer {
     if let Err(e) = send_raw(&fd, bytes) {
         return Answer::SendFailed(e.to_string());
     }
-    match control::recv_message(fd.as_fd_ref()) {
+    match control::recv_datagram(fd.as_fd_ref()) {
         Ok(None) => Answer::Closed,
-        Ok(Some(m)) if m.verb == "error" => Answer::Error(m.get("code").unwrap_or("").to_owned()),
-        Ok(Some(m)) if m.verb == "ok" => Answer::Ok,
-        Ok(Some(m)) => panic!("unexpected reply {m:?}"),
+        // A version-1 request is answered in the version-1 text form (code=version).
+        Ok(Some(m)) if m.starts_with(b"bass-control/1 error\ncode=version\n") => {
+            Answer::Error("version".into())
+        }
+        Ok(Some(m)) => match control::wire::decode_reply(&m) {
+            Ok(control::Reply::Error { kind, .. }) => Answer::Error(kind.as_str().to_owned()),
+            Ok(_) => Answer::Ok,
+            Err(e) => panic!("undecodable reply {:?}: {e}", String::from_utf8_lossy(&m)),
+        },
         Err(e) => panic!("no reply to {:?}: {e}", String::from_utf8_lossy(&bytes[..bytes.len().min(60)])),
     }
 }
@@ -114,42 +107,46 @@ fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
     let fds_before = fd_count(b.pid());
 
     // Malformed, truncated, unknown, wrong version.
+    let v2 = |body: &str| format!(r#"{{"version":"bass-control/2",{body}}}"#).into_bytes();
     let mut cases: Vec<(String, Vec<u8>, &[&str])> = vec![
         ("not text".into(), b"\xff\xfe\x00\x01garbage".to_vec(), &["protocol"]),
-        ("no prefix".into(), b"hello".to_vec(), &["protocol"]),
-        ("no verb".into(), b"bass-control/1".to_vec(), &["protocol"]),
-        ("bad major".into(), b"bass-control/x status".to_vec(), &["protocol", "version"]),
-        ("key without =".into(), b"bass-control/1 status\nnokeyvalue\n".to_vec(), &["protocol"]),
+        ("not JSON".into(), b"hello".to_vec(), &["protocol"]),
+        ("JSON, not an object".into(), b"[1,2,3]".to_vec(), &["protocol"]),
+        ("no version".into(), br#"{"request":"status"}"#.to_vec(), &["version"]),
+        ("no request".into(), v2(r#""device":"sim:pattern""#), &["protocol"]),
+        ("version not a string".into(), br#"{"version":2,"request":"status"}"#.to_vec(), &["version"]),
         (
             "bad number".into(),
-            b"bass-control/1 acquire\ndevice=sim:pattern\nsample_rate=abc\n".to_vec(),
-            &["protocol", "invalid-argument"],
+            v2(r#""request":"acquire","device":"sim:pattern","sample_rate":"abc""#),
+            &["protocol"],
         ),
-        ("unknown verb".into(), b"bass-control/1 explode".to_vec(), &["protocol"]),
-        ("reply verb as request".into(), b"bass-control/1 ok".to_vec(), &["protocol"]),
-        ("version 2".into(), b"bass-control/2 status".to_vec(), &["version"]),
-        ("version 0".into(), b"bass-control/0 status".to_vec(), &["version"]),
-        ("version 2^32".into(), b"bass-control/4294967296 status".to_vec(), &["version", "protocol"]),
-        ("NUL in verb".into(), b"bass-control/1 sta\x00tus\n".to_vec(), &["protocol"]),
+        ("unknown request".into(), v2(r#""request":"explode""#), &["protocol"]),
+        ("reply as request".into(), v2(r#""reply":"stopped","message":"""#), &["protocol"]),
+        ("version 1 text".into(), b"bass-control/1 status".to_vec(), &["version"]),
+        ("version 1 acquire".into(), b"bass-control/1 acquire\ndevice=sim:pattern\n".to_vec(), &["version"]),
+        ("version 3".into(), br#"{"version":"bass-control/3","request":"status"}"#.to_vec(), &["version"]),
+        ("NUL in request".into(), v2(r#""request":"sta\u0000tus""#), &["protocol"]),
         (
             "negative number".into(),
-            b"bass-control/1 acquire\ndevice=sim:pattern\nframes_per_chunk=-480\n".to_vec(),
-            &["protocol", "invalid-argument"],
+            v2(r#""request":"acquire","device":"sim:pattern","frames_per_chunk":-480"#),
+            &["protocol"],
         ),
         (
             "number too big".into(),
-            b"bass-control/1 acquire\ndevice=sim:pattern\nchunks_on_port=99999999999999999999\n".to_vec(),
-            &["protocol", "invalid-argument"],
+            v2(r#""request":"acquire","device":"sim:pattern","chunks_on_port":99999999999999999999"#),
+            &["protocol"],
+        ),
+        (
+            "deeply nested".into(),
+            format!("{}{}", "[".repeat(5000), "]".repeat(5000)).into_bytes(),
+            &["protocol"],
         ),
     ];
-    let first_line = b"bass-control/1 acquire";
-    for cut in 1..first_line.len() {
-        if first_line[..cut] == b"bass-control/1 "[..] {
-            continue;
-        }
-        cases.push((format!("truncated at {cut}"), first_line[..cut].to_vec(), &["protocol", "version"]));
+    let whole = v2(r#""request":"acquire","device":"sim:pattern""#);
+    for cut in 1..whole.len() {
+        cases.push((format!("truncated at {cut}"), whole[..cut].to_vec(), &["protocol", "version"]));
     }
-    let mut big = b"bass-control/1 status\nx=".to_vec();
+    let mut big = v2(r#""request":"status","x":""#);
     big.resize(control::MAX_MESSAGE + 1, b'a');
     cases.push(("oversized 64 KiB + 1".into(), big.clone(), &["protocol"]));
     big.resize(200 * 1024, b'a');
@@ -178,7 +175,7 @@ fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
     for i in 0..1000 {
         let fd = connect(&sock);
         if i % 3 == 0 {
-            let _ = send_raw(&fd, &Message::new("status").encode());
+            let _ = send_raw(&fd, &status_request());
         }
         drop(fd);
     }
@@ -188,24 +185,15 @@ fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
 
     // A client that connects, sends requests and never reads its replies.
     let lazy = connect(&sock);
-    let tv = libc::timeval { tv_sec: 0, tv_usec: 100_000 };
-    // SAFETY: valid timeval for the call.
-    unsafe {
-        libc::setsockopt(
-            lazy.as_raw_fd(),
-            libc::SOL_SOCKET,
-            libc::SO_SNDTIMEO,
-            (&tv as *const libc::timeval).cast(),
-            std::mem::size_of::<libc::timeval>() as libc::socklen_t,
-        )
-    };
+    control::socket::set_timeouts(lazy.as_fd_ref(), None, Some(Duration::from_millis(100)))
+        .expect("SO_SNDTIMEO");
     let mut sent = 0;
     let mut last_send_error = String::new();
     let mut latencies = Vec::new();
     let t = Instant::now();
     let mut next_probe = Instant::now();
     while t.elapsed() < Duration::from_secs(3) {
-        match send_raw(&lazy, &Message::new("status").encode()) {
+        match send_raw(&lazy, &status_request()) {
             Ok(()) => sent += 1,
             Err(e) => {
                 last_send_error = e.to_string();

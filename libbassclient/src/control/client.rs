@@ -1,0 +1,154 @@
+//! The client of a broker's control socket: connect (checking who serves the socket), one
+//! request and one reply at a time, a transparent reconnect when the broker closed an idle
+//! connection.
+
+use std::os::fd::{AsFd, OwnedFd};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use super::messages::{AcquireRequest, Acquired, DeviceInfo, Reply, Request, Status};
+use super::socket;
+use crate::error::{Error, Result};
+use crate::paths;
+
+/// Default time a client waits for a reply (an Acquire opens and configures a device).
+pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(15);
+
+/// Whether a send failed because the broker had closed the connection (EPIPE, ECONNRESET).
+fn peer_closed(e: &Error) -> bool {
+    matches!(e, Error::Io { source, .. }
+        if matches!(source.kind(), std::io::ErrorKind::BrokenPipe | std::io::ErrorKind::ConnectionReset))
+}
+
+fn closed_without_reply() -> Error {
+    Error::Protocol("the broker closed the connection without a reply".into())
+}
+
+/// A connection to a broker's control socket.
+pub struct Client {
+    fd: OwnedFd,
+    name: String,
+    path: PathBuf,
+    timeout: Duration,
+}
+
+impl Client {
+    /// Connects to broker `name` (`paths::DEFAULT_NAME` for the default broker).
+    pub fn connect(name: &str) -> Result<Client> {
+        let path = paths::socket_path(name)?;
+        Client::connect_path(&path, name)
+    }
+
+    /// Connects to the control socket at `path`.
+    pub fn connect_path(path: &Path, name: &str) -> Result<Client> {
+        let no_broker = |source| Error::NoBroker { name: name.to_owned(), path: path.to_owned(), source };
+        let fd = socket::connect(path).map_err(no_broker)?;
+        // Who serves this socket? The peer credentials are those of the process that called
+        // listen(): a socket planted by another user is refused before anything is sent.
+        let peer = rustix::net::sockopt::socket_peercred(&fd).map_err(|e| no_broker(e.into()))?;
+        let owner = peer.uid.as_raw();
+        if !paths::expected_owner_ok(owner) {
+            return Err(no_broker(std::io::Error::new(
+                std::io::ErrorKind::PermissionDenied,
+                format!(
+                    "the socket is served by uid {owner} (pid {}), not by root or this user; \
+                     set {}={owner} to trust that broker",
+                    peer.pid.as_raw_nonzero().get(),
+                    paths::BROKER_UID_ENV
+                ),
+            )));
+        }
+        let mut c = Client { fd, name: name.to_owned(), path: path.to_owned(), timeout: DEFAULT_TIMEOUT };
+        c.set_timeout(DEFAULT_TIMEOUT)?;
+        Ok(c)
+    }
+
+    /// Sets how long to wait for a reply.
+    pub fn set_timeout(&mut self, timeout: Duration) -> Result<()> {
+        self.timeout = timeout;
+        socket::set_timeouts(self.fd.as_fd(), Some(timeout), None)
+            .map_err(|e| Error::io("setsockopt(SO_RCVTIMEO)", e))
+    }
+
+    /// Broker name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Sends one request and returns the broker's reply as it came, `error` replies
+    /// included (for tools and tests).
+    pub fn call(&mut self, r: &Request) -> Result<Reply> {
+        self.call_raw(&super::wire::encode_request(r))
+    }
+
+    /// Sends raw bytes as one datagram and returns the decoded reply (for tests of the
+    /// broker's handling of malformed requests).
+    pub fn call_raw(&mut self, bytes: &[u8]) -> Result<Reply> {
+        if let Err(e) = socket::send_datagram(self.fd.as_fd(), bytes) {
+            // A broker that refuses a connection answers before closing it: read that reply.
+            return match socket::recv_reply(self.fd.as_fd()) {
+                Ok(Some(r)) => Ok(r),
+                // Closed without a word: the broker closed this connection as idle before the
+                // request reached it (it never saw it). Reconnect once and send it again.
+                Ok(None) if peer_closed(&e) => {
+                    let mut fresh = Client::connect_path(&self.path, &self.name)?;
+                    fresh.set_timeout(self.timeout)?;
+                    *self = fresh;
+                    socket::send_datagram(self.fd.as_fd(), bytes)?;
+                    socket::recv_reply(self.fd.as_fd())?.ok_or_else(closed_without_reply)
+                }
+                _ => Err(e),
+            };
+        }
+        socket::recv_reply(self.fd.as_fd())?.ok_or_else(closed_without_reply)
+    }
+
+    /// Sends `r`; an `error` reply becomes [`Error::Broker`] with the broker's message and kind.
+    fn request(&mut self, r: &Request) -> Result<Reply> {
+        match self.call(r)? {
+            Reply::Error { kind, message } => Err(Error::Broker(format!("{message} [{}]", kind.as_str()))),
+            ok => Ok(ok),
+        }
+    }
+
+    /// Starts an acquisition (interrupting a running one).
+    pub fn acquire(&mut self, req: &AcquireRequest) -> Result<Acquired> {
+        match self.request(&Request::Acquire(req.clone()))? {
+            Reply::Acquired(a) => Ok(a),
+            other => Err(unexpected("acquire", &other)),
+        }
+    }
+
+    /// Stops the acquisition (the port keeps its frames and shows Stopped).
+    pub fn stop(&mut self) -> Result<()> {
+        self.stop_report().map(drop)
+    }
+
+    /// Stops the acquisition and returns the broker's account of what was stopped.
+    pub fn stop_report(&mut self) -> Result<String> {
+        match self.request(&Request::Stop)? {
+            Reply::Stopped { message } => Ok(message),
+            other => Err(unexpected("stop", &other)),
+        }
+    }
+
+    /// The broker's and the port's state.
+    pub fn status(&mut self) -> Result<Status> {
+        match self.request(&Request::Status)? {
+            Reply::Status(s) => Ok(s),
+            other => Err(unexpected("status", &other)),
+        }
+    }
+
+    /// The capture devices the broker can open.
+    pub fn list_devices(&mut self) -> Result<Vec<DeviceInfo>> {
+        match self.request(&Request::ListDevices)? {
+            Reply::Devices { devices } => Ok(devices),
+            other => Err(unexpected("list-devices", &other)),
+        }
+    }
+}
+
+fn unexpected(request: &str, reply: &Reply) -> Error {
+    Error::Protocol(format!("the broker answered a {request} request with {reply:?}"))
+}

@@ -1,0 +1,212 @@
+//! The control protocol's messages: one Rust type per request and reply, with derived
+//! (serde) encoders. These types are the protocol's only definition; [`super::wire`] puts
+//! them into a datagram and docs/control-protocol.md shows them as JSON.
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+use crate::format::State;
+
+/// The seed's default device.
+pub const DEFAULT_DEVICE: &str = "hw:1,0";
+/// The seed's default sample rate (Hz).
+pub const DEFAULT_SAMPLE_RATE: u32 = 44100;
+/// The seed's default nFramesPerChunk.
+pub const DEFAULT_FRAMES_PER_CHUNK: u32 = 2205;
+/// The seed's default nChunksOnPort.
+pub const DEFAULT_CHUNKS_ON_PORT: u32 = 20;
+/// Default number of channels (binaural).
+pub const DEFAULT_CHANNELS: u32 = 2;
+
+/// Parameters of an Acquire. A field left out of the request takes its seed default.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct AcquireRequest {
+    /// ALSA PCM name or `sim:...`.
+    pub device: String,
+    /// Sample rate in Hz.
+    pub sample_rate: u32,
+    /// nFramesPerChunk.
+    pub frames_per_chunk: u32,
+    /// nChunksOnPort.
+    pub chunks_on_port: u32,
+    /// Channels.
+    pub channels: u32,
+    /// Force one device sample format (`S32_LE`, `S24_LE`, `S24_3LE`, `FLOAT_LE` or
+    /// `S16_LE`); `None` = the broker's choice.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub format: Option<String>,
+}
+
+impl Default for AcquireRequest {
+    fn default() -> Self {
+        AcquireRequest {
+            device: DEFAULT_DEVICE.into(),
+            sample_rate: DEFAULT_SAMPLE_RATE,
+            frames_per_chunk: DEFAULT_FRAMES_PER_CHUNK,
+            chunks_on_port: DEFAULT_CHUNKS_ON_PORT,
+            channels: DEFAULT_CHANNELS,
+            format: None,
+        }
+    }
+}
+
+/// A request to the broker (`"request"` names the variant on the wire).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "request", rename_all = "kebab-case")]
+pub enum Request {
+    /// List capture devices.
+    ListDevices,
+    /// Start (or restart) an acquisition.
+    Acquire(AcquireRequest),
+    /// Stop the acquisition.
+    Stop,
+    /// The broker's and the port's state.
+    Status,
+}
+
+/// Reply to an Acquire.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Acquired {
+    /// Epoch of the new acquisition's port.
+    pub epoch: u64,
+    /// Path of the port file.
+    pub port: PathBuf,
+    /// Device sample format negotiated (e.g. `S16_LE`; `S32_LE` for simulated devices).
+    pub format: String,
+}
+
+/// A capture device.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct DeviceInfo {
+    /// Name to pass to Acquire.
+    pub name: String,
+    /// One-line description.
+    #[serde(default)]
+    pub description: String,
+}
+
+/// The broker's and its current port's state. A field a newer broker adds is ignored; a
+/// field an older broker leaves out takes its zero value.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Status {
+    /// Port state ([`State`] as u32; `Idle` before the first Acquire).
+    pub state: u32,
+    /// `format::error_code` when `state` is Error.
+    pub error_code: u32,
+    /// Sample rate (Hz).
+    pub sample_rate: u32,
+    /// nFramesPerChunk.
+    pub frames_per_chunk: u32,
+    /// nChunksOnPort.
+    pub chunks_on_port: u32,
+    /// Channels.
+    pub channels: u32,
+    /// Acquisition epoch (0 before the first Acquire).
+    pub epoch: u64,
+    /// Newest published frame.
+    pub last_frame_index: u64,
+    /// Recovered overruns.
+    pub xruns: u64,
+    /// Zero-filled frames.
+    pub gap_frames: u64,
+    /// Chunks published.
+    pub chunks_published: u64,
+    /// Device rate estimate (Hz; 0 = none yet).
+    pub rate_estimate_hz: f64,
+    /// Device name.
+    pub device: String,
+    /// Device sample format negotiated.
+    pub format: String,
+    /// Error (or information) message.
+    pub message: String,
+    /// Path of the port file ("" before the first Acquire).
+    pub port: String,
+    /// Broker process id.
+    pub broker_pid: u32,
+    /// Broker version.
+    pub broker_version: String,
+}
+
+impl Status {
+    /// The port state, decoded.
+    pub fn state(&self) -> Option<State> {
+        State::from_u32(self.state)
+    }
+}
+
+/// Why the broker refused a request (`kind` of an `error` reply).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ErrorKind {
+    /// A parameter is out of range or malformed; nothing was changed.
+    InvalidArgument,
+    /// The device could not be opened or configured; nothing was changed (the message says
+    /// what was kept).
+    Device,
+    /// The peer is not allowed to control this broker.
+    Permission,
+    /// Another protocol version.
+    Version,
+    /// A malformed message or an unknown request.
+    Protocol,
+    /// Anything else (e.g. the port file could not be created).
+    Internal,
+}
+
+impl ErrorKind {
+    /// Wire name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ErrorKind::InvalidArgument => "invalid-argument",
+            ErrorKind::Device => "device",
+            ErrorKind::Permission => "permission",
+            ErrorKind::Version => "version",
+            ErrorKind::Protocol => "protocol",
+            ErrorKind::Internal => "internal",
+        }
+    }
+}
+
+/// A reply of the broker (`"reply"` names the variant on the wire): one success variant
+/// per request, or an error.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "reply", rename_all = "kebab-case")]
+pub enum Reply {
+    /// Answer to ListDevices: the simulated devices first, then ALSA's capture PCMs.
+    Devices {
+        /// The devices.
+        devices: Vec<DeviceInfo>,
+    },
+    /// Answer to Acquire.
+    Acquired(Acquired),
+    /// Answer to Stop.
+    Stopped {
+        /// What was stopped (for a human).
+        #[serde(default)]
+        message: String,
+    },
+    /// Answer to Status.
+    Status(Status),
+    /// The request was refused.
+    Error {
+        /// Why.
+        kind: ErrorKind,
+        /// One line for a human.
+        message: String,
+    },
+}
+
+impl Reply {
+    /// An `error` reply.
+    pub fn error(kind: ErrorKind, message: &str) -> Reply {
+        Reply::Error { kind, message: message.to_owned() }
+    }
+
+    /// Whether this is an `error` reply.
+    pub fn is_error(&self) -> bool {
+        matches!(self, Reply::Error { .. })
+    }
+}
