@@ -116,7 +116,12 @@ fn a_rate_or_channel_mismatch_is_refused_and_loop_starts_again() {
     );
     let o = bass(&b, &["acquire", &dev, "-r", "8000", "-c", "1"]);
     assert_eq!(o.status.code(), Some(4), "{}", text(&o));
+    // Outside the directory the operator allowed: refused by the device policy, nothing read.
     let o = bass(&b, &["acquire", "sim:file:/nonexistent/x.wav", "-r", "8000"]);
+    assert_ne!(o.status.code(), Some(0), "{}", text(&o));
+    assert!(text(&o).contains("device policy"), "{}", text(&o));
+    let missing = format!("sim:file:{}/missing.wav", dir.path().display());
+    let o = bass(&b, &["acquire", &missing, "-r", "8000"]);
     assert_eq!(o.status.code(), Some(4), "{}", text(&o));
     assert!(text(&o).contains("cannot read the WAV file"), "{}", text(&o));
     // --loop: frame f replays frame ((f - 1) mod 800) + 1 of the recording.
