@@ -111,6 +111,9 @@ fn run() -> Result<()> {
                 println!("last frame  {}", s.last_frame_index);
                 println!("chunks      {}", s.chunks_published);
                 println!("xruns       {} ({} zero-filled frames)", s.xruns, s.gap_frames);
+                if let Ok(i) = Port::open_path(std::path::Path::new(&s.port)).and_then(|p| p.info()) {
+                    println!("lost upstr. {} frames (network or source side of a replica; in the zero-filled frames)", i.lost_upstream_frames)
+                }
                 println!("rate est.   {:.3} Hz", s.rate_estimate_hz);
                 println!("port        {}", s.port);
             }
