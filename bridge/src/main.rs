@@ -29,7 +29,7 @@ fn main() {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_env("BASS_LOG")
-                .unwrap_or_else(|_| "info,zenoh=warn".into()),
+                .unwrap_or_else(|_| "info,zenoh=error".into()),
         )
         .with_writer(std::io::stderr)
         .init();

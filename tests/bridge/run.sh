@@ -2,8 +2,8 @@
 # The network suite (make test-bridge): bass across two "computers" = two network namespaces
 # made here, joined by a veth pair with IPv6 ULA addresses (fd00:ba55::/64), removed on exit
 # even on failure. Every Zenoh process runs inside a namespace with multicast scouting and
-# gossip off and explicit endpoints, so no packet leaves the two namespaces. Every run is
-# bounded by `timeout`.
+# gossip off and explicit endpoints, so no packet leaves the two namespaces. Every reader is
+# bounded by `timeout`, the suite by a watchdog.
 #
 #   ns A (robot):       bassd --acquire sim:pattern   ->  bass-bridge serve
 #   ns B (workstation): bass-bridge mirror  ->  replica port  ->  pattern_reader / Python
@@ -37,6 +37,10 @@ cleanup() {
   if [[ -n ${BRIDGE_KEEP:-} ]]; then echo "logs kept in $WORK"; else rm -rf "$WORK"; fi
 }
 trap cleanup EXIT
+trap 'exit 1' TERM INT
+# The whole suite is bounded: a watchdog ends it (and the trap cleans up) after 420 s.
+( sleep 420; echo "test-bridge: watchdog expired"; kill -TERM $$ ) 2>/dev/null & WATCHDOG=$!
+PIDS+=($WATCHDOG)
 
 ip netns add "$NS_A"; ip netns add "$NS_B"
 ip link add vA netns "$NS_A" type veth peer name vB netns "$NS_B"
@@ -50,6 +54,10 @@ ip -n "$NS_A" link set vA up; ip -n "$NS_B" link set vB up
 
 inA() { ip netns exec "$NS_A" env BASS_RUNTIME_DIR="$DIR_A" "$@"; }
 inB() { ip netns exec "$NS_B" env BASS_RUNTIME_DIR="$DIR_B" "$@"; }
+# Daemons start through these arrays, not the functions: `ip netns exec` and `env` exec the
+# program, so $! is the daemon itself and a kill reaches it.
+IN_A=(ip netns exec "$NS_A" env BASS_RUNTIME_DIR="$DIR_A")
+IN_B=(ip netns exec "$NS_B" env BASS_RUNTIME_DIR="$DIR_B")
 
 RATE=48000; NFPC=480; NCOP=50
 PASS=0; FAIL=0
@@ -59,16 +67,16 @@ field() { python3 -c "import json,sys; print(json.loads(sys.argv[1])[sys.argv[2]
 status() { python3 -c "import json,sys; print(json.load(open(sys.argv[1]))[sys.argv[2]])" "$DIR_B/status.json" "$1"; }
 
 start_bassd() {
-  inA timeout 120 "$BIN/bassd" --name src --rt-priority 0 --acquire sim:pattern --rate $RATE \
+  "${IN_A[@]}" "$BIN/bassd" --name src --rt-priority 0 --acquire sim:pattern --rate $RATE \
     --frames $NFPC --chunks $NCOP --channels 2 >"$WORK/bassd.log" 2>&1 &
   BASSD=$!; PIDS+=($BASSD)
 }
 start_serve() {
-  inA timeout 120 "$BIN/bass-bridge" serve --name src --listen "$EP" --no-scouting "$@" >>"$WORK/serve.log" 2>&1 &
+  "${IN_A[@]}" "$BIN/bass-bridge" serve --name src --listen "$EP" --no-scouting "$@" >>"$WORK/serve.log" 2>&1 &
   SERVE=$!; PIDS+=($SERVE)
 }
 start_mirror() {
-  inB timeout 120 "$BIN/bass-bridge" mirror --source src --name rep --connect "$EP" --no-scouting \
+  "${IN_B[@]}" "$BIN/bass-bridge" mirror --source src --name rep --connect "$EP" --no-scouting \
     --listen "tcp/[$ADDR_B]:0" --timeout 1 --status-file "$DIR_B/status.json" >>"$WORK/mirror.log" 2>&1 &
   MIRROR=$!; PIDS+=($MIRROR)
 }
@@ -124,7 +132,7 @@ check_exact "$J" "new epoch"
 
 echo "== 5. bassd killed upstream: replica in error, recovers with bassd and an Acquire"
 reader $((RATE * 4)) 30 > "$WORK/r5.json" & R=$!
-sleep 1; kill -9 $BASSD 2>/dev/null; sleep 2
+sleep 1; kill -9 $BASSD 2>/dev/null || true; sleep 2
 start_bassd
 wait $R || true; J=$(cat "$WORK/r5.json")
 check_exact "$J" "bassd killed"
@@ -133,14 +141,14 @@ check_exact "$J" "bassd killed"
 
 echo "== 6. serve killed and restarted (same epoch: port kept, gap filled)"
 reader $((RATE * 5)) 30 > "$WORK/r6.json" & R=$!
-sleep 1; kill $SERVE 2>/dev/null; wait $SERVE 2>/dev/null || true; sleep 1; start_serve
+sleep 1; kill $SERVE 2>/dev/null || true; wait $SERVE 2>/dev/null || true; sleep 1; start_serve
 wait $R || true; J=$(cat "$WORK/r6.json")
 check_exact "$J" "serve restarted"
 [[ $(field "$J" restarts) == 0 ]] && (( $(field "$J" gap) > 0 )) && ok "serve restarted: same replica port, the gap marked" || bad "serve restart: $J"
 
 echo "== 7. mirror restarted (old readers: stopped; the new replica starts at the live edge)"
 reader $((RATE * 4)) 30 > "$WORK/r7.json" & R=$!
-sleep 1; kill $MIRROR 2>/dev/null; wait $MIRROR 2>/dev/null || true; start_mirror
+sleep 1; kill $MIRROR 2>/dev/null || true; wait $MIRROR 2>/dev/null || true; start_mirror
 wait $R || true; J=$(cat "$WORK/r7.json")
 check_exact "$J" "mirror restarted"
 (( $(field "$J" restarts) >= 1 )) && ok "mirror restarted: readers moved to the new replica" || bad "mirror restart: $J"
@@ -153,13 +161,14 @@ reader $((RATE * 4)) 40 > "$WORK/r8.json" & R=$!
 wait $R || true; J=$(cat "$WORK/r8.json")
 ip netns exec "$NS_A" tc qdisc del dev vA root
 check_exact "$J" "congested link"
-(( $(field "$J" gap) > 0 )) && ok "congested link: gap frames marked ($(field "$J" gap))" || bad "congestion left no gap: $J"
+# Long runs of dropped chunks are published as GAP jumps; a reader lapped by one counts loss.
+(( $(field "$J" gap) + $(field "$J" lost) > 0 )) && ok "congested link: what the bridge dropped reached the reader as GAP frames or loss" || bad "congestion left no mark: $J"
 sleep 1.5
 (( $(status gap_frames_source) > 0 )) && ok "congested link: serve's drops reported (source-side gap frames $(status gap_frames_source))" || bad "no source-side drops counted"
 
 echo "== 9. deterministic faults by sequence number (drop, duplicate, reorder, delay)"
-kill $SERVE 2>/dev/null; wait $SERVE 2>/dev/null || true
-kill $MIRROR 2>/dev/null; wait $MIRROR 2>/dev/null || true; rm -f "$DIR_B/status.json"
+kill $SERVE 2>/dev/null || true; wait $SERVE 2>/dev/null || true
+kill $MIRROR 2>/dev/null || true; wait $MIRROR 2>/dev/null || true; rm -f "$DIR_B/status.json"
 start_serve --fault drop=300,dup=320,reorder=340,delay=360; sleep 0.5; start_mirror
 reader $((RATE * 6)) 30 > "$WORK/r9.json" & R=$!
 wait $R || true; J=$(cat "$WORK/r9.json"); sleep 1.5
