@@ -2,6 +2,7 @@
 //! `mirror` on the reading one), and an iceoryx2 export of its chunks. docs/network.md.
 
 mod clock;
+mod control;
 mod fault;
 mod mirror;
 mod net;

@@ -129,6 +129,8 @@ pub fn run(o: MirrorOpts) -> Result<()> {
         Duration::from_secs_f64(o.probe_interval.max(0.01)),
     )?;
 
+    let socket = bassclient::paths::socket_path(&name)?;
+    crate::control::spawn_forwarder(&session, o.net.key(&o.source, "control"), &socket, term.clone())?;
     let timeout = Duration::from_secs_f64(o.timeout.max(0.1));
     let mut st = MirrorStatus { replica: name.clone(), state: "idle".into(), ..Default::default() };
     let mut replica: Option<Replica> = None;

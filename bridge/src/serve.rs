@@ -26,6 +26,10 @@ pub struct ServeOpts {
     /// Chunks queued in front of the network before the bridge drops (2..=16).
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=16))]
     pub queue: u32,
+    /// Let mirrors forward control requests (ListDevices, Acquire, Stop, Status) to the local
+    /// broker (docs/network.md, "Remote control"). Off: the path is read-only.
+    #[arg(long)]
+    pub allow_control: bool,
     /// Deterministic faults by sequence number (tests): e.g. `drop=5,dup=7,reorder=9,delay=11`.
     #[arg(long)]
     pub fault: Option<String>,
@@ -83,6 +87,11 @@ pub fn run(o: ServeOpts) -> Result<()> {
         .wait()
         .map_err(|e| anyhow!("declare clock queryable: {e}"))?;
 
+    let _control = if o.allow_control {
+        Some(crate::control::declare_queryable(&session, &o.net.key(&o.name, "control"), &o.name)?)
+    } else {
+        None
+    };
     let (tx, rx) = sync_channel::<Outgoing>(o.queue as usize);
     let faults = crate::fault::Faults::parse(o.fault.as_deref())?;
     let sender = std::thread::Builder::new().name("bridge-send".into()).spawn(move || {

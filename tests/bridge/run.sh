@@ -176,6 +176,19 @@ check_exact "$J" "fault injection"
 LD=$(status late_or_duplicate); GL=$(status gap_frames_lost)
 [[ $LD == 3 && $GL == $((3 * NFPC)) ]] && ok "faults: 3 late/duplicate chunks dropped, 3 chunks of GAP frames" || bad "faults: late_or_duplicate=$LD gap_frames_lost=$GL"
 
+echo "== 10. remote control: refused without serve --allow-control, forwarded with it"
+if OUT=$(inB timeout 20 "$BIN/bass" --name rep status 2>&1); then bad "status without --allow-control succeeded: $OUT"
+elif grep -q "allow-control" <<<"$OUT"; then ok "remote control refused by default ($(tail -1 <<<"$OUT"))"
+else bad "unexpected refusal: $OUT"; fi
+kill $SERVE 2>/dev/null || true; wait $SERVE 2>/dev/null || true; start_serve --allow-control; sleep 1.5
+OUT=$(inB timeout 20 "$BIN/bass" --name rep status 2>&1) && grep -q "capturing" <<<"$OUT" \
+  && ok "Status forwarded to the source's bassd" || bad "status through the bridge: $OUT"
+inB timeout 20 "$BIN/bass" --name rep acquire sim:pattern --rate $RATE --frames 960 --chunks 20 --channels 2 >/dev/null 2>&1 || true
+OUT=$(inA timeout 10 "$BIN/bass" --name src status 2>&1)
+grep -q "960 frames x 20 chunks" <<<"$OUT" && ok "Acquire from the workstation reached the robot's bassd" || bad "remote acquire: $OUT"
+J=$(reader $((RATE * 2)) 20) || true
+check_exact "$J" "after the remote Acquire"
+
 echo "== clock offset (same machine: the true offset is 0)"
 OFF=$(status clock_offset_ns); UNC=$(status clock_uncertainty_ns)
 [[ $OFF != None && $UNC != None ]] && ok "clock: offset ${OFF} ns, uncertainty ${UNC} ns" || bad "no clock estimate"
