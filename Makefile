@@ -30,12 +30,12 @@ test: deps lint test-rust test-loom test-c test-broker test-clients test-faults 
 
 lint:
 	$(CARGO) fmt --all -- --check
-	$(CARGO) clippy --release --workspace --all-targets -- -D warnings
+	$(CARGO) clippy --release --workspace --all-targets --features bass-bridge/fault-injection,bass-bridge/iceoryx2 -- -D warnings
 
 # --workspace includes bridge/ (bass-bridge), which plain `cargo build` (default-members) skips.
 test-rust:
-	$(CARGO) build --release --workspace --all-targets --features bass-bridge/fault-injection
-	$(CARGO) test --release --workspace --features bass-bridge/fault-injection
+	$(CARGO) build --release --workspace --all-targets --features bass-bridge/fault-injection,bass-bridge/iceoryx2
+	$(CARGO) test --release --workspace --features bass-bridge/fault-injection,bass-bridge/iceoryx2
 
 # The loom model of the window protocol (its own cfg, its own target directory).
 test-loom:
@@ -73,8 +73,9 @@ PREFIX ?= /usr/local
 INSTALL_ROOT = $(DESTDIR)$(PREFIX)
 BUILT_DIR = $(or $(CARGO_TARGET_DIR),target)/release
 VERSION := $(shell sed -n 's/^version = "\(.*\)"/\1/p' Cargo.toml | head -1)
+# The same dependency features as the test builds (iceoryx2), so zenoh is built once.
 build-bridge:
-	$(CARGO) build --release -p bass-bridge
+	$(CARGO) build --release -p bass-bridge --features iceoryx2
 
 install: build build-bridge
 	install -d $(INSTALL_ROOT)/bin $(INSTALL_ROOT)/lib/pkgconfig $(INSTALL_ROOT)/lib/cmake/bassclient \

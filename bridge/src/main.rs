@@ -4,6 +4,8 @@
 mod clock;
 mod control;
 mod fault;
+#[cfg(feature = "iceoryx2")]
+mod iox;
 mod mirror;
 mod net;
 mod serve;

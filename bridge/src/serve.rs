@@ -30,6 +30,9 @@ pub struct ServeOpts {
     /// broker (docs/network.md, "Remote control"). Off: the path is read-only.
     #[arg(long)]
     pub allow_control: bool,
+    /// Also offer each chunk on the iceoryx2 service `bass/<name>/chunks` (feature `iceoryx2`).
+    #[arg(long)]
+    pub iceoryx2: bool,
     /// Deterministic faults by sequence number (tests): e.g. `drop=5,dup=7,reorder=9,delay=11`.
     #[arg(long)]
     pub fault: Option<String>,
@@ -92,6 +95,12 @@ pub fn run(o: ServeOpts) -> Result<()> {
     } else {
         None
     };
+    #[cfg(feature = "iceoryx2")]
+    let mut iox = if o.iceoryx2 { Some(crate::iox::Exporter::new(&o.name)?) } else { None };
+    #[cfg(not(feature = "iceoryx2"))]
+    if o.iceoryx2 {
+        anyhow::bail!("this bass-bridge was built without the iceoryx2 feature");
+    }
     let (tx, rx) = sync_channel::<Outgoing>(o.queue as usize);
     let faults = crate::fault::Faults::parse(o.fault.as_deref())?;
     let sender = std::thread::Builder::new().name("bridge-send".into()).spawn(move || {
@@ -143,7 +152,13 @@ pub fn run(o: ServeOpts) -> Result<()> {
                 continue;
             }
         };
-        reader.follow(&port, &term, &mut publish_state)?;
+        reader.follow(
+            &port,
+            &term,
+            &mut publish_state,
+            #[cfg(feature = "iceoryx2")]
+            iox.as_mut(),
+        )?;
     }
     drop(tx);
     let _ = sender.join();
@@ -177,6 +192,7 @@ impl Reader<'_> {
         port: &Port,
         term: &AtomicBool,
         publish_state: &mut dyn FnMut(&SourceState, bool),
+        #[cfg(feature = "iceoryx2")] mut iox: Option<&mut crate::iox::Exporter>,
     ) -> Result<()> {
         let info = port.info()?;
         let g = info.geometry.clone();
@@ -286,6 +302,10 @@ impl Reader<'_> {
                     source_lost: self.lost_frames,
                     ..Default::default()
                 };
+                #[cfg(feature = "iceoryx2")]
+                if let Some(x) = iox.as_deref_mut() {
+                    x.publish(&h, &inter);
+                }
                 let bytes = wire::encode(&h, if gap { &[] } else { &inter });
                 match self.tx.try_send(Outgoing { sequence: *self.sequence, bytes }) {
                     Ok(()) => {

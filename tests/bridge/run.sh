@@ -18,7 +18,7 @@ BIN=$TARGET/release
 cd "$ROOT"
 
 if [[ $(id -u) -ne 0 ]]; then echo "test-bridge: needs root (network namespaces)"; exit 1; fi
-cargo build --release -p bass-bridge --features fault-injection --bins --examples
+cargo build --release -p bass-bridge --features fault-injection,iceoryx2 --bins --examples
 cargo build --release -p bass-broker --bins
 
 NS_A=bassA$$; NS_B=bassB$$
@@ -188,6 +188,17 @@ OUT=$(inA timeout 10 "$BIN/bass" --name src status 2>&1)
 grep -q "960 frames x 20 chunks" <<<"$OUT" && ok "Acquire from the workstation reached the robot's bassd" || bad "remote acquire: $OUT"
 J=$(reader $((RATE * 2)) 20) || true
 check_exact "$J" "after the remote Acquire"
+
+echo "== 11. iceoryx2 export: a PyPI iceoryx2 subscriber checks frame indices and samples"
+# Node and service files; iceoryx2's one 16-byte `*.global_mgmt` segment is meant to stay.
+iox_files() { { ls /dev/shm; ls /tmp/iceoryx2/nodes /tmp/iceoryx2/services 2>/dev/null; } | grep iox2 | grep -vc 'global_mgmt$' || true; }
+BEFORE=$(iox_files)
+kill $SERVE 2>/dev/null || true; wait $SERVE 2>/dev/null || true
+start_serve --iceoryx2; sleep 1
+if inA timeout 30 python3 tests/bridge/iox_subscriber.py src 200 20; then ok "iceoryx2: 200 chunks, every sample right"; else bad "iceoryx2 subscriber"; fi
+kill -TERM $SERVE 2>/dev/null || true; wait $SERVE 2>/dev/null || true
+AFTER=$(iox_files)
+[[ $AFTER == "$BEFORE" ]] && ok "iceoryx2: SIGTERM left no iceoryx2 files ($AFTER before and after)" || bad "iceoryx2 files: $BEFORE before, $AFTER after"
 
 echo "== clock offset (same machine: the true offset is 0)"
 OFF=$(status clock_offset_ns); UNC=$(status clock_uncertainty_ns)
