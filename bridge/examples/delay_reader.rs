@@ -42,6 +42,7 @@ fn main() {
         let _ = port.get_audio_data(nfpc as usize, &mut nfr, &mut outs);
     }
     delays.sort_by(|x, y| x.total_cmp(y));
-    let q = |p: f64| delays.get(((delays.len() as f64 - 1.0) * p).round() as usize).copied().unwrap_or(f64::NAN);
+    let q =
+        |p: f64| delays.get(((delays.len() as f64 - 1.0) * p).round() as usize).copied().unwrap_or(f64::NAN);
     println!("{{\"count\":{},\"p50_us\":{:.1},\"p99_us\":{:.1}}}", delays.len(), q(0.5), q(0.99));
 }
