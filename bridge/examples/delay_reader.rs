@@ -1,7 +1,7 @@
 //! Benchmark reader (scripts/bench-network.sh): waits for every chunk of a port for SECONDS
-//! and measures the delay from the capture of the chunk's last frame (chunk-table CLOCK_MONOTONIC
-//! + nFPC / rate; on a replica the source time mapped to the local clock) to the reader's
-//! wake-up. Prints one JSON line: count, p50 and p99 in microseconds.
+//! and measures the delay from the capture of the chunk's last frame to the reader's wake-up.
+//! The capture time is the chunk table's CLOCK_MONOTONIC plus nFPC / rate (on a replica: the
+//! source time mapped to the local clock). Prints one JSON line: count, p50, p99 in µs.
 //!
 //! usage: delay_reader NAME SECONDS
 
