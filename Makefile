@@ -4,6 +4,7 @@ CARGO ?= cargo
 export CARGO_TERM_COLOR ?= never
 RELEASE_DIR := target/release
 CFLAGS_STRICT := -std=c11 -Wall -Wextra -Wpedantic -Werror
+BRIDGE_FEATURES := bass-bridge/fault-injection,bass-bridge/iceoryx2
 
 .PHONY: all deps deps-build build build-bridge demo test test-rust test-loom test-c test-broker test-clients test-faults test-bridge \
         header fmt lint bench install clean
@@ -18,8 +19,9 @@ deps-build:
 deps:
 	scripts/install-deps.sh --with-octave
 
+# The default members (everything but bridge/, whose Zenoh build is long): see build-bridge.
 build: deps-build
-	$(CARGO) build --release --workspace
+	$(CARGO) build --release
 
 demo: build
 	scripts/demo.sh
@@ -30,12 +32,11 @@ test: deps lint test-rust test-loom test-c test-broker test-clients test-faults 
 
 lint:
 	$(CARGO) fmt --all -- --check
-	$(CARGO) clippy --release --workspace --all-targets --features bass-bridge/fault-injection,bass-bridge/iceoryx2 -- -D warnings
+	$(CARGO) clippy --release --workspace --all-targets --features $(BRIDGE_FEATURES) -- -D warnings
 
 # --workspace includes bridge/ (bass-bridge), which plain `cargo build` (default-members) skips.
-test-rust:
-	$(CARGO) build --release --workspace --all-targets --features bass-bridge/fault-injection,bass-bridge/iceoryx2
-	$(CARGO) test --release --workspace --features bass-bridge/fault-injection,bass-bridge/iceoryx2
+test-rust: build-bridge
+	$(CARGO) test --release --workspace --features $(BRIDGE_FEATURES)
 
 # The loom model of the window protocol (its own cfg, its own target directory).
 test-loom:
@@ -73,9 +74,10 @@ PREFIX ?= /usr/local
 INSTALL_ROOT = $(DESTDIR)$(PREFIX)
 BUILT_DIR = $(or $(CARGO_TARGET_DIR),target)/release
 VERSION := $(shell sed -n 's/^version = "\(.*\)"/\1/p' Cargo.toml | head -1)
-# The same dependency features as the test builds (iceoryx2), so zenoh is built once.
+# bass-bridge, built exactly as test-rust builds it (same feature unification: Zenoh is
+# compiled once in a `make test` run).
 build-bridge:
-	$(CARGO) build --release -p bass-bridge --features iceoryx2
+	$(CARGO) build --release --workspace --all-targets --features $(BRIDGE_FEATURES)
 
 install: build build-bridge
 	install -d $(INSTALL_ROOT)/bin $(INSTALL_ROOT)/lib/pkgconfig $(INSTALL_ROOT)/lib/cmake/bassclient \

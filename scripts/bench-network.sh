@@ -10,8 +10,8 @@ set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd); cd "$ROOT"
 BIN=${CARGO_TARGET_DIR:-$ROOT/target}/release
 SECS=${1:-20}
-cargo build --release -p bass-bridge --features iceoryx2 --bins --examples
-cargo build --release -p bass-broker --bins
+# Exactly make test-rust's build (same feature unification), so nothing is rebuilt after it.
+cargo build --release --workspace --all-targets --features bass-bridge/fault-injection,bass-bridge/iceoryx2
 NS_A=bnchA$$; NS_B=bnchB$$; WORK=$(mktemp -d /tmp/bass-bench-net.XXXXXX); PIDS=()
 cleanup() { set +e; for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null; done; sleep 0.3
   ip netns del "$NS_A" 2>/dev/null; ip netns del "$NS_B" 2>/dev/null; rm -rf "$WORK"; }

@@ -18,8 +18,8 @@ BIN=$TARGET/release
 cd "$ROOT"
 
 if [[ $(id -u) -ne 0 ]]; then echo "test-bridge: needs root (network namespaces)"; exit 1; fi
-cargo build --release -p bass-bridge --features fault-injection,iceoryx2 --bins --examples
-cargo build --release -p bass-broker --bins
+# Exactly make test-rust's build (same feature unification), so nothing is rebuilt after it.
+cargo build --release --workspace --all-targets --features bass-bridge/fault-injection,bass-bridge/iceoryx2
 
 NS_A=bassA$$; NS_B=bassB$$
 WORK=$(mktemp -d /tmp/bass-bridge-test.XXXXXX)
