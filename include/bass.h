@@ -219,6 +219,10 @@ typedef struct {
   char device[BASS_DEVICE_LEN];
   // Error message, NUL terminated.
   char message[BASS_MESSAGE_LEN];
+  // Frames lost upstream of this port or on the network (a replica port written by
+  // `bass-bridge mirror`), published as zero-filled GAP frames and also counted in
+  // `gap_frames`; 0 for a local broker's port. Added at the end in port format 1.1.
+  uint64_t lost_upstream_frames;
 } bass_port_info;
 
 // Timestamps and flags of one chunk.
@@ -475,6 +479,26 @@ bass_result bass_writer_publish_planar(bass_writer *writer,
 bass_result bass_writer_publish_gap(bass_writer *writer,
                                     const bass_chunk_meta *meta,
                                     uint64_t *out_last_frame_index);
+
+// Starts a writer that has published nothing yet at frame `first_frame`: its next chunk gets
+// that index (a replica following another port's frame indices). `first_frame` must start a
+// chunk: `(first_frame - 1) % nFramesPerChunk == 0`.
+//
+// # Safety
+// None beyond passing a value returned by `bass_writer_create` (anything else is reported).
+bass_result bass_writer_start_at(bass_writer *writer, uint64_t first_frame);
+
+// Publishes `n_frames` (a whole number of chunks) zero-filled frames flagged
+// `BASS_CHUNK_GAP` that stand for frames lost upstream or on the network; they are counted
+// in the port's `gap_frames` and `lost_upstream_frames`. A gap longer than the window costs
+// one window of writes. `*out_last_frame_index` (if not NULL) receives the new last frame.
+//
+// # Safety
+// `meta` NULL or valid; `out_last_frame_index` NULL or valid for a write.
+bass_result bass_writer_publish_lost(bass_writer *writer,
+                                     uint64_t n_frames,
+                                     const bass_chunk_meta *meta,
+                                     uint64_t *out_last_frame_index);
 
 // Sets the port state (`BASS_STATE_*`), with an error code and message (may be NULL) for
 // `BASS_STATE_ERROR`, and wakes waiting readers.

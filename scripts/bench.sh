@@ -6,4 +6,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 target="${CARGO_TARGET_DIR:-target}"
 cargo build --release -p bass-bench -p bass-broker
-exec "$target/release/bass-bench" --docs docs "$@"
+"$target/release/bass-bench" --docs docs "$@"
+# The network part (bass-bridge between two network namespaces; needs root).
+if [[ $(id -u) -eq 0 ]]; then scripts/bench-network.sh; else echo "bench: network part skipped (needs root)"; fi

@@ -28,3 +28,8 @@ if ! python3 -c 'import numpy, pytest' 2>/dev/null; then
   # A python3 other than Debian's (e.g. pyenv): pip; Debian's own pip refuses without the flag.
   python3 -m pip install -q numpy pytest 2>/dev/null || python3 -m pip install -q --break-system-packages numpy pytest
 fi
+# The iceoryx2 subscriber of the network suite (tests/bridge): the PyPI package of the same
+# version as the bridge's iceoryx2 crate.
+if ! python3 -c 'import iceoryx2, flatbuffers' 2>/dev/null; then
+  python3 -m pip install -q iceoryx2==0.10.0 2>/dev/null || python3 -m pip install -q --break-system-packages iceoryx2==0.10.0
+fi

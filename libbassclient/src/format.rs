@@ -32,6 +32,7 @@ pub const MAGIC: u64 = u64::from_le_bytes(*b"BASSPORT");
 /// Major version: readers refuse any other major.
 pub const VERSION_MAJOR: u32 = 2;
 /// Minor version: additions that old readers may ignore.
+/// 1 added state 5 (starting) and `lost_upstream_frames` (offset 192, zero in minor-0 ports).
 pub const VERSION_MINOR: u32 = 1;
 /// Size of the header, one page.
 pub const HEADER_SIZE: usize = 4096;
@@ -176,7 +177,10 @@ pub struct Header {
     pub rate_estimate_mhz: AtomicU64,
     /// CLOCK_MONOTONIC (ns) at which the acquisition started.
     pub started_mono_ns: AtomicU64,
-    _pad1: [u8; 64],
+    /// Frames lost before they reached this port's writer (upstream of a replica, or on the
+    /// network) and published as zero-filled GAP frames (minor 1; 0 in older ports).
+    pub lost_upstream_frames: AtomicU64,
+    _pad1: [u8; 56],
     /// Error message, UTF-8, NUL padded.
     pub message: [AtomicU64; MESSAGE_LEN / 8],
     /// ALSA (or simulated) device name, UTF-8, NUL padded.
@@ -193,6 +197,7 @@ const _: () = assert!(offset_of!(Header, futex) == 100);
 const _: () = assert!(offset_of!(Header, last_frame_index) == 128);
 const _: () = assert!(offset_of!(Header, write_intent) == 136);
 const _: () = assert!(offset_of!(Header, started_mono_ns) == 184);
+const _: () = assert!(offset_of!(Header, lost_upstream_frames) == 192);
 const _: () = assert!(offset_of!(Header, message) == 256);
 const _: () = assert!(offset_of!(Header, device) == 512);
 

@@ -82,6 +82,8 @@ pub struct PortInfo {
     pub xruns: u64,
     /// Zero-filled gap frames.
     pub gap_frames: u64,
+    /// Of those, frames lost upstream or on the network (replica ports; 0 otherwise).
+    pub lost_upstream_frames: u64,
     /// Chunks published.
     pub chunks_published: u64,
     /// Device rate estimate in Hz (0 = none yet).
@@ -444,6 +446,7 @@ impl Port {
             device: format::read_text(&h.device),
             xruns: h.xruns.load(Relaxed),
             gap_frames: h.gap_frames.load(Relaxed),
+            lost_upstream_frames: h.lost_upstream_frames.load(Relaxed),
             chunks_published: h.chunks_published.load(Relaxed),
             rate_estimate_hz: h.rate_estimate_mhz.load(Relaxed) as f64 / 1000.0,
             writer_pid: pid,

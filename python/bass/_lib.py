@@ -65,6 +65,7 @@ class PortInfo(ctypes.Structure):
         ("heartbeat_mono_ns", c_uint64),
         ("device", c_char * BASS_DEVICE_LEN),
         ("message", c_char * BASS_MESSAGE_LEN),
+        ("lost_upstream_frames", c_uint64),
     ]
 
 

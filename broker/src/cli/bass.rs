@@ -202,6 +202,11 @@ fn acquire(name: &str, a: &AcquireCmd, timeout: Duration) -> Result<()> {
 fn status(name: &str, json: bool, timeout: Duration) -> Result<()> {
     let s = connect(name, timeout)?.status().map_err(|e| explain(e, name, None))?;
     let state = s.state().map_or("unknown".to_string(), |st| format!("{st:?}").to_lowercase());
+    // Frames a replica (bass-bridge mirror) never received, from the port itself.
+    let lost_upstream = (s.epoch > 0)
+        .then(|| Port::open_path(std::path::Path::new(&s.port)).and_then(|p| p.info()).ok())
+        .flatten()
+        .map_or(0, |i| i.lost_upstream_frames);
     if json {
         let v = json!({
             "broker": name, "broker_pid": s.broker_pid, "broker_version": s.broker_version,
@@ -211,6 +216,7 @@ fn status(name: &str, json: bool, timeout: Duration) -> Result<()> {
             "last_frame_index": s.last_frame_index, "chunks_published": s.chunks_published,
             "xruns": s.xruns, "gap_frames": s.gap_frames, "rate_estimate_hz": s.rate_estimate_hz,
             "device": s.device, "format": s.format, "message": s.message, "port": s.port,
+            "lost_upstream_frames": lost_upstream,
         });
         println!("{v}");
         return Ok(());
@@ -231,6 +237,9 @@ fn status(name: &str, json: bool, timeout: Duration) -> Result<()> {
         println!("last frame  {}", s.last_frame_index);
         println!("chunks      {}", s.chunks_published);
         println!("xruns       {} ({} zero-filled frames)", s.xruns, s.gap_frames);
+        if lost_upstream > 0 {
+            println!("lost upstr. {lost_upstream} frames (never received by this replica; among the zero-filled frames)");
+        }
         println!("rate est.   {:.3} Hz", s.rate_estimate_hz);
         println!("port        {}", s.port);
     }

@@ -59,6 +59,10 @@ pub struct bass_port_info {
     pub device: [c_char; BASS_DEVICE_LEN],
     /// Error message, NUL terminated.
     pub message: [c_char; BASS_MESSAGE_LEN],
+    /// Frames lost upstream of this port or on the network (a replica port written by
+    /// `bass-bridge mirror`), published as zero-filled GAP frames and also counted in
+    /// `gap_frames`; 0 for a local broker's port. Added at the end in port format 1.1.
+    pub lost_upstream_frames: u64,
 }
 
 /// Timestamps and flags of one chunk.
@@ -316,6 +320,7 @@ fn info_to_c(i: &PortInfo) -> bass_port_info {
         heartbeat_mono_ns: i.heartbeat_mono_ns,
         device: [0; BASS_DEVICE_LEN],
         message: [0; BASS_MESSAGE_LEN],
+        lost_upstream_frames: i.lost_upstream_frames,
     };
     copy_text(&mut out.device, &i.device);
     copy_text(&mut out.message, &i.message);

@@ -166,6 +166,48 @@ pub unsafe extern "C" fn bass_writer_publish_gap(
     })
 }
 
+/// Starts a writer that has published nothing yet at frame `first_frame`: its next chunk gets
+/// that index (a replica following another port's frame indices). `first_frame` must start a
+/// chunk: `(first_frame - 1) % nFramesPerChunk == 0`.
+///
+/// # Safety
+/// None beyond passing a value returned by `bass_writer_create` (anything else is reported).
+#[no_mangle]
+pub unsafe extern "C" fn bass_writer_start_at(writer: *mut bass_writer, first_frame: u64) -> bass_result {
+    boundary("bass_writer_start_at", || {
+        let w = self::writer(writer)?;
+        w.lock().unwrap_or_else(|e| e.into_inner()).start_at(first_frame)?;
+        Ok(())
+    })
+}
+
+/// Publishes `n_frames` (a whole number of chunks) zero-filled frames flagged
+/// `BASS_CHUNK_GAP` that stand for frames lost upstream or on the network; they are counted
+/// in the port's `gap_frames` and `lost_upstream_frames`. A gap longer than the window costs
+/// one window of writes. `*out_last_frame_index` (if not NULL) receives the new last frame.
+///
+/// # Safety
+/// `meta` NULL or valid; `out_last_frame_index` NULL or valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn bass_writer_publish_lost(
+    writer: *mut bass_writer,
+    n_frames: u64,
+    meta: *const bass_chunk_meta,
+    out_last_frame_index: *mut u64,
+) -> bass_result {
+    boundary("bass_writer_publish_lost", || {
+        let w = self::writer(writer)?;
+        // SAFETY: forwarded caller guarantee.
+        let meta = unsafe { meta_from(meta) };
+        let lfi = w.lock().unwrap_or_else(|e| e.into_inner()).publish_lost(n_frames, meta)?;
+        if !out_last_frame_index.is_null() {
+            // SAFETY: non-null; caller guarantees validity.
+            unsafe { put(out_last_frame_index, lfi) };
+        }
+        Ok(())
+    })
+}
+
 /// Sets the port state (`BASS_STATE_*`), with an error code and message (may be NULL) for
 /// `BASS_STATE_ERROR`, and wakes waiting readers.
 ///

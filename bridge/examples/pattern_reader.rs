@@ -1,0 +1,161 @@
+//! Test reader for the network tests: reads a port (a replica) with the library's reader and
+//! checks every sample of every frame index against the pattern signal
+//! (`bassclient::testsignal`), a GAP frame against zeros, and the accounting
+//! delivered + lost + gap = requested. Follows new epochs (RESTARTED) and waits out device
+//! errors (a replica whose source is unreachable). Prints one JSON line; exits 1 on any
+//! wrong sample or accounting error, 2 when the frames did not come within the timeout.
+//!
+//! usage: pattern_reader NAME FRAMES TIMEOUT_S [--from-first]
+
+use std::time::{Duration, Instant};
+
+use bassclient::format::chunk_flags;
+use bassclient::testsignal::pattern_expected;
+use bassclient::{Error, Port};
+
+#[derive(Default, Debug)]
+struct Count {
+    delivered: u64,
+    lost: u64,
+    gap: u64,
+    bad: u64,
+    restarts: u64,
+    errors: u64,
+    requested: u64,
+}
+
+fn open(name: &str, deadline: Instant) -> Option<Port> {
+    while Instant::now() < deadline {
+        if let Ok(p) = Port::open(name) {
+            if p.info().map(|i| i.last_frame_index > 0).unwrap_or(false) {
+                return Some(p);
+            }
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    None
+}
+
+fn main() {
+    let a: Vec<String> = std::env::args().collect();
+    if a.len() < 4 {
+        eprintln!("usage: pattern_reader NAME FRAMES TIMEOUT_S [--from-first]");
+        std::process::exit(64);
+    }
+    let (name, want): (&str, u64) = (&a[1], a[2].parse().expect("FRAMES"));
+    let deadline = Instant::now() + Duration::from_secs_f64(a[3].parse().expect("TIMEOUT_S"));
+    let from_first = a.iter().any(|x| x == "--from-first");
+    let mut c = Count::default();
+    let mut first_frame = 0;
+    let mut epoch = 0;
+    let mut error_msgs = Vec::new();
+    'epochs: while c.delivered + c.lost + c.gap < want {
+        let Some(port) = open(name, deadline) else { break };
+        let info = port.info().expect("info");
+        let ch = info.geometry.channels as usize;
+        let nfpc = u64::from(info.geometry.frames_per_chunk);
+        if epoch != 0 && info.epoch != epoch {
+            c.restarts += 1;
+        }
+        epoch = info.epoch;
+        // Start at the oldest frame (first chunk of the replica) or at the live edge.
+        let mut nfr = if from_first {
+            info.last_frame_index.saturating_sub(info.frames_on_port) + 1
+        } else {
+            info.last_frame_index + 1
+        };
+        nfr = (nfr - 1) / nfpc * nfpc + 1;
+        if first_frame == 0 {
+            first_frame = nfr;
+        }
+        let mut bufs = vec![vec![0i32; nfpc as usize * 4]; ch];
+        let mut in_error = false;
+        while c.delivered + c.lost + c.gap < want {
+            if Instant::now() > deadline {
+                break 'epochs;
+            }
+            match port.wait(nfr, Duration::from_millis(200)) {
+                Ok(_) => in_error = false,
+                Err(Error::Timeout { .. }) | Err(Error::Interrupted) => continue,
+                Err(Error::Restarted) | Err(Error::WriterGone { .. }) | Err(Error::Stopped { .. }) => {
+                    continue 'epochs
+                }
+                Err(Error::Device { message, .. }) => {
+                    if !in_error {
+                        c.errors += 1;
+                        error_msgs.push(message);
+                        in_error = true;
+                    }
+                    std::thread::sleep(Duration::from_millis(20));
+                    // Data may still come on this port (recovery) or on a new one.
+                    if let Ok(p) = Port::open(name) {
+                        if p.info().map(|i| i.epoch != epoch).unwrap_or(false) {
+                            continue 'epochs;
+                        }
+                    }
+                    continue;
+                }
+                Err(e) => {
+                    eprintln!("pattern_reader: {e}");
+                    std::process::exit(3);
+                }
+            }
+            let left = (want - c.delivered - c.lost - c.gap) as usize;
+            let n_max = left.min(bufs[0].len());
+            let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| b.as_mut_slice()).collect();
+            let before = nfr;
+            let r = port.get_audio_data(n_max, &mut nfr, &mut outs).expect("read");
+            let lost = r.loss.min(left as u64);
+            c.lost += lost;
+            let first = nfr - r.frames as u64;
+            assert_eq!(first, before + r.loss, "nfr accounting");
+            let take = (r.frames as u64).min(want - c.delivered - c.lost - c.gap);
+            for i in 0..take {
+                let f = first + i;
+                let flags = port
+                    .chunk_info(f)
+                    .map(|ci| {
+                        if ci.first_frame <= f && f < ci.first_frame + u64::from(ci.frames) {
+                            ci.flags
+                        } else {
+                            0
+                        }
+                    })
+                    .unwrap_or(0);
+                let zero = (0..ch).all(|k| bufs[k][i as usize] == 0);
+                if flags & chunk_flags::GAP != 0 {
+                    if zero {
+                        c.gap += 1
+                    } else {
+                        c.bad += 1
+                    }
+                    continue;
+                }
+                let ok = (0..ch).all(|k| bufs[k][i as usize] == pattern_expected(f, k as u32));
+                if ok {
+                    c.delivered += 1;
+                } else {
+                    if c.bad < 5 {
+                        eprintln!(
+                            "frame {f}: got {:?}",
+                            (0..ch).map(|k| bufs[k][i as usize]).collect::<Vec<_>>()
+                        );
+                    }
+                    c.bad += 1;
+                }
+            }
+        }
+    }
+    c.requested = want;
+    let total = c.delivered + c.lost + c.gap + c.bad;
+    println!(
+        "{{\"delivered\":{},\"lost\":{},\"gap\":{},\"bad\":{},\"requested\":{},\"restarts\":{},\"errors\":{},\"first\":{},\"epoch\":{},\"error_messages\":{:?}}}",
+        c.delivered, c.lost, c.gap, c.bad, c.requested, c.restarts, c.errors, first_frame, epoch, error_msgs
+    );
+    if c.bad > 0 {
+        std::process::exit(1);
+    }
+    if total != want {
+        std::process::exit(2);
+    }
+}

@@ -1,0 +1,86 @@
+//! Deterministic fault injection for the network tests (cargo feature `fault-injection`):
+//! `serve --fault drop=S,dup=S,reorder=S,delay=S` drops, duplicates, swaps with the next
+//! message, or holds back by four messages the message of sequence number S. Without the
+//! feature any `--fault` is refused.
+
+use anyhow::{bail, Result};
+
+/// What happens to one sequence number.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Action {
+    Drop,
+    Dup,
+    Reorder,
+    Delay,
+}
+
+/// The fault plan and the messages it holds back.
+#[derive(Default)]
+pub struct Faults {
+    plan: Vec<(u64, Action)>,
+    held: Vec<(u64, Vec<u8>)>,
+}
+
+impl Faults {
+    /// Parses `--fault`.
+    pub fn parse(spec: Option<&str>) -> Result<Faults> {
+        let Some(spec) = spec else { return Ok(Faults::default()) };
+        if !cfg!(feature = "fault-injection") {
+            bail!("--fault needs a bass-bridge built with the fault-injection feature");
+        }
+        let mut plan = Vec::new();
+        for item in spec.split(',').filter(|s| !s.is_empty()) {
+            let Some((what, seq)) = item.split_once('=') else {
+                bail!("--fault item {item:?}: use what=SEQ")
+            };
+            let a = match what {
+                "drop" => Action::Drop,
+                "dup" => Action::Dup,
+                "reorder" => Action::Reorder,
+                "delay" => Action::Delay,
+                _ => bail!("--fault: unknown fault {what:?} (drop, dup, reorder, delay)"),
+            };
+            plan.push((seq.parse()?, a));
+        }
+        Ok(Faults { plan, held: Vec::new() })
+    }
+
+    /// The messages to put now for message `seq`, in order.
+    pub fn apply(&mut self, seq: u64, bytes: Vec<u8>) -> Vec<Vec<u8>> {
+        let action = self.plan.iter().find(|(s, _)| *s == seq).map(|(_, a)| *a);
+        let mut out = Vec::new();
+        match action {
+            Some(Action::Drop) => {}
+            Some(Action::Dup) => {
+                out.push(bytes.clone());
+                out.push(bytes);
+            }
+            // Released after the next message (reorder) or after four more (delay).
+            Some(Action::Reorder) => self.held.push((seq + 1, bytes)),
+            Some(Action::Delay) => self.held.push((seq + 4, bytes)),
+            None => out.push(bytes),
+        }
+        let (due, keep): (Vec<_>, Vec<_>) =
+            std::mem::take(&mut self.held).into_iter().partition(|(at, _)| *at <= seq);
+        self.held = keep;
+        out.extend(due.into_iter().map(|(_, b)| b));
+        out
+    }
+}
+
+#[cfg(all(test, feature = "fault-injection"))]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_fault_acts_on_its_sequence_number_only() {
+        let mut f = Faults::parse(Some("drop=1,dup=2,reorder=3,delay=5")).unwrap();
+        let mut seen = Vec::new();
+        for s in 0..12u64 {
+            for b in f.apply(s, vec![s as u8]) {
+                seen.push(b[0]);
+            }
+        }
+        assert_eq!(seen, vec![0, 2, 2, 4, 3, 6, 7, 8, 9, 5, 10, 11]);
+    }
+}

@@ -1,0 +1,336 @@
+//! `bass-bridge serve`: reads a local port like any reader and publishes every chunk on Zenoh.
+//!
+//! The port reader never waits for the network: chunks go through a bounded queue to a
+//! sender thread that calls `put()`; when the queue is full the chunk is dropped, counted,
+//! and the next sent chunk carries [`wire::flags::SOURCE_LOSS`] (its sequence number jumps).
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{sync_channel, SyncSender, TrySendError};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, Result};
+use bassclient::{Error as PortError, Port, State};
+use zenoh::qos::CongestionControl;
+use zenoh::Wait;
+
+use crate::net::{self, NetOpts, SourceState};
+use crate::wire;
+
+/// Options of `serve`.
+#[derive(clap::Args, Debug)]
+pub struct ServeOpts {
+    /// Local broker (port) name to export.
+    #[arg(long, default_value = "default")]
+    pub name: String,
+    /// Chunks queued in front of the network before the bridge drops (2..=16).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=16))]
+    pub queue: u32,
+    /// Let mirrors forward control requests (ListDevices, Acquire, Stop, Status) to the local
+    /// broker (docs/network.md, "Remote control"). Off: the path is read-only.
+    #[arg(long)]
+    pub allow_control: bool,
+    /// Also offer each chunk on the iceoryx2 service `bass/<name>/chunks` (feature `iceoryx2`).
+    #[arg(long)]
+    pub iceoryx2: bool,
+    /// Deterministic faults by sequence number (tests): e.g. `drop=5,dup=7,reorder=9,delay=11`.
+    #[arg(long)]
+    pub fault: Option<String>,
+    #[command(flatten)]
+    pub net: NetOpts,
+}
+
+/// One message for the sender thread.
+pub struct Outgoing {
+    /// Sequence number.
+    pub sequence: u64,
+    /// Encoded message.
+    pub bytes: Vec<u8>,
+}
+
+/// Runs `serve` until SIGTERM/SIGINT.
+pub fn run(o: ServeOpts) -> Result<()> {
+    let term = net::termination_flag()?;
+    let session = o.net.open()?;
+    let _token = session
+        .liveliness()
+        .declare_token(o.net.key(&o.name, "alive"))
+        .wait()
+        .map_err(|e| anyhow!("liveliness token: {e}"))?;
+    let publisher = session
+        .declare_publisher(o.net.key(&o.name, "chunks"))
+        .congestion_control(CongestionControl::Block)
+        .wait()
+        .map_err(|e| anyhow!("declare publisher: {e}"))?;
+    let state_pub = session
+        .declare_publisher(o.net.key(&o.name, "state"))
+        .wait()
+        .map_err(|e| anyhow!("declare state publisher: {e}"))?;
+    let shared = Arc::new(Mutex::new(SourceState { ..Default::default() }));
+    let info_shared = shared.clone();
+    let _info = session
+        .declare_queryable(o.net.key(&o.name, "info"))
+        .callback(move |q| {
+            let s = serde_json::to_vec(&*info_shared.lock().unwrap_or_else(|e| e.into_inner()))
+                .unwrap_or_default();
+            if let Err(e) = q.reply(q.key_expr().clone(), s).wait() {
+                tracing::debug!("info reply: {e}");
+            }
+        })
+        .wait()
+        .map_err(|e| anyhow!("declare info queryable: {e}"))?;
+    let _clock = session
+        .declare_queryable(o.net.key(&o.name, "clock"))
+        .callback(|q| {
+            let now = bassclient::sys::monotonic_ns().to_le_bytes();
+            if let Err(e) = q.reply(q.key_expr().clone(), now.to_vec()).wait() {
+                tracing::debug!("clock reply: {e}");
+            }
+        })
+        .wait()
+        .map_err(|e| anyhow!("declare clock queryable: {e}"))?;
+
+    let _control = if o.allow_control {
+        Some(crate::control::declare_queryable(&session, &o.net.key(&o.name, "control"), &o.name)?)
+    } else {
+        None
+    };
+    #[cfg(feature = "iceoryx2")]
+    let mut iox = if o.iceoryx2 { Some(crate::iox::Exporter::new(&o.name)?) } else { None };
+    #[cfg(not(feature = "iceoryx2"))]
+    if o.iceoryx2 {
+        anyhow::bail!("this bass-bridge was built without the iceoryx2 feature");
+    }
+    let (tx, rx) = sync_channel::<Outgoing>(o.queue as usize);
+    let faults = crate::fault::Faults::parse(o.fault.as_deref())?;
+    let sender = std::thread::Builder::new().name("bridge-send".into()).spawn(move || {
+        let mut faults = faults;
+        for out in rx {
+            for bytes in faults.apply(out.sequence, out.bytes) {
+                if let Err(e) = publisher.put(bytes).wait() {
+                    tracing::warn!("put: {e}");
+                }
+            }
+        }
+    })?;
+
+    let instance = net::instance_id();
+    tracing::info!(instance = format!("{instance:016x}"), name = %o.name, "serving");
+    let mut sequence = 0u64;
+    let mut reader = Reader {
+        name: &o.name,
+        tx: &tx,
+        instance,
+        sequence: &mut sequence,
+        lost_frames: 0,
+        pending_loss: false,
+    };
+    let mut last_state_pub = Instant::now() - Duration::from_secs(10);
+    let mut publish_state = |s: &SourceState, force: bool| {
+        let mut cur = shared.lock().unwrap_or_else(|e| e.into_inner());
+        let changed =
+            (cur.state.as_str(), cur.epoch, cur.error_code) != (s.state.as_str(), s.epoch, s.error_code);
+        *cur = SourceState { ..s.clone() };
+        if changed || force || last_state_pub.elapsed() >= Duration::from_millis(500) {
+            last_state_pub = Instant::now();
+            if let Ok(b) = serde_json::to_vec(&*cur) {
+                if let Err(e) = state_pub.put(b).wait() {
+                    tracing::debug!("state put: {e}");
+                }
+            }
+        }
+    };
+    while !term.load(Ordering::Relaxed) {
+        let port = match Port::open(&o.name) {
+            Ok(p) => p,
+            Err(_) => {
+                publish_state(
+                    &SourceState { state: "gone".into(), message: "no port".into(), ..Default::default() },
+                    false,
+                );
+                std::thread::sleep(Duration::from_millis(100));
+                continue;
+            }
+        };
+        reader.follow(
+            &port,
+            &term,
+            &mut publish_state,
+            #[cfg(feature = "iceoryx2")]
+            iox.as_mut(),
+        )?;
+    }
+    drop(tx);
+    let _ = sender.join();
+    tracing::info!("serve: terminated");
+    Ok(())
+}
+
+struct Reader<'a> {
+    name: &'a str,
+    tx: &'a SyncSender<Outgoing>,
+    instance: u64,
+    sequence: &'a mut u64,
+    lost_frames: u64,
+    pending_loss: bool,
+}
+
+fn state_name(s: Option<State>) -> &'static str {
+    match s {
+        Some(State::Idle) => "idle",
+        Some(State::Starting) => "starting",
+        Some(State::Capturing) => "capturing",
+        Some(State::Stopped) => "stopped",
+        Some(State::Error) => "error",
+        Some(State::Superseded) | None => "gone",
+    }
+}
+
+impl Reader<'_> {
+    /// Follows one port until it is replaced, its writer dies, or termination.
+    fn follow(
+        &mut self,
+        port: &Port,
+        term: &AtomicBool,
+        publish_state: &mut dyn FnMut(&SourceState, bool),
+        #[cfg(feature = "iceoryx2")] mut iox: Option<&mut crate::iox::Exporter>,
+    ) -> Result<()> {
+        let info = port.info()?;
+        let g = info.geometry.clone();
+        let nfpc = u64::from(g.frames_per_chunk);
+        let ch = g.channels as usize;
+        let mut nfr = info.last_frame_index + 1;
+        let mut planes = vec![vec![0i32; nfpc as usize]; ch];
+        let mut inter = vec![0i32; nfpc as usize * ch];
+        let (mut sent, mut dropped) = (0u64, 0u64);
+        let state_of = |port: &Port, state: &str, sent, dropped| -> SourceState {
+            let i = port.info().ok();
+            SourceState {
+                state: state.into(),
+                error_code: i.as_ref().map_or(0, |i| i.error_code),
+                message: i.as_ref().map_or(String::new(), |i| i.message.clone()),
+                epoch: info.epoch,
+                channels: g.channels,
+                sample_rate: g.sample_rate,
+                frames_per_chunk: g.frames_per_chunk,
+                chunks_on_port: g.chunks_on_port,
+                last_frame_index: i.as_ref().map_or(0, |i| i.last_frame_index),
+                chunks_sent: sent,
+                chunks_dropped: dropped,
+            }
+        };
+        publish_state(&state_of(port, state_name(info.state), sent, dropped), true);
+        while !term.load(Ordering::Relaxed) {
+            match port.wait(nfr + nfpc - 1, Duration::from_millis(200)) {
+                Ok(_) => {}
+                Err(PortError::Timeout { .. }) => {
+                    let st = current_state(port)?;
+                    publish_state(&state_of(port, st, sent, dropped), false);
+                    continue;
+                }
+                Err(PortError::Restarted) => return Ok(()),
+                Err(PortError::Stopped { .. })
+                | Err(PortError::Device { .. })
+                | Err(PortError::WriterGone { .. }) => {
+                    let st = current_state(port)?;
+                    publish_state(&state_of(port, st, sent, dropped), false);
+                    std::thread::sleep(Duration::from_millis(100));
+                    // A new acquisition replaces the file: reopen when the epoch changed.
+                    match Port::open(self.name) {
+                        Ok(p) if p.info().map(|i| i.epoch != info.epoch).unwrap_or(false) => return Ok(()),
+                        _ => continue,
+                    }
+                }
+                Err(PortError::Interrupted) => continue,
+                Err(e) => return Err(e.into()),
+            }
+            loop {
+                let mut outs: Vec<&mut [i32]> = planes.iter_mut().map(|p| p.as_mut_slice()).collect();
+                let before = nfr;
+                let r = port.get_audio_data(nfpc as usize, &mut nfr, &mut outs)?;
+                if r.frames == 0 {
+                    break;
+                }
+                if r.loss > 0 {
+                    // The port lapped us (we were descheduled): say so in the next message.
+                    self.lost_frames += r.loss;
+                    self.pending_loss = true;
+                    *self.sequence += r.loss.div_ceil(nfpc);
+                }
+                let first = nfr - r.frames as u64;
+                if r.frames as u64 != nfpc || (first - 1) % nfpc != 0 {
+                    // A torn chunk (overwritten while copied): count it and realign.
+                    let next = (nfr - 1).div_ceil(nfpc) * nfpc + 1;
+                    self.lost_frames += next - before - r.loss;
+                    self.pending_loss = true;
+                    nfr = next;
+                    continue;
+                }
+                let ci = port.chunk_info(first).ok();
+                let src_flags = ci.map_or(0, |c| c.flags);
+                let gap = src_flags & bassclient::format::chunk_flags::GAP != 0;
+                let mut flags = 0;
+                if gap {
+                    flags |= wire::flags::GAP;
+                }
+                if src_flags & bassclient::format::chunk_flags::DISCONTINUITY != 0 {
+                    flags |= wire::flags::DISCONTINUITY;
+                }
+                if src_flags & bassclient::format::chunk_flags::TIME_ESTIMATED != 0 {
+                    flags |= wire::flags::TIME_ESTIMATED;
+                }
+                if self.pending_loss {
+                    flags |= wire::flags::SOURCE_LOSS;
+                }
+                for (f, frame) in inter.chunks_exact_mut(ch).enumerate() {
+                    for (c, s) in frame.iter_mut().enumerate() {
+                        *s = planes[c][f];
+                    }
+                }
+                let h = wire::Header {
+                    flags,
+                    instance: self.instance,
+                    epoch: info.epoch,
+                    sequence: *self.sequence,
+                    first_frame: first,
+                    frames: nfpc as u32,
+                    channels: g.channels as u16,
+                    sample_rate: g.sample_rate,
+                    chunks_on_port: g.chunks_on_port,
+                    mono_ns: ci.map_or(0, |c| c.mono_ns),
+                    realtime_ns: ci.map_or(0, |c| c.realtime_ns),
+                    send_mono_ns: bassclient::sys::monotonic_ns(),
+                    source_lost: self.lost_frames,
+                    ..Default::default()
+                };
+                #[cfg(feature = "iceoryx2")]
+                if let Some(x) = iox.as_deref_mut() {
+                    x.publish(&h, &inter);
+                }
+                let bytes = wire::encode(&h, if gap { &[] } else { &inter });
+                match self.tx.try_send(Outgoing { sequence: *self.sequence, bytes }) {
+                    Ok(()) => {
+                        sent += 1;
+                        self.pending_loss = false;
+                    }
+                    Err(TrySendError::Full(_)) => {
+                        dropped += 1;
+                        self.lost_frames += nfpc;
+                        self.pending_loss = true;
+                    }
+                    Err(TrySendError::Disconnected(_)) => return Err(anyhow!("the sender thread ended")),
+                }
+                *self.sequence += 1;
+            }
+            let st = current_state(port)?;
+            publish_state(&state_of(port, st, sent, dropped), false);
+        }
+        Ok(())
+    }
+}
+
+/// The port's state name, `gone` when its writer process died.
+fn current_state(port: &Port) -> Result<&'static str> {
+    let i = port.info()?;
+    Ok(if i.writer_alive { state_name(i.state) } else { "gone" })
+}

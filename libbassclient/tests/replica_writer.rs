@@ -1,0 +1,178 @@
+//! The replica additions of the writer (`start_at`, `publish_lost`): a port that follows
+//! another port's frame indices and marks what was lost on the way, held against the
+//! literal seed model (a lost run = that many zero frames published in the model).
+
+mod common;
+
+use bassclient::format::chunk_flags;
+use bassclient::testsignal::{fill_pattern_interleaved, pattern_expected};
+use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+use common::{temp_port_path, SeedPort};
+use proptest::prelude::*;
+
+fn params(nfpc: u32, ncop: u32, channels: u32) -> PortParams {
+    PortParams {
+        geometry: Geometry { channels, sample_rate: 48000, frames_per_chunk: nfpc, chunks_on_port: ncop },
+        device: "replica".into(),
+        group: None,
+    }
+}
+
+fn pattern_chunk(w: &Writer) -> Vec<i32> {
+    let g = w.geometry();
+    let mut s = vec![0; (g.frames_per_chunk * g.channels) as usize];
+    fill_pattern_interleaved(&mut s, g.channels, w.last_frame_index() + 1);
+    s
+}
+
+#[test]
+fn a_port_started_at_a_frame_publishes_its_first_chunk_at_that_index() {
+    let path = temp_port_path("start-at");
+    let mut w = Writer::create_at(&path, &params(4, 3, 2)).unwrap();
+    w.start_at(1_000_001).unwrap();
+    let port = Port::open_path(&path).unwrap();
+    assert_eq!(port.info().unwrap().last_frame_index, 1_000_000);
+    let s = pattern_chunk(&w);
+    assert_eq!(w.publish(Source::Interleaved(&s), ChunkMeta::default()).unwrap(), 1_000_004);
+    let (mut l, mut r) = (vec![0; 4], vec![0; 4]);
+    let mut nfr = 1_000_001;
+    let got = port.get_audio_data(4, &mut nfr, &mut [&mut l, &mut r]).unwrap();
+    assert_eq!((got.frames, got.loss, nfr), (4, 0, 1_000_005));
+    for i in 0..4 {
+        assert_eq!(l[i], pattern_expected(1_000_001 + i as u64, 0));
+        assert_eq!(r[i], pattern_expected(1_000_001 + i as u64, 1));
+    }
+    assert_eq!(port.chunk_info(1_000_002).unwrap().first_frame, 1_000_001);
+    w.remove().unwrap();
+}
+
+#[test]
+fn start_at_refuses_a_frame_inside_a_chunk_and_a_port_with_data() {
+    let path = temp_port_path("start-at-bad");
+    let mut w = Writer::create_at(&path, &params(4, 3, 1)).unwrap();
+    for bad in [0, 2, 4, 1_000_000] {
+        assert!(w.start_at(bad).is_err(), "start_at({bad}) must be refused");
+    }
+    w.start_at(9).unwrap();
+    let s = pattern_chunk(&w);
+    w.publish(Source::Interleaved(&s), ChunkMeta::default()).unwrap();
+    assert!(w.start_at(13).is_err(), "start_at after a publish must be refused");
+    w.remove().unwrap();
+}
+
+#[test]
+fn lost_frames_are_zero_gap_chunks_counted_as_gap_and_lost_upstream() {
+    let path = temp_port_path("lost");
+    let mut w = Writer::create_at(&path, &params(4, 3, 2)).unwrap();
+    let port = Port::open_path(&path).unwrap();
+    let s = pattern_chunk(&w);
+    w.publish(Source::Interleaved(&s), ChunkMeta::default()).unwrap();
+    assert!(w.publish_lost(3, ChunkMeta::default()).is_err(), "a part of a chunk is refused");
+    assert_eq!(w.publish_lost(8, ChunkMeta::default()).unwrap(), 12);
+    let info = port.info().unwrap();
+    assert_eq!((info.gap_frames, info.lost_upstream_frames, info.chunks_published), (8, 8, 3));
+    let c = port.chunk_info(6).unwrap();
+    assert_eq!((c.first_frame, c.flags & chunk_flags::GAP), (5, chunk_flags::GAP));
+    let (mut l, mut r) = (vec![9; 12], vec![9; 12]);
+    let mut nfr = 1;
+    let got = port.get_audio_data(12, &mut nfr, &mut [&mut l, &mut r]).unwrap();
+    assert_eq!((got.frames, got.loss, nfr), (12, 0, 13));
+    assert_eq!(l[3], pattern_expected(4, 0));
+    assert!(l[4..].iter().chain(&r[4..]).all(|&x| x == 0));
+    w.remove().unwrap();
+}
+
+#[test]
+fn a_lost_run_longer_than_the_window_jumps_and_a_lapped_reader_counts_it_as_loss() {
+    let path = temp_port_path("lost-long");
+    let mut w = Writer::create_at(&path, &params(4, 3, 1)).unwrap();
+    let port = Port::open_path(&path).unwrap();
+    for _ in 0..3 {
+        let s = pattern_chunk(&w);
+        w.publish(Source::Interleaved(&s), ChunkMeta::default()).unwrap();
+    }
+    // 1000 chunks lost: one window of writes, indices jump to 12 + 4000.
+    assert_eq!(w.publish_lost(4000, ChunkMeta::default()).unwrap(), 4012);
+    let s = pattern_chunk(&w);
+    w.publish(Source::Interleaved(&s), ChunkMeta::default()).unwrap();
+    let info = port.info().unwrap();
+    assert_eq!((info.gap_frames, info.lost_upstream_frames), (4000, 4000));
+    let mut out = vec![7; 12];
+    let mut nfr = 5;
+    let got = port.get_audio_data(12, &mut nfr, &mut [&mut out]).unwrap();
+    // The port holds 4005..=4016: 4000 frames lost to this reader, 8 zeros, then the pattern.
+    assert_eq!((got.frames, got.loss, nfr), (12, 4000, 4017));
+    assert!(out[..8].iter().all(|&x| x == 0));
+    assert_eq!(out[8], pattern_expected(4013, 0));
+    assert_eq!(port.chunk_info(4005).unwrap().first_frame, 4005);
+    assert_eq!(port.chunk_info(4005).unwrap().flags & chunk_flags::GAP, chunk_flags::GAP);
+    w.remove().unwrap();
+}
+
+#[derive(Clone, Debug)]
+enum Op {
+    Publish,
+    Lost(u64),
+    Read(usize, u64),
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 300, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Any mix of data chunks and lost runs (short or longer than the window) after a start at
+    /// any chunk reads exactly like the seed model in which a lost run is that many zero frames.
+    #[test]
+    fn replica_writes_read_like_the_seed_model_with_zero_frames(
+        nfpc in 1u32..=4, ncop in 1u32..=4, start_chunk in 0u64..5,
+        ops in proptest::collection::vec(prop_oneof![
+            Just(Op::Publish),
+            (1u64..=10).prop_map(Op::Lost),
+            (0usize..=20, 0u64..=30).prop_map(|(n, back)| Op::Read(n, back)),
+        ], 1..40),
+    ) {
+        let path = temp_port_path("replica-model");
+        let mut w = Writer::create_at(&path, &params(nfpc, ncop, 2)).unwrap();
+        let port = Port::open_path(&path).unwrap();
+        let mut model = SeedPort::new(nfpc as usize, ncop as usize, 2);
+        let first = start_chunk * u64::from(nfpc) + 1;
+        if start_chunk > 0 {
+            w.start_at(first).unwrap();
+        }
+        let zeros = vec![0; 2 * nfpc as usize];
+        // The model starts at frame 1: its frames before `first` are zero frames too.
+        for _ in 0..start_chunk { model.publish_interleaved(&zeros); }
+        let mut lost = 0;
+        for op in &ops {
+            match op {
+                Op::Publish => {
+                    let s = pattern_chunk(&w);
+                    w.publish(Source::Interleaved(&s), ChunkMeta::default()).unwrap();
+                    model.publish_interleaved(&s);
+                }
+                Op::Lost(chunks) => {
+                    w.publish_lost(chunks * u64::from(nfpc), ChunkMeta::default()).unwrap();
+                    for _ in 0..*chunks { model.publish_interleaved(&zeros); }
+                    lost += chunks * u64::from(nfpc);
+                }
+                Op::Read(n, back) => {
+                    let lfi = w.last_frame_index();
+                    // Readers of a replica start at or after its first frame.
+                    let start = lfi.saturating_sub(*back).max(first);
+                    let want = model.get_audio_data(*n as i128, start as i128);
+                    let mut bufs = vec![vec![i32::MIN; *n]; 2];
+                    let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| b.as_mut_slice()).collect();
+                    let mut nfr = start;
+                    let r = port.get_audio_data(*n, &mut nfr, &mut outs).unwrap();
+                    prop_assert_eq!(r.frames as i128, want.n);
+                    prop_assert_eq!(nfr as i128, want.nfr);
+                    prop_assert_eq!(r.loss as i128, want.loss);
+                    for (got, exp) in bufs.iter().zip(&want.channels) {
+                        prop_assert_eq!(&got[..r.frames], &exp[..]);
+                    }
+                }
+            }
+        }
+        prop_assert_eq!(port.info().unwrap().lost_upstream_frames, lost);
+        w.remove().unwrap();
+    }
+}

@@ -1,0 +1,65 @@
+#!/usr/bin/env bash
+# The network part of `make bench` (not a test): bass-bridge between two network namespaces
+# made here (veth, fd00:ba55::/64, removed on exit; Zenoh scouting off, explicit endpoints).
+# For 64-, 256- and 2205-frame chunks at 48 kHz stereo: capture->reader delay of a local
+# reader of the source port vs a reader of the replica (p50/p99), CPU of serve and mirror,
+# bytes on the wire vs the raw audio rate, and |clock offset estimate| (same machine: the
+# true offset is 0). Prints a markdown table (also to bench/network-results.md).
+# Usage: scripts/bench-network.sh [SECONDS per chunk size, default 20]
+set -euo pipefail
+ROOT=$(cd "$(dirname "$0")/.." && pwd); cd "$ROOT"
+BIN=${CARGO_TARGET_DIR:-$ROOT/target}/release
+SECS=${1:-20}
+# Exactly make test-rust's build (same feature unification), so nothing is rebuilt after it.
+cargo build --release --workspace --all-targets --features bass-bridge/fault-injection,bass-bridge/iceoryx2
+NS_A=bnchA$$; NS_B=bnchB$$; WORK=$(mktemp -d /tmp/bass-bench-net.XXXXXX); PIDS=()
+cleanup() { set +e; for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null; done; sleep 0.3
+  ip netns del "$NS_A" 2>/dev/null; ip netns del "$NS_B" 2>/dev/null; rm -rf "$WORK"; }
+trap cleanup EXIT; trap 'exit 1' TERM INT
+ip netns add "$NS_A"; ip netns add "$NS_B"
+ip link add vA netns "$NS_A" type veth peer name vB netns "$NS_B"
+for n in "$NS_A" "$NS_B"; do ip -n "$n" link set lo up; done
+ip -n "$NS_A" addr add fd00:ba55::1/64 dev vA nodad; ip -n "$NS_B" addr add fd00:ba55::2/64 dev vB nodad
+ip -n "$NS_A" link set vA up; ip -n "$NS_B" link set vB up
+IN_A=(ip netns exec "$NS_A" env BASS_RUNTIME_DIR="$WORK/a"); IN_B=(ip netns exec "$NS_B" env BASS_RUNTIME_DIR="$WORK/b")
+mkdir -p "$WORK/a" "$WORK/b"
+EP="tcp/[fd00:ba55::1]:7447"
+ticks() { awk '{print $14 + $15}' "/proc/$1/stat"; }
+HZ=$(getconf CLK_TCK)
+OUT=bench/network-results.md
+{
+echo "| chunk | local p50/p99 (us) | replica p50/p99 (us) | serve CPU | mirror CPU | wire / raw | abs clock offset p50/p99 (us) |"
+echo "|---:|---:|---:|---:|---:|---:|---:|"
+} > "$WORK/table"
+for NFPC in 64 256 2205; do
+  NCOP=$(( (48000 / 2 + NFPC - 1) / NFPC ))   # half a second on the port
+  "${IN_A[@]}" "$BIN/bassd" --name src --rt-priority 0 --acquire sim:pattern --rate 48000 --frames $NFPC \
+    --chunks $NCOP --channels 2 >"$WORK/bassd.log" 2>&1 & BASSD=$!; PIDS+=($BASSD)
+  "${IN_A[@]}" "$BIN/bass-bridge" serve --name src --listen "$EP" --no-scouting >"$WORK/serve.log" 2>&1 & SERVE=$!; PIDS+=($SERVE)
+  sleep 0.5
+  "${IN_B[@]}" "$BIN/bass-bridge" mirror --source src --name rep --connect "$EP" --no-scouting \
+    --status-file "$WORK/status.json" >"$WORK/mirror.log" 2>&1 & MIRROR=$!; PIDS+=($MIRROR)
+  sleep 3
+  S0=$(ticks $SERVE); M0=$(ticks $MIRROR); B0=$(ip netns exec "$NS_B" cat /sys/class/net/vB/statistics/rx_bytes)
+  "${IN_A[@]}" "$BIN/examples/delay_reader" src "$SECS" >"$WORK/local.json" &
+  L=$!
+  OFFS=()
+  ( for _ in $(seq "$SECS"); do sleep 1; python3 -c "import json;print(abs(json.load(open('$WORK/status.json'))['clock_offset_ns'] or 0))" 2>/dev/null; done ) >"$WORK/offsets" &
+  O=$!
+  "${IN_B[@]}" "$BIN/examples/delay_reader" rep "$SECS" >"$WORK/remote.json"
+  wait $L $O || true
+  S1=$(ticks $SERVE); M1=$(ticks $MIRROR); B1=$(ip netns exec "$NS_B" cat /sys/class/net/vB/statistics/rx_bytes)
+  python3 - "$WORK" "$NFPC" "$SECS" "$HZ" "$S0" "$S1" "$M0" "$M1" "$B0" "$B1" >>"$WORK/table" <<'PY'
+import json, sys
+w, nfpc, secs, hz, s0, s1, m0, m1, b0, b1 = sys.argv[1], *map(float, sys.argv[2:])
+loc, rem = json.load(open(f"{w}/local.json")), json.load(open(f"{w}/remote.json"))
+offs = sorted(float(x) / 1e3 for x in open(f"{w}/offsets").read().split())
+q = lambda v, p: v[round((len(v) - 1) * p)] if v else float("nan")
+raw = 48000 * 2 * 4 * secs
+print(f"| {int(nfpc)} | {loc['p50_us']:.0f} / {loc['p99_us']:.0f} | {rem['p50_us']:.0f} / {rem['p99_us']:.0f} "
+      f"| {100 * (s1 - s0) / hz / secs:.1f} % | {100 * (m1 - m0) / hz / secs:.1f} % | {(b1 - b0) / raw:.3f} "
+      f"| {q(offs, 0.5):.1f} / {q(offs, 0.99):.1f} |")
+PY
+  kill $MIRROR $SERVE $BASSD 2>/dev/null || true; wait $MIRROR $SERVE $BASSD 2>/dev/null || true
+done
+cat "$WORK/table" | tee "$OUT"
