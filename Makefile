@@ -87,7 +87,7 @@ install: build build-bridge
 	ln -sf libbassclient.so.$(VERSION) $(INSTALL_ROOT)/lib/libbassclient.so.0
 	ln -sf libbassclient.so.0 $(INSTALL_ROOT)/lib/libbassclient.so
 	install -m 0644 $(BUILT_DIR)/libbassclient.a $(INSTALL_ROOT)/lib/
-	install -m 0644 include/bass.h examples-c/bass.hpp $(INSTALL_ROOT)/include/
+	install -m 0644 include/bass.h include/bass.hpp $(INSTALL_ROOT)/include/
 	sed -e 's|@PREFIX@|$(PREFIX)|' -e 's|@VERSION@|$(VERSION)|' pkgconfig/bassclient.pc.in \
 	  > $(INSTALL_ROOT)/lib/pkgconfig/bassclient.pc
 	install -m 0644 cmake/bassclientConfig.cmake $(INSTALL_ROOT)/lib/cmake/bassclient/

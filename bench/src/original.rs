@@ -17,7 +17,9 @@
 use std::path::Path;
 use std::sync::atomic::Ordering::{Acquire, Relaxed, Release};
 
-use crate::shm::{futex_wake, Region};
+use bassclient::sys::futex_wake_all;
+
+use crate::shm::Region;
 
 const OFF_LFI: usize = 64;
 const OFF_FUTEX: usize = 72;
@@ -104,7 +106,7 @@ impl OrigPort {
     pub fn stop(&self) {
         self.region.u32_at(OFF_STOP).store(1, Release);
         self.futex().fetch_add(1, Release);
-        futex_wake(self.futex());
+        futex_wake_all(self.futex());
     }
 
     /// Publishes one interleaved stereo chunk the original way: shift the whole window.
@@ -129,7 +131,7 @@ impl OrigPort {
             self.region.u64_at(OFF_LFI).store(lfi, Release);
             libc::pthread_rwlock_unlock(self.lock());
             self.futex().fetch_add(1, Release);
-            futex_wake(self.futex());
+            futex_wake_all(self.futex());
             lfi
         }
     }

@@ -332,7 +332,7 @@ pub fn child_orig_reader(args: &[String]) {
     let mut nfr = port.read_whole(&mut copy) + 1;
     crate::procs::say_ready();
     loop {
-        crate::shm::futex_wait(port.futex(), seq, 30_000_000_000);
+        bassclient::sys::futex_wait(port.futex(), seq, Duration::from_secs(30));
         seq = port.futex().load(std::sync::atomic::Ordering::Acquire);
         if port.stopped() {
             break;
@@ -400,7 +400,7 @@ pub fn breakdown(reps: usize) -> Breakdown {
         b.push(per(&mut |_| {
             heap_lfi = ring.publish(heap_lfi, NFPC as usize, 2, &Source::Interleaved(&data), || {});
         }));
-        c.push(per(&mut |_| crate::shm::futex_wake(&word)));
+        c.push(per(&mut |_| bassclient::sys::futex_wake_all(&word)));
         d.push(per(&mut |_| {
             std::hint::black_box(bassclient::sys::monotonic_ns() + bassclient::sys::realtime_ns());
         }));

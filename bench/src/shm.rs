@@ -1,4 +1,5 @@
-//! A shared file mapping for the raw-futex baseline and the model of the original design.
+//! A shared file mapping for the raw-futex baseline and the model of the original design
+//! (the futex and clock calls are the library's: `bassclient::sys`).
 
 use std::fs::OpenOptions;
 use std::os::fd::AsRawFd;
@@ -55,31 +56,6 @@ impl Drop for Region {
         // beyond `self`'s lifetime (references handed out are tied to `&self`).
         unsafe { libc::munmap(self.ptr as *mut libc::c_void, self.len) };
     }
-}
-
-/// Waits while `*word == expected` (shared futex), at most `timeout_ns` (0 = forever).
-pub fn futex_wait(word: &std::sync::atomic::AtomicU32, expected: u32, timeout_ns: u64) {
-    let ts = libc::timespec {
-        tv_sec: (timeout_ns / 1_000_000_000) as libc::time_t,
-        tv_nsec: (timeout_ns % 1_000_000_000) as libc::c_long,
-    };
-    let tsp = if timeout_ns == 0 { std::ptr::null() } else { &ts as *const libc::timespec };
-    // SAFETY: `word` is a valid aligned u32 for the call; `tsp` is null or points to `ts`,
-    // which outlives the call.
-    unsafe { libc::syscall(libc::SYS_futex, word.as_ptr(), libc::FUTEX_WAIT, expected, tsp, 0usize, 0u32) };
-}
-
-/// Wakes every waiter on `word`.
-pub fn futex_wake(word: &std::sync::atomic::AtomicU32) {
-    // SAFETY: `word` is a valid aligned u32; FUTEX_WAKE only uses its address as a key.
-    unsafe {
-        libc::syscall(libc::SYS_futex, word.as_ptr(), libc::FUTEX_WAKE, i32::MAX, 0usize, 0usize, 0u32)
-    };
-}
-
-/// CLOCK_MONOTONIC in nanoseconds.
-pub fn now_ns() -> u64 {
-    bassclient::sys::monotonic_ns()
 }
 
 impl Region {

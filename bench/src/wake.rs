@@ -15,10 +15,11 @@ use std::collections::BTreeMap;
 use std::sync::atomic::Ordering::{Acquire, Relaxed, Release};
 use std::time::{Duration, Instant};
 
+use bassclient::sys::{futex_wait, futex_wake_all, monotonic_ns};
 use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, State, Writer};
 
 use crate::procs::{finish_all, spawn_ready, Child};
-use crate::shm::{futex_wait, futex_wake, now_ns, Region};
+use crate::shm::Region;
 use crate::stats::{fmt_ns, fmt_ratio, median, quantile, spread};
 
 /// Reader process counts.
@@ -89,25 +90,9 @@ pub struct WakeResults {
     pub publishes: usize,
 }
 
-/// A small xorshift generator for the random spacing.
-struct Rng(u64);
-
-impl Rng {
-    fn new() -> Rng {
-        Rng(now_ns() | 1)
-    }
-
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-
-    /// A random duration in [lo, hi) microseconds.
-    fn gap(&mut self, lo_us: u64, hi_us: u64) -> Duration {
-        Duration::from_micros(lo_us + self.next() % (hi_us - lo_us))
-    }
+/// A random spacing between wake-ups, 3 to 6 ms (fastrand's thread-local generator).
+fn random_gap() -> Duration {
+    Duration::from_micros(fastrand::u64(3000..6000))
 }
 
 const PING: usize = 0;
@@ -135,11 +120,11 @@ impl Pinger {
     fn ping(&self) {
         let r = &self.region;
         let pong = r.u32_at(PONG).load(Acquire);
-        r.u64_at(PING_T).store(now_ns(), Relaxed);
+        r.u64_at(PING_T).store(monotonic_ns(), Relaxed);
         r.u32_at(PING).fetch_add(1, Release);
-        futex_wake(r.u32_at(PING));
+        futex_wake_all(r.u32_at(PING));
         while r.u32_at(PONG).load(Acquire) == pong {
-            futex_wait(r.u32_at(PONG), pong, 1_000_000_000);
+            futex_wait(r.u32_at(PONG), pong, Duration::from_secs(1));
         }
     }
 
@@ -148,7 +133,7 @@ impl Pinger {
         let r = &self.region;
         r.u32_at(STOP).store(1, Release);
         r.u32_at(PING).fetch_add(1, Release);
-        futex_wake(r.u32_at(PING));
+        futex_wake_all(r.u32_at(PING));
         let lines = self.kid.finish();
         let _ = std::fs::remove_file(&self.path);
         lines.iter().filter_map(|l| l.strip_prefix("lat ")).filter_map(|v| v.parse().ok()).collect()
@@ -163,16 +148,16 @@ pub fn child_futex_pong(args: &[String]) {
     crate::procs::say_ready();
     loop {
         while r.u32_at(PING).load(Acquire) == seq {
-            futex_wait(r.u32_at(PING), seq, 0);
+            futex_wait(r.u32_at(PING), seq, Duration::MAX);
         }
-        let t = now_ns();
+        let t = monotonic_ns();
         seq = r.u32_at(PING).load(Acquire);
         if r.u32_at(STOP).load(Acquire) != 0 {
             break;
         }
         lats.push(t.saturating_sub(r.u64_at(PING_T).load(Relaxed)));
         r.u32_at(PONG).fetch_add(1, Release);
-        futex_wake(r.u32_at(PONG));
+        futex_wake_all(r.u32_at(PONG));
     }
     let out: String = lats.iter().map(|l| format!("lat {l}\n")).collect();
     print!("{out}");
@@ -186,16 +171,15 @@ fn raw_broadcast(readers: usize, n: usize) -> Samples {
     let region = Region::create(&path, 4096);
     let kids = spawn_ready(readers, "futex-waiter", &[path.display().to_string()]);
     std::thread::sleep(Duration::from_millis(50));
-    let mut rng = Rng::new();
     for _ in 0..n {
-        std::thread::sleep(rng.gap(3000, 6000));
-        region.u64_at(PING_T).store(now_ns(), Relaxed);
+        std::thread::sleep(random_gap());
+        region.u64_at(PING_T).store(monotonic_ns(), Relaxed);
         region.u32_at(PING).fetch_add(1, Release);
-        futex_wake(region.u32_at(PING));
+        futex_wake_all(region.u32_at(PING));
     }
     region.u32_at(STOP).store(1, Release);
     region.u32_at(PING).fetch_add(1, Release);
-    futex_wake(region.u32_at(PING));
+    futex_wake_all(region.u32_at(PING));
     let lines = finish_all(kids);
     let _ = std::fs::remove_file(&path);
     let mut each = Vec::new();
@@ -219,9 +203,9 @@ pub fn child_futex_waiter(args: &[String]) {
     crate::procs::say_ready();
     loop {
         while r.u32_at(PING).load(Acquire) == seq {
-            futex_wait(r.u32_at(PING), seq, 0);
+            futex_wait(r.u32_at(PING), seq, Duration::MAX);
         }
-        let t = now_ns();
+        let t = monotonic_ns();
         seq = r.u32_at(PING).load(Acquire);
         if r.u32_at(STOP).load(Acquire) != 0 {
             break;
@@ -276,7 +260,7 @@ impl WakePort {
 
     /// Publishes one chunk stamped with the current time.
     fn publish(&mut self) {
-        let meta = ChunkMeta { mono_ns: now_ns(), ..ChunkMeta::default() };
+        let meta = ChunkMeta { mono_ns: monotonic_ns(), ..ChunkMeta::default() };
         self.w.publish(Source::Interleaved(&self.data), meta).expect("publish");
     }
 
@@ -310,9 +294,8 @@ impl WakePort {
 fn bass_wake(readers: usize, n: usize) -> Samples {
     let mut p = WakePort::start("bench-wake-n", readers, "wake-reader");
     std::thread::sleep(Duration::from_millis(50));
-    let mut rng = Rng::new();
     for _ in 0..n {
-        std::thread::sleep(rng.gap(3000, 6000));
+        std::thread::sleep(random_gap());
         p.publish();
     }
     p.finish()
@@ -335,9 +318,8 @@ fn one_reader_side_by_side(n: usize) -> OneReader {
     });
     let ways = if alt.is_some() { 4 } else { 3 };
     std::thread::sleep(Duration::from_millis(50));
-    let mut rng = Rng::new();
     for k in 0..ways * n {
-        std::thread::sleep(rng.gap(3000, 6000));
+        std::thread::sleep(random_gap());
         match k % ways {
             0 => pinger.ping(),
             1 => a.publish(),
@@ -369,10 +351,10 @@ pub fn child_wake_reader(args: &[String]) {
     loop {
         match port.wait(nfr, Duration::from_secs(30)) {
             Ok(lfi) => {
-                let woke = now_ns();
+                let woke = monotonic_ns();
                 let mut bufs = [&mut l[..], &mut r[..]];
                 port.get_audio_data(cap, &mut nfr, &mut bufs).expect("read");
-                let read = now_ns();
+                let read = monotonic_ns();
                 let published = port.chunk_info(lfi).map(|c| c.mono_ns).unwrap_or(0);
                 if published > 0 {
                     out.push_str(&format!(
@@ -409,8 +391,10 @@ pub fn child_raw_waiter(args: &[String]) {
     let (mut l, mut r) = (vec![0i32; cap], vec![0i32; cap]);
     let mut out = String::new();
     // Experiment knobs (not used by the harness itself).
-    let timeout_ns: u64 =
-        std::env::var("BENCH_WAITER_TIMEOUT_MS").ok().and_then(|v| v.parse().ok()).unwrap_or(0) * 1_000_000;
+    let timeout = match std::env::var("BENCH_WAITER_TIMEOUT_MS").ok().and_then(|v| v.parse().ok()) {
+        Some(ms) if ms > 0 => Duration::from_millis(ms),
+        _ => Duration::MAX,
+    };
     let do_fstat = std::env::var("BENCH_WAITER_FSTAT").is_ok();
     crate::procs::say_ready();
     let cpu0 = crate::procs::process_cpu_ns();
@@ -424,13 +408,13 @@ pub fn child_raw_waiter(args: &[String]) {
             if state.load(Acquire) == State::Stopped as u32 {
                 break;
             }
-            futex_wait(futex, seq, timeout_ns);
+            futex_wait(futex, seq, timeout);
             continue;
         }
-        let woke = now_ns();
+        let woke = monotonic_ns();
         let mut bufs = [&mut l[..], &mut r[..]];
         port.get_audio_data(cap, &mut nfr, &mut bufs).expect("read");
-        let read = now_ns();
+        let read = monotonic_ns();
         let published = port.chunk_info(lfi).map(|c| c.mono_ns).unwrap_or(0);
         if published > 0 {
             out.push_str(&format!(
@@ -462,7 +446,7 @@ fn polling(readers: usize, duration: Duration) -> Vec<f64> {
         if let Some(d) = next.checked_duration_since(Instant::now()) {
             std::thread::sleep(d);
         }
-        let meta = ChunkMeta { mono_ns: now_ns(), ..ChunkMeta::default() };
+        let meta = ChunkMeta { mono_ns: monotonic_ns(), ..ChunkMeta::default() };
         w.publish(Source::Interleaved(&data), meta).expect("publish");
     }
     w.stop();
@@ -482,7 +466,7 @@ pub fn child_poll_reader(args: &[String]) {
     let mut out = String::new();
     crate::procs::say_ready();
     // Random phase, as a client started at any moment.
-    std::thread::sleep(Duration::from_micros(now_ns() % 250_000));
+    std::thread::sleep(Duration::from_micros(monotonic_ns() % 250_000));
     let mut next = Instant::now();
     loop {
         next += Duration::from_millis(250);
@@ -492,7 +476,7 @@ pub fn child_poll_reader(args: &[String]) {
         let first = nfr;
         let mut bufs = [&mut l[..], &mut r[..]];
         let got = port.get_audio_data(cap, &mut nfr, &mut bufs).expect("read");
-        let t = now_ns();
+        let t = monotonic_ns();
         // The first chunk that starts at or after `first` (chunks start at k * nFPC + 1).
         let mut f = (first - 1).div_ceil(nfpc) * nfpc + 1;
         while got.frames > 0 && f + nfpc - 1 < nfr {

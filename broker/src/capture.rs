@@ -22,7 +22,7 @@ use bassclient::sys::{monotonic_ns, realtime_ns};
 use bassclient::{ChunkMeta, Geometry, Source, Writer};
 
 use crate::device::{Capture, ReadEvent, StopSignal};
-use crate::dll::RateDll;
+use crate::rate_estimator::RateDll;
 
 /// State shared by the capture thread and the control thread.
 pub struct Shared {

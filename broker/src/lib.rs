@@ -7,7 +7,7 @@
 //! - [`request`]: checks an Acquire before anything running is touched (and the operator's bounds);
 //! - [`policy`]: which device names a client may make the broker open;
 //! - [`convert`]: device sample formats to left-justified S32;
-//! - [`dll`]: the device-clock rate estimator;
+//! - [`rate_estimator`]: the device-clock rate estimator (a delay-locked loop);
 //! - [`pins`]: superseded ports still mapped by readers, and the bound on them;
 //! - [`os`]: the Linux edge on rustix (eventfd, signals, sleeps, scheduling, credentials, lock);
 //! - [`cli`]: the small argument parser both binaries use.
@@ -16,10 +16,10 @@ pub mod capture;
 pub mod cli;
 pub mod convert;
 pub mod device;
-pub mod dll;
 pub mod os;
 pub mod pins;
 pub mod policy;
+pub mod rate_estimator;
 pub mod request;
 pub mod server;
 

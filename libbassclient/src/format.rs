@@ -378,12 +378,6 @@ pub fn write_text(words: &[AtomicU64], text: &str) {
     }
 }
 
-/// Ring slot of frame `frame` in a window of `frames_on_port` frames.
-///
-/// Frame 0 (the zero frame before any data) maps to the last slot, which stays
-/// zero until frame nFOP is written, when frame 0 has left the window.
-/// Reduced first, so that any `frame` (a caller's nfr may be near 2^64) cannot overflow.
-#[inline]
-pub fn slot(frame: u64, frames_on_port: u64) -> u64 {
-    (frame % frames_on_port + frames_on_port - 1) % frames_on_port
-}
+/// Ring slot of a frame; defined once, in the window protocol (`ring.rs`, which the loom
+/// model compiles on its own and so cannot depend on this module).
+pub use crate::ring::slot;

@@ -42,6 +42,16 @@ fn join(a: i32, b: i32) -> u64 {
     u64::from_ne_bytes([x[0], x[1], x[2], x[3], y[0], y[1], y[2], y[3]])
 }
 
+/// Ring slot of frame `frame` in a window of `frames_on_port` frames.
+///
+/// Frame 0 (the zero frame before any data) maps to the last slot, which stays
+/// zero until frame nFOP is written, when frame 0 has left the window.
+/// Reduced first, so that any `frame` (a caller's nfr may be near 2^64) cannot overflow.
+#[inline]
+pub fn slot(frame: u64, frames_on_port: u64) -> u64 {
+    (frame % frames_on_port + frames_on_port - 1) % frames_on_port
+}
+
 /// Number of words holding `samples` samples.
 #[inline]
 pub const fn words_for(samples: u64) -> u64 {
@@ -204,7 +214,7 @@ impl<'a> Ring<'a> {
     /// Ring slot of `frame`.
     #[inline]
     fn slot(&self, frame: u64) -> usize {
-        ((frame + self.frames_on_port - 1) % self.frames_on_port) as usize
+        slot(frame, self.frames_on_port) as usize
     }
 
     /// Publishes `count` frames after frame `lfi`, the current last frame index (writer only,

@@ -4,6 +4,7 @@
  * built with -Wall -Wextra -Wpedantic -Werror, once plain and once under ASan/UBSan. */
 #define _POSIX_C_SOURCE 200809L
 #include "bass.h"
+#include "check.h"
 
 #include <fcntl.h>
 #include <inttypes.h>
@@ -14,35 +15,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-static int failures;
-static int checks;
-
-#define EXPECT(call, code)                                                                   \
-    do {                                                                                     \
-        bass_result r_ = (call);                                                             \
-        checks++;                                                                            \
-        if (r_ != (code)) {                                                                  \
-            failures++;                                                                      \
-            fprintf(stderr, "%s:%d: %s returned %d (%s), expected %d (%s); last error: %s\n", \
-                    __FILE__, __LINE__, #call, (int)r_, bass_result_str((int)r_), (int)(code), \
-                    bass_result_str((int)(code)), bass_last_error());                        \
-        }                                                                                    \
-    } while (0)
-
-#define CHECK(cond)                                                                \
-    do {                                                                           \
-        checks++;                                                                  \
-        if (!(cond)) {                                                             \
-            failures++;                                                            \
-            fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
-        }                                                                          \
-    } while (0)
-
 enum { NFPC = 4, NCOP = 3, NFOP = NFPC * NCOP, CH = 2 };
-
-static int32_t pattern(uint64_t frame, unsigned ch) {
-    return (int32_t)((uint32_t)((frame & 0x3FFFFFFu) << 6) | (ch & 63u));
-}
 
 static char dir[4096];
 

@@ -24,9 +24,9 @@ $CC -std=c11 "${WARN[@]}" -O2 -I"$ROOT/include" "$ROOT/examples-c/basc.c" -o "$B
 $CC -std=c11 "${WARN[@]}" -O1 -g "${SAN[@]}" -I"$ROOT/include" "$ROOT/examples-c/basc.c" -o "$BIN/basc_san" "${LINK[@]}"
 $CC -std=c11 "${WARN[@]}" -O2 -I"$ROOT/include" "$ROOT/examples-c/sim_writer.c" -o "$BIN/sim_writer" "${LINK[@]}"
 $CC -std=c11 "${WARN[@]}" -g "${SAN[@]}" -I"$ROOT/include" "$ROOT/tests/conformance/driver_c.c" -o "$BIN/driver_c" "${LINK[@]}"
-if [[ -f $ROOT/examples-c/bass.hpp ]]; then
-  $CXX -std=c++17 "${WARN[@]}" -g "${SAN[@]}" -I"$ROOT/include" -I"$ROOT/examples-c" \
+if [[ -f $ROOT/include/bass.hpp ]]; then
+  $CXX -std=c++17 "${WARN[@]}" -g "${SAN[@]}" -I"$ROOT/include" \
     "$ROOT/tests/conformance/driver_cpp.cpp" -o "$BIN/driver_cpp" "${LINK[@]}"
-  $CXX -std=c++17 "${WARN[@]}" -O2 -I"$ROOT/include" -I"$ROOT/examples-c" \
+  $CXX -std=c++17 "${WARN[@]}" -O2 -I"$ROOT/include" \
     "$ROOT/examples-c/blocks.cpp" -o "$BIN/blocks_cpp" "${LINK[@]}"
 fi

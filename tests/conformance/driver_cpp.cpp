@@ -1,4 +1,4 @@
-// Conformance driver in C++: replays vectors.txt through examples-c/bass.hpp (bass::writer,
+// Conformance driver in C++: replays vectors.txt through include/bass.hpp (bass::writer,
 // bass::port) and prints the file back with the `read` results observed.
 // Usage: driver_cpp VECTORS > OUT   (ports in $BASS_RUNTIME_DIR)
 #include <unistd.h>

@@ -204,9 +204,4 @@ impl Reply {
     pub fn error(kind: ErrorKind, message: &str) -> Reply {
         Reply::Error { kind, message: message.to_owned() }
     }
-
-    /// Whether this is an `error` reply.
-    pub fn is_error(&self) -> bool {
-        matches!(self, Reply::Error { .. })
-    }
 }

@@ -14,6 +14,7 @@
  * Pass: every call returns its documented code, 0 sanitizer reports, 0 faults. */
 #define _GNU_SOURCE
 #include "bass.h"
+#include "../../c/check.h"
 
 #include <errno.h>
 #include <inttypes.h>
@@ -28,34 +29,7 @@
 #include <time.h>
 #include <unistd.h>
 
-static int failures, checks;
-
-#define EXPECT(call, code)                                                                      \
-    do {                                                                                        \
-        bass_result r_ = (call);                                                                \
-        checks++;                                                                               \
-        if (r_ != (code)) {                                                                     \
-            failures++;                                                                         \
-            fprintf(stderr, "%s:%d: %s returned %d (%s), expected %d (%s); last error: %s\n",    \
-                    __FILE__, __LINE__, #call, (int)r_, bass_result_str((int)r_), (int)(code),  \
-                    bass_result_str((int)(code)), bass_last_error());                           \
-        }                                                                                       \
-    } while (0)
-
-#define CHECK(cond)                                                                  \
-    do {                                                                             \
-        checks++;                                                                    \
-        if (!(cond)) {                                                               \
-            failures++;                                                              \
-            fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
-        }                                                                            \
-    } while (0)
-
 enum { NFPC = 16, NCOP = 4, NFOP = NFPC * NCOP, CH = 2 };
-
-static int32_t pattern(uint64_t frame, unsigned ch) {
-    return (int32_t)((uint32_t)((frame & 0x3FFFFFFu) << 6) | (ch & 63u));
-}
 
 /* `bytes` of memory ending exactly at a PROT_NONE page: touching one byte more faults. */
 static void *guarded(size_t bytes) {

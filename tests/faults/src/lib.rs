@@ -432,30 +432,9 @@ pub fn wait_until(timeout: Duration, mut cond: impl FnMut() -> bool) -> bool {
     }
 }
 
-/// A small deterministic PRNG (xorshift64*), so runs are reproducible from a printed seed.
-pub struct Rng(u64);
-
-impl Rng {
-    /// Seeded generator (seed 0 is replaced).
-    pub fn new(seed: u64) -> Rng {
-        Rng(seed.max(1))
-    }
-
-    /// Next 64 random bits.
-    pub fn next_u64(&mut self) -> u64 {
-        let mut x = self.0;
-        x ^= x >> 12;
-        x ^= x << 25;
-        x ^= x >> 27;
-        self.0 = x;
-        x.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-
-    /// Uniform in `0..n` (n > 0).
-    pub fn below(&mut self, n: u64) -> u64 {
-        self.next_u64() % n
-    }
-}
+/// The PRNG of the randomised tests (fastrand's, seeded with [`seed`], so that a run is
+/// reproducible from its printed seed).
+pub use fastrand::Rng;
 
 /// The seed for randomised tests: `$BASS_FAULTS_SEED`, else the clock.
 pub fn seed() -> u64 {

@@ -136,13 +136,13 @@ fn runs() -> usize {
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn killed_broker_ends_every_wait_with_writer_gone_and_delivers_nothing_unpublished() {
     let seed = bass_faults::seed();
-    let mut rng = Rng::new(seed);
+    let mut rng = Rng::with_seed(seed);
     let mut outcomes = Vec::new();
     for _ in 0..runs() {
         let dir = TempDir::new("bkill");
         let mut b = Bassd::start(&dir.0, "k", &[], &[]);
         b.client().acquire(&acquire_req("sim:pattern", 48000, 480, 20, 2)).expect("acquire");
-        let delay = Duration::from_micros(rng.below(80_000));
+        let delay = Duration::from_micros(rng.u64(..80_000));
         let path = b.port_path();
         outcomes.push(run(&path, delay, || b.kill(libc::SIGKILL)));
     }
@@ -153,7 +153,7 @@ fn killed_broker_ends_every_wait_with_writer_gone_and_delivers_nothing_unpublish
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn writer_killed_mid_chunk_leaves_only_intact_frames_readable() {
     let seed = bass_faults::seed();
-    let mut rng = Rng::new(seed);
+    let mut rng = Rng::with_seed(seed);
     let mut outcomes = Vec::new();
     for _ in 0..runs() {
         let dir = TempDir::new("wkill");
@@ -161,7 +161,7 @@ fn writer_killed_mid_chunk_leaves_only_intact_frames_readable() {
         let mut w =
             Agent::spawn(&["writer", "--port", path.to_str().unwrap(), "--nfpc", "65536", "--ncop", "4"]);
         w.expect_line("ready");
-        let delay = Duration::from_micros(rng.below(30_000));
+        let delay = Duration::from_micros(rng.u64(..30_000));
         outcomes.push(run(&path, delay, || {
             w.signal(libc::SIGKILL);
             let _ = w.child.wait();

@@ -17,7 +17,7 @@ fn readers_killed_mid_read_and_mid_wait_leak_nothing_and_disturb_no_one() {
     let kills_per_mode: usize =
         std::env::var("BASS_FAULTS_KILLS").ok().and_then(|s| s.parse().ok()).unwrap_or(100);
     let seed = bass_faults::seed();
-    let mut rng = Rng::new(seed);
+    let mut rng = Rng::with_seed(seed);
     let dir = TempDir::new("kill");
     let path = dir.join("bass-kill.port");
     let p = path.to_str().unwrap();
@@ -55,7 +55,7 @@ fn readers_killed_mid_read_and_mid_wait_leak_nothing_and_disturb_no_one() {
         for _ in 0..kills_per_mode {
             let mut v = Agent::spawn(&["victim", "--port", p, "--mode", mode]);
             v.expect_line("ready");
-            std::thread::sleep(Duration::from_micros(rng.below(5000)));
+            std::thread::sleep(Duration::from_micros(rng.u64(..5000)));
             let sc = current_syscall(v.pid());
             if sc == "202" {
                 in_futex += 1;

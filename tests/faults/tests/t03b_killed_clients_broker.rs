@@ -16,7 +16,7 @@ use bass_faults::{acquire_req, fd_count, figure, Agent, Bassd, Rng, TempDir};
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn killed_readers_and_control_clients_leak_nothing_in_bassd() {
     let seed = bass_faults::seed();
-    let mut rng = Rng::new(seed);
+    let mut rng = Rng::with_seed(seed);
     let dir = TempDir::new("bclients");
     let b = Bassd::start(&dir.0, "kc", &[], &[]);
     let mut c = b.client();
@@ -38,7 +38,7 @@ fn killed_readers_and_control_clients_leak_nothing_in_bassd() {
             _ => Agent::spawn(&["control-victim", "--socket", s, "--name", "kc"]),
         };
         v.expect_line("ready");
-        std::thread::sleep(Duration::from_micros(rng.below(5000)));
+        std::thread::sleep(Duration::from_micros(rng.u64(..5000)));
         v.signal(libc::SIGKILL);
         let (status, _) = v.finish();
         assert_eq!(status.signal(), Some(libc::SIGKILL));

@@ -183,24 +183,24 @@ fn random_bytes_never_crash_and_give_named_errors() {
     let dir = TempDir::new("corrupt-random");
     let good = valid_port(&dir);
     let seed = bass_faults::seed();
-    let mut rng = Rng::new(seed);
+    let mut rng = Rng::with_seed(seed);
     let mut t = Tally::default();
     for i in 0..400 {
         // Whole files of random bytes and random length.
-        let len = rng.below(3 * good.len() as u64) as usize;
-        let bytes: Vec<u8> = (0..len).map(|_| rng.next_u64() as u8).collect();
+        let len = rng.u64(..3 * good.len() as u64) as usize;
+        let bytes: Vec<u8> = (0..len).map(|_| rng.u8(..)).collect();
         exercise(&dir, &bytes, &format!("random file {i} (seed {seed})"), &mut t);
         // A valid magic and version followed by random bytes, so validation goes deeper.
         let mut bytes = good.clone();
         for b in bytes[12..HEADER_SIZE].iter_mut() {
-            *b = rng.next_u64() as u8;
+            *b = rng.u8(..);
         }
         exercise(&dir, &bytes, &format!("random header {i} (seed {seed})"), &mut t);
         // The valid port with a few random bytes changed anywhere in the header.
         let mut bytes = good.clone();
-        for _ in 0..1 + rng.below(8) {
-            let off = rng.below(640) as usize;
-            bytes[off] = rng.next_u64() as u8;
+        for _ in 0..1 + rng.u64(..8) {
+            let off = rng.u64(..640) as usize;
+            bytes[off] = rng.u8(..);
         }
         exercise(&dir, &bytes, &format!("mutated header {i} (seed {seed})"), &mut t);
     }

@@ -142,12 +142,12 @@ fn bad_acquires_are_refused_clearly_and_the_last_valid_one_wins() {
         })
     };
     let seed = bass_faults::seed();
-    let mut rng = Rng::new(seed);
+    let mut rng = Rng::with_seed(seed);
     let (mut last_valid, mut accepted, mut refused) = (None, 0, 0);
     let mut last_epoch = valid.epoch;
     for i in 0..100 {
-        let nfpc = [240u32, 480, 960][rng.below(3) as usize];
-        let ncop = 10 + rng.below(20) as u32;
+        let nfpc = [240u32, 480, 960][rng.u64(..3) as usize];
+        let ncop = 10 + rng.u64(..20) as u32;
         let req = if i % 5 == 4 {
             acquire_req("sim:pattern", 48000, 0, ncop, 2)
         } else {
