@@ -75,7 +75,7 @@ class ChunkMeta(ctypes.Structure):
 
 
 class Status(ctypes.Structure):
-    """bass_status (the broker's answer to Status)."""
+    """bass_broker_status (the broker's answer to Status)."""
 
     _fields_ = [
         ("state", c_uint32),
