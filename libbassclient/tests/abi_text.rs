@@ -9,7 +9,9 @@ use std::ffi::{c_int, CStr};
 use std::path::PathBuf;
 use std::process::Command;
 
-use bassclient::ffi::{bass_last_error, bass_port_open, bass_result, bass_result_str, bass_version};
+use bassclient::ffi::{
+    bass_last_error, bass_port_open, bass_result, bass_result_str, bass_state_str, bass_version,
+};
 
 fn text(p: *const std::ffi::c_char) -> String {
     assert!(!p.is_null(), "a text export returned NULL");
@@ -17,10 +19,14 @@ fn text(p: *const std::ffi::c_char) -> String {
     unsafe { CStr::from_ptr(p) }.to_str().expect("UTF-8").to_string()
 }
 
+fn header() -> String {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../include/bass.h");
+    std::fs::read_to_string(&path).expect("include/bass.h")
+}
+
 /// `NAME = value` members of the header's `bass_result` enum.
 fn header_results() -> BTreeMap<String, c_int> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../include/bass.h");
-    let header = std::fs::read_to_string(&path).expect("include/bass.h");
+    let header = header();
     let end = header.find("} bass_result;").expect("the header declares bass_result");
     let body = &header[header[..end].rfind('{').expect("enum body") + 1..end];
     body.lines()
@@ -51,6 +57,27 @@ fn the_code_list_is_the_headers_enum_and_every_code_has_its_own_text() {
     for code in [past, past + 1, -1, c_int::MIN, c_int::MAX] {
         assert_eq!(bass_result::from_code(code), None, "{code}");
         assert_eq!(text(bass_result_str(code)), unknown, "{code}");
+    }
+}
+
+#[test]
+fn every_header_state_has_its_name_and_other_values_are_unknown() {
+    let header = header();
+    let states: Vec<(String, u32)> = header
+        .lines()
+        .filter_map(|l| l.strip_prefix("#define BASS_STATE_"))
+        .map(|l| {
+            let (name, value) = l.split_once(' ').expect("#define NAME value");
+            (name.to_ascii_lowercase(), value.trim().parse().expect("numeric state"))
+        })
+        .collect();
+    assert!(states.len() >= 6, "{states:?}");
+    for (name, value) in &states {
+        assert_eq!(&text(bass_state_str(*value)), name, "BASS_STATE_{}", name.to_uppercase());
+    }
+    let past = states.iter().map(|(_, v)| v).max().expect("states") + 1;
+    for v in [past, past + 1, u32::MAX] {
+        assert_eq!(text(bass_state_str(v)), "unknown", "{v}");
     }
 }
 

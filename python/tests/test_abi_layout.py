@@ -106,6 +106,10 @@ def test_the_python_state_names_are_the_headers():
     want = {v: k.removeprefix("BASS_STATE_").lower() for k, v in header_defines("BASS_STATE_").items()}
     assert len(want) >= 6
     assert bass.STATE_NAMES == want
+    # ... and the library's (the MEX gateway shows bass_state_str).
+    for value, name in want.items():
+        assert _lib.lib.bass_state_str(value).decode() == name
+    assert _lib.lib.bass_state_str(max(want) + 1).decode() == "unknown"
 
 
 def test_every_declared_function_exists_in_the_header_with_as_many_parameters():
