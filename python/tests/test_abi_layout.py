@@ -118,3 +118,13 @@ def test_every_declared_function_exists_in_the_header_with_as_many_parameters():
         assert m, f"{name} is not declared in include/bass.h"
         params = [p for p in m.group(1).split(",") if p.strip() and p.strip() != "void"]
         assert len(params) == len(args), f"{name}: header has {len(params)} parameters, _lib.py {len(args)}"
+
+
+def test_every_header_result_code_has_a_library_text():
+    enum = HEADER[:HEADER.index("} bass_result;")]
+    header_codes = [int(v) for v in re.findall(r"^\s*BASS_\w+ = (\d+),?$", enum, re.M)]
+    assert sorted(header_codes) == sorted(bass.RESULT_NAMES)
+    texts = [_lib.lib.bass_result_str(c).decode() for c in header_codes]
+    assert "unknown result code" not in texts
+    assert len(set(texts)) == len(texts)
+    assert _lib.lib.bass_result_str(max(header_codes) + 1).decode() == "unknown result code"
