@@ -278,6 +278,11 @@ const char *bass_version(void);
 // A static description of a result code (never NULL; unknown codes give "unknown result code").
 const char *bass_result_str(int code);
 
+// A static name of a port state (`BASS_STATE_IDLE` gives "idle", `BASS_STATE_STARTING`
+// "starting", ...: the constant's name in lower case); any other value gives "unknown"
+// (never NULL).
+const char *bass_state_str(uint32_t state);
+
 // The detailed message of the last failed call on this thread (never NULL; empty if none).
 // Valid until the next failing bass call on the same thread.
 const char *bass_last_error(void);

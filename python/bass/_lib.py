@@ -76,7 +76,7 @@ class ChunkMeta(ctypes.Structure):
 
 
 class Status(ctypes.Structure):
-    """bass_status (the broker's answer to Status)."""
+    """bass_broker_status (the broker's answer to Status)."""
 
     _fields_ = [
         ("state", c_uint32),
@@ -103,6 +103,7 @@ _SIGNATURES = {
     "bass_version": (c_char_p, []),
     "bass_result_str": (c_char_p, [c_int]),
     "bass_last_error": (c_char_p, []),
+    "bass_state_str": (c_char_p, [c_uint32]),
     "bass_port_open": (c_int, [c_char_p, POINTER(_P)]),
     "bass_port_close": (c_int, [_P]),
     "bass_get_audio_data": (

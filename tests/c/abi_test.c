@@ -176,6 +176,10 @@ static void test_reads(bass_port *port, bass_writer *w) {
     CHECK(n == 3 && nfr == 13 && r[0] == pattern(10, 0) && r[2] == pattern(12, 0));
     EXPECT(bass_get_audio_data_multi(port, 3, &nfr, one, 0, &n, &loss), BASS_ERR_INVALID_ARGUMENT);
     EXPECT(bass_get_audio_data_multi(port, 3, &nfr, one, 3, &n, &loss), BASS_ERR_INVALID_ARGUMENT);
+    /* A NULL element of channels is refused, and the message names its index. */
+    int32_t *hole[2] = {l, NULL};
+    EXPECT(bass_get_audio_data_multi(port, 3, &nfr, hole, 2, &n, &loss), BASS_ERR_NULL_ARGUMENT);
+    CHECK(strstr(bass_last_error(), "argument channels[1] is NULL") != NULL);
 
     /* Info. */
     bass_port_info info;

@@ -227,3 +227,23 @@ def test_every_read_path_reports_a_broker_restart_and_a_dead_broker(mexdir, clie
                 pass
     assert rc == 0, out + err
     assert "restart ok" in out
+
+
+def test_info_shows_every_header_state_by_its_name(mexdir, clients_env):
+    """Info's state text is the header constant's name for every state a writer can set
+    (before: BASS_STATE_STARTING showed as "unknown")."""
+    import bass
+
+    header = open(os.path.join(ROOT, "include", "bass.h")).read()
+    states = {m.group(1).lower(): int(m.group(2))
+              for m in re.finditer(r"#define BASS_STATE_(\w+) (\d+)\b", header)}
+    settable = {k: v for k, v in states.items() if k != "superseded"}  # only a new acquisition
+    assert "starting" in settable, states
+    # The Python writer and Octave share clients_env's runtime directory.
+    with bass.Writer("mex-states", frames_per_chunk=4, chunks_on_port=3) as w:
+        for name, value in settable.items():
+            w.set_state(value)
+            rc, out, err = octave(clients_env, "h = bass_mex('Open', 'mex-states'); i = bass_mex('Info', h); "
+                                       "printf('state=%s\\n', i.state); bass_mex('Close', h);")
+            assert rc == 0, out + err
+            assert f"state={name}\n" in out, (name, out, err)

@@ -157,6 +157,8 @@ const _: () = assert!(
 /// What went wrong inside an export.
 pub(crate) enum Failure {
     Null(&'static str),
+    /// A NULL element of a pointer array argument: the array's name and the index.
+    NullAt(&'static str, usize),
     Handle,
     #[allow(dead_code)] // used by the control client
     Small(String),
@@ -172,7 +174,7 @@ impl From<Error> for Failure {
 impl Failure {
     fn code(&self) -> bass_result {
         match self {
-            Failure::Null(_) => BASS_ERR_NULL_ARGUMENT,
+            Failure::Null(_) | Failure::NullAt(..) => BASS_ERR_NULL_ARGUMENT,
             Failure::Handle => BASS_ERR_INVALID_HANDLE,
             Failure::Small(_) => BASS_ERR_BUFFER_TOO_SMALL,
             Failure::Lib(e) => match e {
@@ -203,6 +205,7 @@ impl Failure {
     fn message(&self) -> String {
         match self {
             Failure::Null(arg) => format!("argument {arg} is NULL"),
+            Failure::NullAt(arg, i) => format!("argument {arg}[{i}] is NULL"),
             Failure::Handle => "invalid handle (closed, or not returned by this library)".into(),
             Failure::Small(m) => m.clone(),
             Failure::Lib(e) => e.to_string(),
@@ -216,7 +219,9 @@ thread_local! {
 
 fn set_last_error(func: &str, msg: &str) {
     let text = format!("{func}: {msg}").replace('\0', " ");
-    LAST_ERROR.with(|l| *l.borrow_mut() = CString::new(text).unwrap_or_default());
+    // During thread teardown the thread-local may be destroyed already; the message is then
+    // dropped (nobody on this thread can ask for it any more) instead of panicking.
+    let _ = LAST_ERROR.try_with(|l| *l.borrow_mut() = CString::new(text).unwrap_or_default());
 }
 
 /// The boundary every export goes through: runs `f`, turns its error into a code and a
@@ -238,6 +243,17 @@ pub(crate) fn boundary(func: &str, f: impl FnOnce() -> Result<(), Failure>) -> b
             BASS_ERR_PANIC
         }
     }
+}
+
+/// The boundary for the exports that return a static text instead of a code
+/// (`bass_version`, `bass_result_str`, `bass_last_error`): runs `f` and, should it panic,
+/// returns `fallback` (static, never NULL). Nothing is written to the last-error slot: these
+/// functions are the ones a caller uses to read it.
+pub(crate) fn static_text_boundary(
+    fallback: &'static CStr,
+    f: impl FnOnce() -> *const c_char,
+) -> *const c_char {
+    catch_unwind(AssertUnwindSafe(f)).unwrap_or(fallback.as_ptr())
 }
 
 /// Checks a pointer argument for NULL.
@@ -320,57 +336,135 @@ static VERSION: std::sync::OnceLock<std::ffi::CString> = std::sync::OnceLock::ne
 /// The library's version string (static; never NULL).
 #[no_mangle]
 pub extern "C" fn bass_version() -> *const c_char {
-    VERSION
-        .get_or_init(|| {
-            let text = format!(
-                "bass {} (port format {}.{})",
-                env!("CARGO_PKG_VERSION"),
-                format::VERSION_MAJOR,
-                format::VERSION_MINOR
-            );
-            // The text has no NUL byte; the fallback only keeps this path free of panics.
-            std::ffi::CString::new(text).unwrap_or_default()
-        })
-        .as_ptr()
+    static_text_boundary(c"bass (version unavailable)", || {
+        VERSION
+            .get_or_init(|| {
+                let text = format!(
+                    "bass {} (port format {}.{})",
+                    env!("CARGO_PKG_VERSION"),
+                    format::VERSION_MAJOR,
+                    format::VERSION_MINOR
+                );
+                // The text has no NUL byte; the fallback only keeps this path free of panics.
+                std::ffi::CString::new(text).unwrap_or_default()
+            })
+            .as_ptr()
+    })
 }
+
+/// Every result code, in numbering order (not exported to C: the header has the enum).
+const ALL_RESULTS: [bass_result; 25] = [
+    BASS_OK,
+    BASS_ERR_NULL_ARGUMENT,
+    BASS_ERR_INVALID_ARGUMENT,
+    BASS_ERR_INVALID_HANDLE,
+    BASS_ERR_NOT_FOUND,
+    BASS_ERR_NOT_READY,
+    BASS_ERR_BAD_MAGIC,
+    BASS_ERR_INCOMPATIBLE,
+    BASS_ERR_CORRUPT,
+    BASS_ERR_IO,
+    BASS_ERR_TIMEOUT,
+    BASS_ERR_STOPPED,
+    BASS_ERR_DEVICE,
+    BASS_ERR_RESTARTED,
+    BASS_ERR_WRITER_GONE,
+    BASS_ERR_FRAME_LOST,
+    BASS_ERR_FRAME_NOT_YET,
+    BASS_ERR_INTERRUPTED,
+    BASS_ERR_BROKER,
+    BASS_ERR_NO_BROKER,
+    BASS_ERR_PROTOCOL,
+    BASS_ERR_PANIC,
+    BASS_ERR_BUFFER_TOO_SMALL,
+    BASS_ERR_WRONG_OWNER,
+    BASS_ERR_NEVER_READY,
+];
+
+impl bass_result {
+    /// Every code, in numbering order (a test checks this list against the header's enum).
+    pub fn all() -> &'static [bass_result] {
+        &ALL_RESULTS
+    }
+
+    /// The code whose value is `code`, if there is one (a checked conversion: an integer
+    /// from C is never transmuted into the enum).
+    pub fn from_code(code: c_int) -> Option<bass_result> {
+        ALL_RESULTS.iter().copied().find(|r| *r as c_int == code)
+    }
+
+    /// A static description. The match is exhaustive: a new code does not compile
+    /// until it has its text.
+    pub fn description(self) -> &'static CStr {
+        match self {
+            BASS_OK => c"ok",
+            BASS_ERR_NULL_ARGUMENT => c"a required pointer argument was NULL",
+            BASS_ERR_INVALID_ARGUMENT => c"invalid argument",
+            BASS_ERR_INVALID_HANDLE => c"invalid handle (closed or unknown)",
+            BASS_ERR_NOT_FOUND => c"not found",
+            BASS_ERR_NOT_READY => c"port not initialised yet; retry",
+            BASS_ERR_BAD_MAGIC => c"not a bass port (bad magic)",
+            BASS_ERR_INCOMPATIBLE => c"incompatible port format version",
+            BASS_ERR_CORRUPT => c"corrupt or truncated port",
+            BASS_ERR_IO => c"operating-system error",
+            BASS_ERR_TIMEOUT => c"timed out",
+            BASS_ERR_STOPPED => c"acquisition stopped",
+            BASS_ERR_DEVICE => c"device error (lost, stalled or misconfigured)",
+            BASS_ERR_RESTARTED => c"a new acquisition replaced this port; reopen it",
+            BASS_ERR_WRITER_GONE => c"the broker writing this port is gone",
+            BASS_ERR_FRAME_LOST => c"frame has left the window",
+            BASS_ERR_FRAME_NOT_YET => c"frame not published yet",
+            BASS_ERR_INTERRUPTED => c"interrupted by a signal",
+            BASS_ERR_BROKER => c"the broker refused or failed the request",
+            BASS_ERR_NO_BROKER => c"cannot reach the broker",
+            BASS_ERR_PROTOCOL => c"control protocol error",
+            BASS_ERR_PANIC => c"internal error (panic caught)",
+            BASS_ERR_BUFFER_TOO_SMALL => c"output buffer too small",
+            BASS_ERR_WRONG_OWNER => c"the port file is owned by an unexpected user",
+            BASS_ERR_NEVER_READY => c"the port file never became ready (no writer is initialising it)",
+        }
+    }
+}
+
+/// The text for an integer that is no `bass_result`.
+const UNKNOWN_RESULT: &CStr = c"unknown result code";
 
 /// A static description of a result code (never NULL; unknown codes give "unknown result code").
 #[no_mangle]
 pub extern "C" fn bass_result_str(code: c_int) -> *const c_char {
-    let s: &'static CStr = match code {
-        0 => c"ok",
-        1 => c"a required pointer argument was NULL",
-        2 => c"invalid argument",
-        3 => c"invalid handle (closed or unknown)",
-        4 => c"not found",
-        5 => c"port not initialised yet; retry",
-        6 => c"not a bass port (bad magic)",
-        7 => c"incompatible port format version",
-        8 => c"corrupt or truncated port",
-        9 => c"operating-system error",
-        10 => c"timed out",
-        11 => c"acquisition stopped",
-        12 => c"device error (lost, stalled or misconfigured)",
-        13 => c"a new acquisition replaced this port; reopen it",
-        14 => c"the broker writing this port is gone",
-        15 => c"frame has left the window",
-        16 => c"frame not published yet",
-        17 => c"interrupted by a signal",
-        18 => c"the broker refused or failed the request",
-        19 => c"cannot reach the broker",
-        20 => c"control protocol error",
-        21 => c"internal error (panic caught)",
-        22 => c"output buffer too small",
-        23 => c"the port file is owned by an unexpected user",
-        24 => c"the port file never became ready (no writer is initialising it)",
-        _ => c"unknown result code",
-    };
-    s.as_ptr()
+    static_text_boundary(c"bass_result_str: internal error", || {
+        bass_result::from_code(code).map_or(UNKNOWN_RESULT, bass_result::description).as_ptr()
+    })
+}
+
+/// The name of a port state, as shown by every binding. The match is exhaustive over
+/// [`State`]: a new state does not compile without its name.
+fn state_name(s: State) -> &'static CStr {
+    match s {
+        State::Idle => c"idle",
+        State::Capturing => c"capturing",
+        State::Stopped => c"stopped",
+        State::Error => c"error",
+        State::Superseded => c"superseded",
+        State::Starting => c"starting",
+    }
+}
+
+/// A static name of a port state (`BASS_STATE_IDLE` gives "idle", `BASS_STATE_STARTING`
+/// "starting", ...: the constant's name in lower case); any other value gives "unknown"
+/// (never NULL).
+#[no_mangle]
+pub extern "C" fn bass_state_str(state: u32) -> *const c_char {
+    static_text_boundary(c"unknown", || State::from_u32(state).map_or(c"unknown", state_name).as_ptr())
 }
 
 /// The detailed message of the last failed call on this thread (never NULL; empty if none).
 /// Valid until the next failing bass call on the same thread.
 #[no_mangle]
 pub extern "C" fn bass_last_error() -> *const c_char {
-    LAST_ERROR.with(|l| l.borrow().as_ptr())
+    static_text_boundary(c"", || {
+        // During thread teardown the thread-local may be gone already: then there is no
+        // message to give, and `try_with` says so instead of panicking.
+        LAST_ERROR.try_with(|l| l.borrow().as_ptr()).unwrap_or(c"".as_ptr())
+    })
 }

@@ -258,7 +258,7 @@ pub unsafe extern "C" fn bass_get_audio_data_multi(
         let mut out = Vec::with_capacity(n_channels);
         for (c, &ptr) in ptrs.iter().enumerate() {
             if ptr.is_null() {
-                return Err(Failure::Null(if c == 0 { "channels[0]" } else { "channels[c]" }));
+                return Err(Failure::NullAt("channels", c));
             }
             // SAFETY: the caller guarantees `n_frames` >= len writable, non-overlapping samples.
             out.push(unsafe { std::slice::from_raw_parts_mut(ptr, len) });
