@@ -136,8 +136,10 @@ pub unsafe extern "C" fn bass_writer_publish_planar(
         // SAFETY: caller guarantees `n_channels` readable pointers.
         let ptrs = unsafe { std::slice::from_raw_parts(channels, n_channels) };
         let mut planes = Vec::with_capacity(n_channels);
-        for &p in ptrs {
-            let p = nonnull(p, "channels[c]")?;
+        for (c, &p) in ptrs.iter().enumerate() {
+            if p.is_null() {
+                return Err(Failure::NullAt("channels", c));
+            }
             // SAFETY: caller guarantees `n_frames` readable samples per channel.
             planes.push(unsafe { std::slice::from_raw_parts(p, n_frames) });
         }
