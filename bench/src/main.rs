@@ -23,38 +23,19 @@ mod wake;
 use std::path::PathBuf;
 
 /// Options of a run.
+#[derive(clap::Parser, Debug)]
+#[command(name = "bass-bench", about = "The bass benchmark harness (make bench)")]
 pub struct Opts {
-    /// Fewer repetitions and shorter runs (for development; not for the published numbers).
+    /// Fewer repetitions and shorter runs (for development; not for the published numbers)
+    #[arg(long)]
     pub quick: bool,
-    /// Parts to run.
+    /// Parts to run, e.g. 1,3
+    #[arg(long, value_delimiter = ',', default_values_t = [1u32, 2, 3, 4, 5, 6],
+          value_parser = clap::value_parser!(u32).range(1..=6))]
     pub parts: Vec<u32>,
-    /// Where performance.md and the PNGs go.
+    /// Where performance.md and the PNGs go
+    #[arg(long, value_name = "DIR", default_value = "docs")]
     pub docs: PathBuf,
-}
-
-fn parse_args(args: &[String]) -> Opts {
-    let mut o = Opts { quick: false, parts: vec![1, 2, 3, 4, 5, 6], docs: PathBuf::from("docs") };
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        match a.as_str() {
-            "--quick" => o.quick = true,
-            "--parts" => {
-                o.parts = it
-                    .next()
-                    .expect("--parts LIST")
-                    .split(',')
-                    .map(|p| p.trim().parse().expect("part number"))
-                    .collect()
-            }
-            "--docs" => o.docs = PathBuf::from(it.next().expect("--docs DIR")),
-            "-h" | "--help" => {
-                println!("usage: bass-bench [--quick] [--parts 1,2,3,4,5,6] [--docs DIR]");
-                std::process::exit(0);
-            }
-            other => panic!("unknown argument {other:?} (try --help)"),
-        }
-    }
-    o
 }
 
 fn main() {
@@ -70,7 +51,7 @@ fn main() {
         child(&role, &args[2..]);
         return;
     }
-    let opts = parse_args(&args);
+    let opts = <Opts as clap::Parser>::parse_from(std::iter::once("bass-bench".to_owned()).chain(args));
     let started = std::time::Instant::now();
     let m = machine::Machine::describe();
     println!("bass-bench on {}", m.one_line());

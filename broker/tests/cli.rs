@@ -13,19 +13,8 @@ use std::time::Instant;
 use common::*;
 use serde_json::Value;
 
-fn bass_cmd(b: &Bassd, args: &[&str]) -> Command {
-    let mut c = Command::new(bass_bin());
-    c.arg("--name").arg(&b.name).args(args).env("BASS_RUNTIME_DIR", &b.dir);
-    c
-}
 
-fn bass(b: &Bassd, args: &[&str]) -> Output {
-    bass_cmd(b, args).output().expect("run bass")
-}
 
-fn text(o: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
-}
 
 /// A `bass` child whose stdout lines arrive on a channel.
 struct Running {

@@ -8,15 +8,6 @@ use std::process::{Command, Output};
 
 use common::*;
 
-fn bass(b: &Bassd, args: &[&str]) -> Output {
-    Command::new(bass_bin())
-        .arg("--name")
-        .arg(&b.name)
-        .args(args)
-        .env("BASS_RUNTIME_DIR", &b.dir)
-        .output()
-        .expect("run bass")
-}
 
 /// (width, height, RGB pixels) of a PNG.
 fn png(path: &Path) -> (u32, u32, Vec<u8>) {

@@ -14,19 +14,7 @@ use bassd::cli::record::convert;
 use common::*;
 use serde_json::Value;
 
-fn bass(b: &Bassd, args: &[&str]) -> Output {
-    Command::new(bass_bin())
-        .arg("--name")
-        .arg(&b.name)
-        .args(args)
-        .env("BASS_RUNTIME_DIR", &b.dir)
-        .output()
-        .expect("run bass")
-}
 
-fn text(o: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
-}
 
 /// The samples of a WAV file, per channel.
 fn read_wav(path: &Path) -> (hound::WavSpec, Vec<Vec<i32>>) {

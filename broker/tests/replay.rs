@@ -15,19 +15,7 @@ use bassclient::testsignal::pattern_sample;
 use bassclient::Error;
 use common::*;
 
-fn bass(b: &Bassd, args: &[&str]) -> Output {
-    Command::new(bass_bin())
-        .arg("--name")
-        .arg(&b.name)
-        .args(args)
-        .env("BASS_RUNTIME_DIR", &b.dir)
-        .output()
-        .expect("run bass")
-}
 
-fn text(o: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
-}
 
 fn wav_channels(path: &Path) -> Vec<Vec<i32>> {
     let mut r = hound::WavReader::open(path).unwrap();

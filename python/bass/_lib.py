@@ -2,12 +2,16 @@
 
 The library is found, in order: $BASS_LIB (a path to libbassclient.so), the workspace's
 build directory ($CARGO_TARGET_DIR or target/, release build) when this package runs from
-the source tree, then the system's library path (an installed libbassclient.so).
+the source tree, then the dynamic loader's search (an installed libbassclient.so), then the
+libdir that pkg-config reports for `bassclient` (an install under a prefix the loader does
+not search, e.g. `make install PREFIX=/opt/bass` with PKG_CONFIG_PATH set).
 """
 
 import ctypes
 import ctypes.util
 import os
+import shutil
+import subprocess
 
 from ctypes import POINTER, c_char, c_char_p, c_double, c_int, c_size_t, c_uint32, c_uint64, c_void_p
 
@@ -28,6 +32,22 @@ def _candidates():
     if found:
         yield found
     yield "libbassclient.so"
+    libdir = _pkg_config_libdir()
+    if libdir:
+        yield os.path.join(libdir, "libbassclient.so")
+
+
+def _pkg_config_libdir():
+    """The libdir pkg-config gives for bassclient, or None (no pkg-config, not installed)."""
+    exe = shutil.which("pkg-config")
+    if not exe:
+        return None
+    try:
+        out = subprocess.run([exe, "--variable=libdir", "bassclient"], capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    libdir = out.stdout.strip()
+    return libdir if out.returncode == 0 and libdir else None
 
 
 def _load():

@@ -4,7 +4,7 @@
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::{Child, Command, ExitStatus, Output, Stdio};
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
@@ -220,4 +220,21 @@ pub fn eventually<T>(what: &str, mut f: impl FnMut() -> Option<T>) -> T {
         assert!(Instant::now() < deadline, "gave up waiting for {what}");
         std::thread::sleep(Duration::from_millis(10));
     }
+}
+
+/// A `bass` command line bound to broker `b` (its name and runtime directory).
+pub fn bass_cmd(b: &Bassd, args: &[&str]) -> Command {
+    let mut c = Command::new(bass_bin());
+    c.arg("--name").arg(&b.name).args(args).env("BASS_RUNTIME_DIR", &b.dir);
+    c
+}
+
+/// Runs `bass` against broker `b` and returns what it printed and its exit status.
+pub fn bass(b: &Bassd, args: &[&str]) -> Output {
+    bass_cmd(b, args).output().expect("run bass")
+}
+
+/// stdout then stderr of a finished command, as text.
+pub fn text(o: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
 }
