@@ -13,9 +13,6 @@ use std::time::Instant;
 use common::*;
 use serde_json::Value;
 
-
-
-
 /// A `bass` child whose stdout lines arrive on a channel.
 struct Running {
     child: Child,

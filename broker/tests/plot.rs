@@ -4,10 +4,8 @@
 mod common;
 
 use std::path::Path;
-use std::process::{Command, Output};
 
 use common::*;
-
 
 /// (width, height, RGB pixels) of a PNG.
 fn png(path: &Path) -> (u32, u32, Vec<u8>) {

@@ -5,7 +5,7 @@
 mod common;
 
 use std::path::Path;
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Stdio};
 use std::time::Instant;
 
 use bassclient::format::chunk_flags;
@@ -13,8 +13,6 @@ use bassclient::testsignal::pattern_sample;
 use bassd::cli::record::convert;
 use common::*;
 use serde_json::Value;
-
-
 
 /// The samples of a WAV file, per channel.
 fn read_wav(path: &Path) -> (hound::WavSpec, Vec<Vec<i32>>) {

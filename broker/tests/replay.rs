@@ -8,14 +8,11 @@
 mod common;
 
 use std::path::Path;
-use std::process::{Command, Output};
 
 use bassclient::format::{chunk_flags, error_code, State};
 use bassclient::testsignal::pattern_sample;
 use bassclient::Error;
 use common::*;
-
-
 
 fn wav_channels(path: &Path) -> Vec<Vec<i32>> {
     let mut r = hound::WavReader::open(path).unwrap();
