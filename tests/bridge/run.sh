@@ -27,9 +27,16 @@ DIR_A=$WORK/a; DIR_B=$WORK/b; mkdir -p "$DIR_A" "$DIR_B"
 ADDR_A=fd00:ba55::1; ADDR_B=fd00:ba55::2
 EP="tcp/[$ADDR_A]:7447"
 PIDS=()
+# iceoryx2 keeps a small per-machine management file (/dev/shm/iox2_*global_mgmt) after its
+# last node exits, by design; the ones this suite created are removed at the end, the ones
+# that were there before (another iceoryx2 user's) are left alone.
+IOX_BEFORE=$(ls /dev/shm 2>/dev/null | grep '^iox2_' || true)
 
 cleanup() {
   set +e
+  for f in $(ls /dev/shm 2>/dev/null | grep '^iox2_'); do
+    grep -qxF "$f" <<<"$IOX_BEFORE" || rm -f "/dev/shm/$f"
+  done
   for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null; done
   sleep 0.3
   for p in "${PIDS[@]}"; do kill -9 "$p" 2>/dev/null; done
