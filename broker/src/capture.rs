@@ -42,6 +42,16 @@ impl Shared {
     }
 
     /// Ends the acquisition on an error, once; later calls do nothing.
+    /// The source ended by itself: the port shows Stopped with `message` (no error).
+    fn end(&self, message: &str) {
+        if self.ended.swap(true, Ordering::AcqRel) {
+            return;
+        }
+        tracing::info!("{message}");
+        self.writer().set_state(State::Stopped, bassclient::format::error_code::NONE, message);
+        self.stop.signal();
+    }
+
     fn fail(&self, code: u32, message: &str) -> bool {
         if self.ended.swap(true, Ordering::AcqRel) {
             return false;
@@ -381,6 +391,10 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
             ReadEvent::Stopped => break,
             ReadEvent::Failed { code, message } => {
                 shared.fail(code, &message);
+                break;
+            }
+            ReadEvent::Ended { message } => {
+                shared.end(&message);
                 break;
             }
         }

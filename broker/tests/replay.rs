@@ -52,11 +52,13 @@ fn a_replayed_recording_is_bit_exact_at_the_same_frame_indices() {
             assert_eq!(got[c][f], pattern_sample(f as u64 + 1, c as u32));
         }
     }
-    // The file ends: the acquisition ends with a message saying so, no frame more.
+    // The file ends: the acquisition ends as stopped (no error), with a message saying so,
+    // and no frame more.
     match port.wait(8001, PATIENCE) {
-        Err(Error::Device { code, message }) => {
-            assert_eq!(code, error_code::DEVICE_LOST);
-            assert!(message.contains("end of the recording after 8000 frames"), "{message}");
+        Err(Error::Stopped { .. }) => {
+            let info = port.info().unwrap();
+            assert_eq!(info.error_code, error_code::NONE);
+            assert!(info.message.contains("end of the recording after 8000 frames"), "{}", info.message);
         }
         other => panic!("expected the end of the replay, got {other:?}"),
     }

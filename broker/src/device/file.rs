@@ -186,8 +186,13 @@ impl Capture for FileDevice {
     fn read(&mut self, out: &mut [i32], max_frames: usize, stop: &StopSignal) -> ReadEvent {
         if self.file_pos >= self.total {
             if !self.looping {
-                return self
-                    .failed(&format!("end of the recording after {} frames (replay ended)", self.total));
+                return ReadEvent::Ended {
+                    message: format!(
+                        "sim:file:{}: end of the recording after {} frames (replay ended)",
+                        self.path.display(),
+                        self.total
+                    ),
+                };
             }
             if let Err(e) = self.rewind() {
                 return self.failed(&e);

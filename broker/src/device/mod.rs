@@ -73,6 +73,12 @@ pub enum ReadEvent {
         /// What happened.
         message: String,
     },
+    /// The source has no more frames (the end of a replayed recording): the acquisition ends
+    /// as if stopped, with `message` saying why.
+    Ended {
+        /// What ended.
+        message: String,
+    },
 }
 
 /// A configured capture device, owned by the capture thread.
