@@ -74,13 +74,13 @@ cp -r "$ROOT/python" "$WORK/pysrc"
 python3 -m venv --system-site-packages "$WORK/venv"
 "$WORK/venv/bin/pip" install -q --no-deps "$WORK/pysrc" >"$WORK/pip.log" 2>&1 \
   || { cat "$WORK/pip.log"; exit 1; }
-pyout=$(cd "$WORK" && env -u BASS_LIB LD_LIBRARY_PATH="$PREFIX/lib" "$WORK/venv/bin/python" -c \
+pyout=$(cd "$WORK" && env -u BASS_LIB -u CARGO_TARGET_DIR LD_LIBRARY_PATH="$PREFIX/lib" "$WORK/venv/bin/python" -c \
   'import bass, bass._lib as l; print(bass.__file__.startswith("'"$WORK"'/venv"), l.lib._name)')
 [[ $pyout == "True "*libbassclient* ]] || { echo "install: pip-installed bass: $pyout" >&2; exit 1; }
 echo "install: pip install ./python: $pyout"
 # Without LD_LIBRARY_PATH the loader does not search $PREFIX/lib: the package falls back to the
 # libdir pkg-config gives (PKG_CONFIG_PATH is set above).
-pyout=$(cd "$WORK" && env -u BASS_LIB -u LD_LIBRARY_PATH "$WORK/venv/bin/python" -c \
+pyout=$(cd "$WORK" && env -u BASS_LIB -u LD_LIBRARY_PATH -u CARGO_TARGET_DIR "$WORK/venv/bin/python" -c \
   'import bass._lib as l; print(l.lib._name)')
 [[ $pyout == "$PREFIX/lib/libbassclient.so" ]] || { echo "install: pkg-config fallback: $pyout" >&2; exit 1; }
 echo "install: library found through pkg-config: $pyout"
