@@ -4,7 +4,8 @@ CARGO ?= cargo
 export CARGO_TERM_COLOR ?= never
 RELEASE_DIR := target/release
 CFLAGS_STRICT := -std=c11 -Wall -Wextra -Wpedantic -Werror
-BRIDGE_FEATURES := bass-bridge/fault-injection,bass-bridge/iceoryx2
+# One list for make, the network suite and the network bench (scripts/bridge-features).
+BRIDGE_FEATURES := $(shell cat scripts/bridge-features)
 
 .PHONY: all deps deps-build build build-bridge demo test test-rust test-loom test-c test-broker test-clients test-faults test-bridge \
         header fmt lint bench install clean

@@ -6,12 +6,13 @@
 # bytes on the wire vs the raw audio rate, and |clock offset estimate| (same machine: the
 # true offset is 0). Prints a markdown table (also to bench/network-results.md).
 # Usage: scripts/bench-network.sh [SECONDS per chunk size, default 20]
+# (BENCH_NET_CHUNKS="64" measures one chunk size only.)
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd); cd "$ROOT"
 BIN=${CARGO_TARGET_DIR:-$ROOT/target}/release
 SECS=${1:-20}
 # Exactly make test-rust's build (same feature unification), so nothing is rebuilt after it.
-cargo build --release --workspace --all-targets --features bass-bridge/fault-injection,bass-bridge/iceoryx2
+cargo build --release --workspace --all-targets --features "$(cat scripts/bridge-features)"
 NS_A=bnchA$$; NS_B=bnchB$$; WORK=$(mktemp -d /tmp/bass-bench-net.XXXXXX); PIDS=()
 cleanup() { set +e; for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null; done; sleep 0.3
   ip netns del "$NS_A" 2>/dev/null; ip netns del "$NS_B" 2>/dev/null; rm -rf "$WORK"; }
@@ -31,7 +32,7 @@ OUT=bench/network-results.md
 echo "| chunk | local p50/p99 (us) | replica p50/p99 (us) | serve CPU | mirror CPU | wire / raw | abs clock offset p50/p99 (us) |"
 echo "|---:|---:|---:|---:|---:|---:|---:|"
 } > "$WORK/table"
-for NFPC in 64 256 2205; do
+for NFPC in ${BENCH_NET_CHUNKS:-64 256 2205}; do
   NCOP=$(( (48000 / 2 + NFPC - 1) / NFPC ))   # half a second on the port
   "${IN_A[@]}" "$BIN/bassd" --name src --rt-priority 0 --acquire sim:pattern --rate 48000 --frames $NFPC \
     --chunks $NCOP --channels 2 >"$WORK/bassd.log" 2>&1 & BASSD=$!; PIDS+=($BASSD)

@@ -6,7 +6,7 @@ set -euo pipefail
 need=()
 have_pkg() { dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q 'install ok installed'; }
 
-pkgs=(build-essential pkg-config libasound2-dev libasound2-plugins alsa-utils jackd2 procps util-linux cmake sox
+pkgs=(build-essential pkg-config libasound2-dev libasound2-plugins alsa-utils jackd2 procps util-linux cmake sox openssl iproute2
       libfontconfig1-dev libfreetype-dev fonts-dejavu-core)
 # The Python client and its tests (tests/clients, python/tests, tests/conformance).
 pkgs+=(python3 python3-numpy python3-pytest)

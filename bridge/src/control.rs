@@ -83,13 +83,21 @@ pub fn declare_queryable(
     session
         .declare_queryable(key)
         .callback(move |q| {
-            let request = q.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
-            let reply = ask_local_broker(&broker, &request).unwrap_or_else(|e| {
-                tracing::warn!("remote control: {e:#}");
-                error_reply(ErrorKind::Internal, &format!("bass-bridge serve: {e:#}"))
+            // The broker may take a while (an Acquire opens a device): answer from a thread of
+            // its own, never from Zenoh's runtime, which also carries the chunks.
+            let broker = broker.clone();
+            let spawned = std::thread::Builder::new().name("control-query".into()).spawn(move || {
+                let request = q.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
+                let reply = ask_local_broker(&broker, &request).unwrap_or_else(|e| {
+                    tracing::warn!("remote control: {e:#}");
+                    error_reply(ErrorKind::Internal, &format!("bass-bridge serve: {e:#}"))
+                });
+                if let Err(e) = q.reply(q.key_expr().clone(), reply).wait() {
+                    tracing::debug!("control reply: {e}");
+                }
             });
-            if let Err(e) = q.reply(q.key_expr().clone(), reply).wait() {
-                tracing::debug!("control reply: {e}");
+            if let Err(e) = spawned {
+                tracing::warn!("remote control: cannot start a thread for a request: {e}");
             }
         })
         .wait()

@@ -35,6 +35,8 @@ fn main() {
                 .unwrap_or_else(|_| "info,zenoh=error".into()),
         )
         .with_writer(std::io::stderr)
+        // Colour codes only on a terminal: logs are mostly read from files and journals.
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let cli = Cli::parse();
     let r = match cli.cmd {

@@ -19,7 +19,7 @@ cd "$ROOT"
 
 if [[ $(id -u) -ne 0 ]]; then echo "test-bridge: needs root (network namespaces)"; exit 1; fi
 # Exactly make test-rust's build (same feature unification), so nothing is rebuilt after it.
-cargo build --release --workspace --all-targets --features bass-bridge/fault-injection,bass-bridge/iceoryx2
+cargo build --release --workspace --all-targets --features "$(cat scripts/bridge-features)"
 
 NS_A=bassA$$; NS_B=bassB$$
 WORK=$(mktemp -d /tmp/bass-bridge-test.XXXXXX)
@@ -27,6 +27,7 @@ DIR_A=$WORK/a; DIR_B=$WORK/b; mkdir -p "$DIR_A" "$DIR_B"
 ADDR_A=fd00:ba55::1; ADDR_B=fd00:ba55::2
 EP="tcp/[$ADDR_A]:7447"
 PIDS=()
+FAILED=()
 # iceoryx2 keeps a small per-machine management file (/dev/shm/iox2_*global_mgmt) after its
 # last node exits, by design; the ones this suite created are removed at the end, the ones
 # that were there before (another iceoryx2 user's) are left alone.
@@ -40,11 +41,11 @@ cleanup() {
   for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null; done
   sleep 0.3
   for p in "${PIDS[@]}"; do kill -9 "$p" 2>/dev/null; done
-  ip netns del "$NS_A" 2>/dev/null; ip netns del "$NS_B" 2>/dev/null
+  ip netns del "$NS_A" 2>/dev/null; ip netns del "$NS_B" 2>/dev/null; rm -rf "/etc/netns/$NS_B"
   if [[ -n ${BRIDGE_KEEP:-} ]]; then echo "logs kept in $WORK"; else rm -rf "$WORK"; fi
 }
 trap cleanup EXIT
-trap 'exit 1' TERM INT
+trap 'echo "test-bridge: stopped (watchdog or signal); failures so far: ${FAILED[*]:-none}"; exit 1' TERM INT
 # The whole suite is bounded: a watchdog ends it (and the trap cleans up) after 420 s.
 ( sleep 420; echo "test-bridge: watchdog expired"; kill -TERM $$ ) 2>/dev/null & WATCHDOG=$!
 PIDS+=($WATCHDOG)
@@ -69,7 +70,7 @@ IN_B=(ip netns exec "$NS_B" env BASS_RUNTIME_DIR="$DIR_B")
 RATE=48000; NFPC=480; NCOP=50
 PASS=0; FAIL=0
 ok()   { echo "  ok: $*"; PASS=$((PASS + 1)); }
-bad()  { echo "  FAIL: $*"; FAIL=$((FAIL + 1)); }
+bad()  { echo "  FAIL: $*"; FAIL=$((FAIL + 1)); FAILED+=("$*"); }
 field() { python3 -c "import json,sys; print(json.loads(sys.argv[1])[sys.argv[2]])" "$1" "$2"; }
 status() { python3 -c "import json,sys; print(json.load(open(sys.argv[1]))[sys.argv[2]])" "$DIR_B/status.json" "$1"; }
 
@@ -211,5 +212,68 @@ echo "== clock offset (same machine: the true offset is 0)"
 OFF=$(status clock_offset_ns); UNC=$(status clock_uncertainty_ns)
 [[ $OFF != None && $UNC != None ]] && ok "clock: offset ${OFF} ns, uncertainty ${UNC} ns" || bad "no clock estimate"
 
+echo "== 12. TLS with mutual certificates and user/password (docs/network.md, Security)"
+# The configuration of docs/network.md, with certificates made here for the two namespaces.
+kill $SERVE $MIRROR 2>/dev/null || true; wait $SERVE $MIRROR 2>/dev/null || true
+T=$WORK/tls; mkdir -p "$T"
+ec=(-newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes)
+openssl req -x509 "${ec[@]}" -days 2 -subj /CN=bass-test-ca -keyout "$T/ca-key.pem" -out "$T/ca.pem" 2>/dev/null
+for n in robot ws; do
+  openssl req "${ec[@]}" -subj "/CN=$n" -keyout "$T/$n-key.pem" -out "$T/$n.csr" 2>/dev/null
+  printf 'subjectAltName=DNS:%s.bass-test\nbasicConstraints=CA:FALSE\nkeyUsage=digitalSignature\nextendedKeyUsage=serverAuth,clientAuth\n' \
+    "$n" >"$T/$n.ext"
+  openssl x509 -req -in "$T/$n.csr" -CA "$T/ca.pem" -CAkey "$T/ca-key.pem" -CAcreateserial -days 2 \
+    -extfile "$T/$n.ext" -out "$T/$n.pem" 2>/dev/null
+done
+printf 'robot:robot-secret\nws:ws-secret\n' >"$T/users.txt"
+# Zenoh's TLS takes the server name from the connect endpoint and refuses an IP literal
+# ("invalid dns name"): the workstation knows the robot by name, here through the
+# namespace's own hosts file (`ip netns exec` mounts /etc/netns/NS/hosts over /etc/hosts).
+mkdir -p "/etc/netns/$NS_B"
+printf '127.0.0.1 localhost\n::1 localhost\n%s robot.bass-test\n' "$ADDR_A" >"/etc/netns/$NS_B/hosts"
+tls_config() { # FILE WHO listen|connect PASSWORD ENDPOINT
+  cat >"$1" <<EOF
+{
+  mode: "peer",
+  $3: { endpoints: ["tls/$5:7448"] },
+  scouting: { multicast: { enabled: false }, gossip: { enabled: false } },
+  transport: {
+    link: {
+      tls: {
+        root_ca_certificate: "$T/ca.pem",
+        listen_private_key: "$T/$2-key.pem",
+        listen_certificate: "$T/$2.pem",
+        enable_mtls: true,
+        connect_private_key: "$T/$2-key.pem",
+        connect_certificate: "$T/$2.pem",
+      },
+    },
+    auth: { usrpwd: { user: "$2", password: "$4", dictionary_file: "$T/users.txt" } },
+  },
+}
+EOF
+}
+tls_config "$T/robot.json5" robot listen robot-secret "[$ADDR_A]"
+tls_config "$T/ws.json5" ws connect ws-secret robot.bass-test
+tls_config "$T/intruder.json5" ws connect wrong-password robot.bass-test
+"${IN_A[@]}" "$BIN/bass-bridge" serve --name src --zenoh-config "$T/robot.json5" >>"$WORK/serve.log" 2>&1 &
+SERVE=$!; PIDS+=($SERVE); sleep 0.5
+"${IN_B[@]}" "$BIN/bass-bridge" mirror --source src --name bad --zenoh-config "$T/intruder.json5" >>"$WORK/mirror.log" 2>&1 &
+BADM=$!; PIDS+=($BADM)
+"${IN_B[@]}" "$BIN/bass-bridge" mirror --source src --name tls --zenoh-config "$T/ws.json5" >>"$WORK/mirror.log" 2>&1 &
+MIRROR=$!; PIDS+=($MIRROR)
+J=$(inB timeout 25 "$BIN/examples/pattern_reader" tls $((RATE * 2)) 20) || true
+check_exact "$J" "TLS + user/password"
+[[ -f $DIR_B/bass-tls.port ]] && (( $(field "$J" delivered) > 0 )) && ok "TLS: the replica is written over tls/ with mTLS" || bad "TLS replica: $J"
+[[ ! -e $DIR_B/bass-bad.port ]] && ok "TLS: a workstation with a wrong password gets no audio" \
+  || bad "a wrong password was accepted: $(inB timeout 5 "$BIN/bass" --name bad status 2>&1 | head -3)"
+kill $BADM 2>/dev/null || true
+
 echo "bridge: $PASS passed, $FAIL failed"
-[[ $FAIL == 0 ]] || { echo "--- serve log"; tail -30 "$WORK/serve.log"; echo "--- mirror log"; tail -30 "$WORK/mirror.log"; exit 1; }
+if [[ $FAIL != 0 ]]; then
+  # The logs first, the failures last: a CI transcript often keeps only its tail.
+  echo "--- serve log"; tail -30 "$WORK/serve.log"; echo "--- mirror log"; tail -30 "$WORK/mirror.log"
+  echo "--- bassd log"; tail -10 "$WORK/bassd.log"
+  echo "bridge: $FAIL failed:"; printf '  FAIL: %s\n' "${FAILED[@]}"
+  exit 1
+fi
