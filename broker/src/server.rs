@@ -16,7 +16,7 @@ use bassclient::format::{error_code, State};
 use bassclient::paths;
 use bassclient::reader::Port;
 use bassclient::sys::monotonic_ns;
-use bassclient::{PortParams, Writer};
+use bassclient::PortParams;
 
 use crate::capture::{Acquisition, CaptureParams};
 use crate::device::{self, alsa, sim::SimDevice, Capture};
@@ -48,6 +48,8 @@ pub struct Config {
     pub limits: Limits,
     /// A control connection with no request for this long is closed (`--idle-timeout-ms`).
     pub idle_timeout: Duration,
+    /// What holds the port (`--port-backing`; see crate::handoff).
+    pub port_backing: bassclient::Backing,
 }
 
 impl Default for Config {
@@ -62,6 +64,7 @@ impl Default for Config {
             policy: DevicePolicy::default(),
             limits: Limits::default(),
             idle_timeout: DEFAULT_IDLE_TIMEOUT,
+            port_backing: bassclient::Backing::File,
         }
     }
 }
@@ -124,6 +127,7 @@ impl Broker {
             Request::Status => Reply::Status(self.status()),
             Request::Stop => self.stop(),
             Request::Acquire(r) => self.acquire(&r, peer_uid),
+            Request::OpenPort => crate::handoff::not_on_a_socket(),
         }
     }
 
@@ -210,7 +214,7 @@ impl Broker {
             tracing::warn!(uid = peer_uid, "{msg}");
             return Reply::error(ErrorKind::InvalidArgument, &msg);
         }
-        let pending = match Writer::prepare(&self.cfg.name, &params) {
+        let pending = match crate::handoff::prepare(&self.cfg, &params, self.current.as_ref()) {
             Ok(p) => p,
             Err(e) => {
                 let msg = format!("Acquire refused: cannot create the port: {e}; {}", self.unchanged());
@@ -259,6 +263,7 @@ impl Broker {
             }
         };
         if let Some(old) = self.current.take() {
+            crate::handoff::supersede(&old);
             if let Ok(f) = old.port.file().try_clone() {
                 self.pins.add(f, old.port.size());
             }
@@ -729,6 +734,7 @@ fn serve_one(broker: &mut Broker, c: &OwnedFd) -> bool {
         }
     };
     let reply = match control::wire::decode_request(&bytes) {
+        Ok(Request::OpenPort) => return crate::handoff::serve(c.as_fd(), broker.current.as_ref()),
         Ok(r) => {
             let uid = os::peer_credentials(c.as_fd()).map_or(u32::MAX, |p| p.uid);
             broker.handle_as(r, uid)
