@@ -472,3 +472,81 @@ fn a_port_shrinking_while_a_reader_process_hammers_it_is_measured() {
     }
     drop(w);
 }
+
+#[test]
+#[ignore = "fault suite: run by tests/faults/run.sh"]
+fn a_sealed_memfd_port_cannot_shrink_under_a_reader_process() {
+    // The memfd backing (bassd --port-backing memfd) removes the limitation above: the port
+    // is sealed F_SEAL_SHRINK | F_SEAL_GROW | F_SEAL_FUTURE_WRITE | F_SEAL_SEAL, so even its
+    // owner, through a writable descriptor, cannot change its size or punch holes in it.
+    // A reader process holding it (a descriptor handed over as bassd does, here inherited)
+    // hammers every size-dependent call while the test tries to shrink, grow and punch it.
+    use rustix::fs::{FallocateFlags, Mode, OFlags};
+    use rustix::io::Errno;
+    use std::os::fd::{AsFd, AsRawFd};
+    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: 1024, chunks_on_port: 64 };
+    let params = PortParams { geometry, device: "shrink-memfd".into(), group: None };
+    // A name of its own: a memfd port only looks at the runtime directory for a left-over
+    // port file of that name, and puts nothing there.
+    let name = format!("shrink-memfd-{}", std::process::id());
+    let mut w = Writer::prepare_memfd(&name, &params, None).unwrap().commit().unwrap();
+    assert!(!w.path().exists(), "a memfd port has no file at {}", w.path().display());
+    let mut chunk = vec![0; 2048];
+    for _ in 0..64 {
+        fill_pattern_interleaved(&mut chunk, 2, w.last_frame_index() + 1);
+        w.publish(Source::Interleaved(&chunk), ChunkMeta::default()).unwrap();
+    }
+    let total = w.layout().total_size;
+    // The strongest handle there is: the writer's memfd reopened read-write by its owner.
+    let reader_fd = w.reader_fd().unwrap().expect("a memfd port hands out descriptors");
+    let rw = rustix::fs::open(
+        format!("/proc/self/fd/{}", reader_fd.as_raw_fd()).as_str(),
+        OFlags::RDWR | OFlags::CLOEXEC,
+        Mode::empty(),
+    )
+    .unwrap();
+    let (mut runs, mut refused, mut calls) = (0, 0u64, 0u64);
+    for _ in 0..3 {
+        let fd = w.reader_fd().unwrap().unwrap();
+        rustix::io::fcntl_setfd(&fd, rustix::io::FdFlags::empty()).unwrap(); // inherited by the agent
+        let fd_arg = fd.as_raw_fd().to_string();
+        let mut v = Agent::spawn(&["shrink-victim", "--fd", &fd_arg]);
+        drop(fd);
+        v.expect_line("ready");
+        for _ in 0..2000 {
+            assert_eq!(rustix::fs::ftruncate(&rw, 4096), Err(Errno::PERM), "shrink must be refused");
+            assert_eq!(rustix::fs::ftruncate(&rw, total + 4096), Err(Errno::PERM), "grow must be refused");
+            let punch = FallocateFlags::PUNCH_HOLE | FallocateFlags::KEEP_SIZE;
+            assert_eq!(rustix::fs::fallocate(&rw, punch, 0, total), Err(Errno::PERM), "hole punch refused");
+            refused += 3;
+            std::thread::sleep(Duration::from_micros(100));
+        }
+        v.close_stdin();
+        let (status, lines) = v.finish();
+        assert!(status.success(), "reader process failed: {status}: {lines:?}");
+        let result = lines.iter().find(|l| l.starts_with("RESULT")).expect("RESULT line");
+        let f = bass_faults::Fields::parse(result);
+        assert!(f.u("calls") > 0 && f.u("ok") == f.u("calls"), "every call must succeed: {result}");
+        calls += f.u("calls");
+        runs += 1;
+    }
+    // Every sample of the window is still the pattern.
+    let port = Port::from_fd(reader_fd, "shrink-memfd").unwrap();
+    assert!(port.size_sealed());
+    assert_eq!(rustix::fs::fstat(port.file().as_fd()).unwrap().st_size as u64, total);
+    let nfop = port.frames_on_port() as usize;
+    let mut bufs = vec![vec![0i32; nfop]; 2];
+    let mut nfr = 1;
+    let r = {
+        let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| b.as_mut_slice()).collect();
+        port.get_audio_data(nfop, &mut nfr, &mut outs).unwrap()
+    };
+    assert_eq!((r.frames, r.loss), (nfop, 0));
+    assert_eq!(bass_faults::count_corrupted(1, nfop, &bufs), 0, "every sample must be the pattern");
+    figure!(
+        5,
+        "sealed memfd port: {runs} reader processes, {refused} shrink/grow/punch attempts all EPERM, \
+         {calls} library calls all ok, 0 SIGBUS, {nfop} frames x 2 channels exact"
+    );
+    drop(w);
+}

@@ -12,6 +12,10 @@
 //! bass-fault-agent poke    --port P                (writes through its read-only mapping)
 //! bass-fault-agent shrink-victim --port P          (library calls until stdin closes)
 //! bass-fault-agent try-open --port P               (reports whether it may open / write)
+//! bass-fault-agent try-open --name N               (opens by name: a memfd port through the broker)
+//!
+//! Wherever a port is read, `--fd N` (an inherited descriptor, e.g. of a memfd port) or
+//! `--name N` (`Port::open`, in $BASS_RUNTIME_DIR) may stand for `--port P`.
 //! bass-fault-agent control-victim --socket S --name N  (status requests forever)
 //! bass-fault-agent follow --port P --n N --expect zero|pattern  (across epochs, until stdin closes)
 //! ```
@@ -198,6 +202,17 @@ fn own_status_kb(field: &str) -> u64 {
 }
 
 fn open(a: &Args) -> Port {
+    if let Some(fd) = a.0.get("fd") {
+        let fd: i32 = fd.parse().expect("--fd N");
+        use std::os::fd::FromRawFd;
+        // SAFETY: the test passed us this inherited descriptor (close-on-exec cleared) for us
+        // alone; nothing else in this process owns or closes it.
+        let owned = unsafe { std::os::fd::OwnedFd::from_raw_fd(fd) };
+        return Port::from_fd(owned, "inherited").unwrap_or_else(|e| panic!("port from fd {fd}: {e}"));
+    }
+    if let Some(name) = a.0.get("name") {
+        return Port::open(name).unwrap_or_else(|e| panic!("open port {name}: {e}"));
+    }
     let path = a.port();
     let end = Instant::now() + Duration::from_secs(10);
     loop {
@@ -404,6 +419,20 @@ fn shrink_victim(a: &Args) {
 /// Reports whether this process (typically run under setpriv as another uid) can open the
 /// port for reading through the library, and whether it could open the file for writing.
 fn try_open(a: &Args) {
+    if let Some(name) = a.0.get("name") {
+        let read = match Port::open(name) {
+            Ok(p) => format!(
+                "ok lfi={} sealed={}",
+                p.info().map(|i| i.last_frame_index).unwrap_or(0),
+                p.size_sealed()
+            ),
+            Err(Error::NotFound { .. }) => "notfound".to_owned(),
+            Err(e) => format!("error:{e}").replace(' ', "_"),
+        };
+        // SAFETY: getuid cannot fail.
+        println!("RESULT uid={} read={read}", unsafe { libc::getuid() });
+        return;
+    }
     let read = match Port::open_path(&a.port()) {
         Ok(p) => format!("ok lfi={}", p.info().map(|i| i.last_frame_index).unwrap_or(0)),
         Err(Error::Io { source, .. }) => format!("io:{}", source.raw_os_error().unwrap_or(0)),
