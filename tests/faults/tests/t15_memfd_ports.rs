@@ -140,6 +140,31 @@ fn a_stop_acquire_cycle_restarts_readers_of_a_memfd_port_and_the_old_one_is_acco
         "the broker still holds {} port memfds after the old port's reader left",
         memfds(b.pid())
     );
+    // The CLI follows: `bass acquire --wait` opens the new port (no file: through the broker).
+    let out = std::process::Command::new(bass_faults::bin_path("bass", "BASS_CLI"))
+        .args([
+            "--name",
+            "mfc",
+            "acquire",
+            "sim:pattern",
+            "--rate",
+            "48000",
+            "--frames",
+            "256",
+            "--chunks",
+            "32",
+        ])
+        .arg("--wait")
+        .env("BASS_RUNTIME_DIR", &dir.0)
+        .output()
+        .expect("run bass");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && text.contains("first chunk published"),
+        "bass acquire --wait on a memfd broker: {} {text} {}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
     figure!(
         13,
         "memfd Stop/Acquire: epoch {} -> {}, the old port's reader got Restarted, {} window frames exact; \
