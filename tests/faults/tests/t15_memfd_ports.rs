@@ -140,6 +140,7 @@ fn a_stop_acquire_cycle_restarts_readers_of_a_memfd_port_and_the_old_one_is_acco
         "the broker still holds {} port memfds after the old port's reader left",
         memfds(b.pid())
     );
+    let after = memfds(b.pid());
     // The CLI follows: `bass acquire --wait` opens the new port (no file: through the broker).
     let out = std::process::Command::new(bass_faults::bin_path("bass", "BASS_CLI"))
         .args([
@@ -172,6 +173,6 @@ fn a_stop_acquire_cycle_restarts_readers_of_a_memfd_port_and_the_old_one_is_acco
         first.epoch,
         second.epoch,
         r.frames,
-        memfds(b.pid())
+        after
     );
 }
