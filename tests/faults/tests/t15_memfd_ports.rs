@@ -78,7 +78,18 @@ fn a_reader_opened_by_name_reads_the_memfd_port_through_the_broker() {
         let outsider = as_uid(&["--reuid=65534", "--regid=65534", "--clear-groups"]);
         assert!(member.s("read") == "ok" && member.s("sealed") == "true", "{member:?}");
         assert!(!outsider.s("read").starts_with("ok"), "an outsider must not get the port: {outsider:?}");
-        (member_read, outsider_read) = (member.1.clone(), outsider.1.clone());
+        // Past the socket's mode (opened to everybody here), the broker's own peer check
+        // refuses the outsider before any request is answered: still no descriptor.
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(b.socket(), std::fs::Permissions::from_mode(0o666)).unwrap();
+        let past_mode = as_uid(&["--reuid=65534", "--regid=65534", "--clear-groups"]);
+        std::fs::set_permissions(b.socket(), std::fs::Permissions::from_mode(0o660)).unwrap();
+        assert!(
+            past_mode.s("read").starts_with("error:") && past_mode.1.contains("[permission]"),
+            "the broker must refuse an outsider that reached its socket: {past_mode:?}"
+        );
+        (member_read, outsider_read) =
+            (member.1.clone(), format!("{}; past the socket mode: {}", outsider.1, past_mode.1));
     }
     figure!(
         13,
