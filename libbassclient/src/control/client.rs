@@ -201,6 +201,11 @@ impl Client {
     }
 }
 
+/// How long [`crate::Port::open`] waits for a broker's `open-port` reply before it leaves
+/// the path's answer (a broker busy opening a device, or stopped, must not hang an opener
+/// for the full [`DEFAULT_TIMEOUT`]).
+pub const OPEN_PORT_TIMEOUT: Duration = Duration::from_secs(5);
+
 /// For [`crate::Port::open`]: the port of broker `name` through its control socket, if that
 /// broker hands out a memfd port. `Ok(None)`: no broker, a file port, or a broker that does
 /// not know `open-port` (the caller falls back to the path). A broker that refuses this
@@ -211,6 +216,7 @@ pub(crate) fn port_from_broker(name: &str) -> Result<Option<crate::Port>> {
         return Ok(None);
     }
     let mut c = Client::connect_path(&path, name)?;
+    c.set_timeout(OPEN_PORT_TIMEOUT)?;
     match c.open_port_reply()? {
         (Reply::PortFd(_), Some(fd)) => crate::Port::from_fd(fd, name).map(Some),
         (Reply::Error { kind: ErrorKind::Permission, message }, _) => {
