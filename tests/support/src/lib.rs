@@ -1,0 +1,34 @@
+//! The one test rig of bass's Rust suites (the broker's integration tests in `broker/tests`
+//! and the fault suite in `tests/faults`): private temporary directories, a real `bassd`
+//! per test with its own runtime directory, a `jackd -d dummy` server behind ALSA's `jack`
+//! plugin, the `bass` command line bound to a broker, and bounded waits.
+//!
+//! Nothing here mocks the thing under test: every helper starts real processes and uses real
+//! shared memory. Every wait is bounded (a guard against a hanging test, never a pass/fail on
+//! timing).
+
+mod bassd;
+mod bins;
+mod cli;
+mod jackd;
+mod port;
+mod tempdir;
+mod wait;
+
+pub use bassd::{Bassd, BassdBuilder};
+pub use bins::{bass_bin, bassd_bin, bin_path};
+pub use cli::{bass, bass_cmd, text};
+pub use jackd::{jack_missing, JackRig, Jackd};
+pub use port::{acquire_req, read_frames, replay_args, wait_frame};
+pub use tempdir::{list_dir, TempDir};
+pub use wait::{eventually, wait_until, PATIENCE};
+
+/// Sends signal `sig` (a `libc::SIG*` number) to process `pid`; errors (the process is
+/// already gone) are ignored, as a test killing its own child expects.
+pub fn send_signal(pid: u32, sig: i32) {
+    let pid = i32::try_from(pid).ok().and_then(rustix::process::Pid::from_raw);
+    let sig = rustix::process::Signal::from_named_raw(sig);
+    if let (Some(pid), Some(sig)) = (pid, sig) {
+        let _ = rustix::process::kill_process(pid, sig);
+    }
+}
