@@ -10,8 +10,8 @@ use std::io::Write;
 use std::os::fd::AsRawFd;
 use std::path::Path;
 
-use bassclient::testsignal::pattern_sample;
 use bass_test_support::*;
+use bassclient::testsignal::pattern_sample;
 
 const NFPC: u32 = 441;
 const CHUNKS: u64 = 10;

@@ -5,9 +5,9 @@
 
 use std::time::{Duration, Instant};
 
+use bass_test_support::*;
 use bassclient::format::{error_code, State};
 use bassclient::{Error, Port};
-use bass_test_support::*;
 
 const RATE: u32 = 48000;
 

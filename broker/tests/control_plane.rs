@@ -4,11 +4,11 @@
 use std::os::fd::AsFd;
 use std::process::Command;
 
+use bass_test_support::*;
 use bassclient::control;
 use bassclient::format::State;
 use bassclient::testsignal::pattern_sample;
 use bassclient::Error;
-use bass_test_support::*;
 
 #[test]
 fn every_service_works_through_the_socket() {
@@ -310,8 +310,14 @@ fn operator_bounds_refuse_a_starving_request_until_widened() {
             acquire_req("sim:pattern", 768_000, 1, 4096, 64),
             "above this broker's limit of 192000 Hz (bassd --max-rate)",
         ),
-        (acquire_req("sim:pattern", 192_000, 1, 4096, 64), "above this broker's limit of 32 (bassd --max-channels)"),
-        (acquire_req("sim:pattern", 192_000, 1, 4096, 2), "minimum chunk duration of 500 µs (bassd --min-chunk-us)"),
+        (
+            acquire_req("sim:pattern", 192_000, 1, 4096, 64),
+            "above this broker's limit of 32 (bassd --max-channels)",
+        ),
+        (
+            acquire_req("sim:pattern", 192_000, 1, 4096, 2),
+            "minimum chunk duration of 500 µs (bassd --min-chunk-us)",
+        ),
         (
             acquire_req("sim:pattern", 8000, 8000, 3601, 1),
             "above this broker's limit of 3600 s (bassd --max-window-s)",

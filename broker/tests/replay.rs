@@ -7,10 +7,10 @@
 
 use std::path::Path;
 
+use bass_test_support::*;
 use bassclient::format::{chunk_flags, error_code, State};
 use bassclient::testsignal::pattern_sample;
 use bassclient::Error;
-use bass_test_support::*;
 
 fn wav_channels(path: &Path) -> Vec<Vec<i32>> {
     let mut r = hound::WavReader::open(path).unwrap();

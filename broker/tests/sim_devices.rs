@@ -1,10 +1,10 @@
 //! The simulated devices through a real bassd and the port: exact contents, frame indices,
 //! timestamps, overrun gap filling, the stall watchdog and device loss.
 
+use bass_test_support::*;
 use bassclient::format::{chunk_flags, error_code, State};
 use bassclient::testsignal::pattern_sample;
 use bassclient::Error;
-use bass_test_support::*;
 
 #[test]
 fn pattern_frames_arrive_exactly_with_nominal_timestamps() {

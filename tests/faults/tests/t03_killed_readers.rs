@@ -9,7 +9,8 @@
 
 use std::time::{Duration, Instant};
 
-use bass_faults::{current_syscall, fd_targets, figure, Agent, Rng, TempDir};
+use bass_faults::{current_syscall, fd_targets, figure, Agent, Rng};
+use bass_test_support::TempDir;
 
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
@@ -18,7 +19,7 @@ fn readers_killed_mid_read_and_mid_wait_leak_nothing_and_disturb_no_one() {
         std::env::var("BASS_FAULTS_KILLS").ok().and_then(|s| s.parse().ok()).unwrap_or(100);
     let seed = bass_faults::seed();
     let mut rng = Rng::with_seed(seed);
-    let dir = TempDir::new("kill");
+    let dir = TempDir::shm("kill");
     let path = dir.join("bass-kill.port");
     let p = path.to_str().unwrap();
     let mut w = Agent::spawn(&[
@@ -71,7 +72,7 @@ fn readers_killed_mid_read_and_mid_wait_leak_nothing_and_disturb_no_one() {
     let kill_time = started.elapsed();
     let lfi_after_kills = lfi_of();
     assert!(
-        bass_faults::wait_until(Duration::from_secs(5), || lfi_of() > lfi_after_kills + 64),
+        bass_test_support::wait_until(Duration::from_secs(5), || lfi_of() > lfi_after_kills + 64),
         "the writer stopped publishing after the kills"
     );
     let fds_after = fd_targets(w.pid());

@@ -9,7 +9,8 @@
 
 use std::time::{Duration, Instant};
 
-use bass_faults::{figure, status_kb, Agent, TempDir};
+use bass_faults::{figure, status_kb, Agent};
+use bass_test_support::TempDir;
 
 const NFPC: u64 = 4096;
 
@@ -19,7 +20,7 @@ fn a_billion_frames_keep_accounting_exact_and_memory_flat() {
     let frames: u64 =
         std::env::var("BASS_FAULTS_SOAK_FRAMES").ok().and_then(|s| s.parse().ok()).unwrap_or(4_500_000_000);
     let chunks = frames.div_ceil(NFPC);
-    let dir = TempDir::new("soak");
+    let dir = TempDir::shm("soak");
     let port = dir.join("bass-soak.port");
     let p = port.to_str().unwrap();
     let mut w = Agent::spawn(&[

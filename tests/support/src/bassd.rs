@@ -86,7 +86,11 @@ impl BassdBuilder {
             if let Some(st) = b.child.as_mut().and_then(|c| c.try_wait().ok().flatten()) {
                 panic!("bassd exited during start-up ({st}); log:\n{}", b.log_text());
             }
-            assert!(Instant::now() < deadline, "bassd did not answer within {PATIENCE:?}; log:\n{}", b.log_text());
+            assert!(
+                Instant::now() < deadline,
+                "bassd did not answer within {PATIENCE:?}; log:\n{}",
+                b.log_text()
+            );
             std::thread::sleep(Duration::from_millis(10));
         }
     }
