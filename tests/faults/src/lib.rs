@@ -60,6 +60,19 @@ impl Agent {
         Agent::spawn_env(args, &[])
     }
 
+    /// A pattern writer creating port `port` (`nfpc` frames per chunk, `ncop` chunks on the
+    /// port, then `extra` options: pacing, length), returned once the port exists (its
+    /// `ready` line) and held there until the test sends `go` (so readers can start first).
+    pub fn writer_held(port: &str, nfpc: u32, ncop: u32, extra: &[&str]) -> Agent {
+        let (nfpc, ncop) = (nfpc.to_string(), ncop.to_string());
+        let mut args = vec!["writer", "--port", port, "--nfpc", &nfpc, "--ncop", &ncop];
+        args.extend_from_slice(extra);
+        args.push("--wait-go");
+        let mut w = Agent::spawn(&args);
+        w.expect_line("ready");
+        w
+    }
+
     /// Spawns the agent with `args` and extra environment variables.
     pub fn spawn_env(args: &[&str], env: &[(&str, &str)]) -> Agent {
         let mut cmd = Command::new(agent_path());

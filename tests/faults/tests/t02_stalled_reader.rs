@@ -92,21 +92,7 @@ fn live_writer_is_not_delayed_by_a_stopped_reader_whose_losses_are_exact() {
     // 48 kHz in real time: 10 ms chunks, a 100 ms window.
     let (nfpc, ncop, pace_us) = (480u64, 10u64, 10_000u64);
     let nfop = nfpc * ncop;
-    let mut w = Agent::spawn(&[
-        "writer",
-        "--port",
-        p,
-        "--nfpc",
-        "480",
-        "--ncop",
-        "10",
-        "--pace-us",
-        "10000",
-        "--seconds",
-        "4",
-        "--wait-go",
-    ]);
-    w.expect_line("ready");
+    let mut w = Agent::writer_held(p, 480, 10, &["--pace-us", "10000", "--seconds", "4"]);
     let mut r = Agent::spawn(&["reader", "--port", p, "--mode", "wait", "--n", "480", "--log-loss"]);
     r.expect_line("ready");
     w.send("go");

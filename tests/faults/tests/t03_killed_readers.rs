@@ -22,19 +22,7 @@ fn readers_killed_mid_read_and_mid_wait_leak_nothing_and_disturb_no_one() {
     let dir = TempDir::shm("kill");
     let path = dir.join("bass-kill.port");
     let p = path.to_str().unwrap();
-    let mut w = Agent::spawn(&[
-        "writer",
-        "--port",
-        p,
-        "--nfpc",
-        "64",
-        "--ncop",
-        "8",
-        "--pace-us",
-        "1000",
-        "--wait-go",
-    ]);
-    w.expect_line("ready");
+    let mut w = Agent::writer_held(p, 64, 8, &["--pace-us", "1000"]);
     let mut steady: Vec<Agent> = [("copy", "64", "200"), ("wait", "128", "0")]
         .iter()
         .map(|(m, n, pause)| {

@@ -30,21 +30,7 @@ fn readers_of_any_speed_get_no_torn_sample_and_account_every_frame_for_a_minute(
     let dir = TempDir::shm("torn");
     let port = dir.join("bass-torn.port");
     let p = port.to_str().unwrap();
-    let mut writer = Agent::spawn(&[
-        "writer",
-        "--port",
-        p,
-        "--nfpc",
-        "64",
-        "--ncop",
-        "8",
-        "--pace-us",
-        "50",
-        "--seconds",
-        &secs.to_string(),
-        "--wait-go",
-    ]);
-    writer.expect_line("ready");
+    let mut writer = Agent::writer_held(p, 64, 8, &["--pace-us", "50", "--seconds", &secs.to_string()]);
     let mut readers: Vec<Agent> = READERS
         .iter()
         .map(|(mode, n, pause)| {

@@ -23,19 +23,7 @@ fn a_billion_frames_keep_accounting_exact_and_memory_flat() {
     let dir = TempDir::shm("soak");
     let port = dir.join("bass-soak.port");
     let p = port.to_str().unwrap();
-    let mut w = Agent::spawn(&[
-        "writer",
-        "--port",
-        p,
-        "--nfpc",
-        "4096",
-        "--ncop",
-        "16",
-        "--chunks",
-        &chunks.to_string(),
-        "--wait-go",
-    ]);
-    w.expect_line("ready");
+    let mut w = Agent::writer_held(p, 4096, 16, &["--chunks", &chunks.to_string()]);
     let kinds = [("copy", "4096"), ("wait", "8192"), ("view", "4096")];
     let mut readers: Vec<Agent> =
         kinds.iter().map(|(m, n)| Agent::spawn(&["reader", "--port", p, "--mode", m, "--n", n])).collect();

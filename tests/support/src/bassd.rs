@@ -198,17 +198,8 @@ impl Bassd {
 impl Drop for Bassd {
     /// SIGTERM (bassd removes its socket and port), SIGKILL if it lingers for 5 s.
     fn drop(&mut self) {
-        if let Some(mut c) = self.child.take() {
-            send_signal(c.id(), rustix::process::Signal::TERM.as_raw());
-            let deadline = Instant::now() + Duration::from_secs(5);
-            while c.try_wait().ok().flatten().is_none() {
-                if Instant::now() > deadline {
-                    let _ = c.kill();
-                    let _ = c.wait();
-                    break;
-                }
-                std::thread::sleep(Duration::from_millis(5));
-            }
+        if let Some(c) = self.child.take() {
+            crate::terminate(c);
         }
     }
 }

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::Mutex;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use crate::{send_signal, TempDir};
 
@@ -64,17 +64,8 @@ impl Jackd {
 impl Drop for Jackd {
     /// SIGTERM (so the server releases its registry slot), SIGKILL if it lingers for 5 s.
     fn drop(&mut self) {
-        if let Some(mut c) = self.child.take() {
-            send_signal(c.id(), rustix::process::Signal::TERM.as_raw());
-            let deadline = Instant::now() + Duration::from_secs(5);
-            while c.try_wait().ok().flatten().is_none() {
-                if Instant::now() > deadline {
-                    let _ = c.kill();
-                    let _ = c.wait();
-                    break;
-                }
-                std::thread::sleep(Duration::from_millis(10));
-            }
+        if let Some(c) = self.child.take() {
+            crate::terminate(c);
         }
     }
 }

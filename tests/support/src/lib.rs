@@ -32,3 +32,18 @@ pub fn send_signal(pid: u32, sig: i32) {
         let _ = rustix::process::kill_process(pid, sig);
     }
 }
+
+/// Ends a child politely and reaps it: SIGTERM (a broker removes its socket and port, a jackd
+/// releases its registry slot), SIGKILL if it is still there after 5 s.
+fn terminate(mut child: std::process::Child) {
+    send_signal(child.id(), rustix::process::Signal::TERM.as_raw());
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+    while child.try_wait().ok().flatten().is_none() {
+        if std::time::Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            return;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+}
