@@ -118,7 +118,7 @@ fn a_port_that_does_not_fit_is_refused_up_front_and_the_broker_lives() {
     let (epoch, lfi, samples) = window(&b.port_path());
     // The same refusal again through the file system's own limit: the space check races
     // nothing here, so it is the up-front check that answered; bassd is alive.
-    assert!(b.child.as_mut().unwrap().try_wait().unwrap().is_none(), "bassd died");
+    assert!(b.is_running(), "bassd died");
     assert_eq!(window(&b.port_path()), (epoch, lfi, samples), "the stopped port changed");
     let leftovers: Vec<String> =
         bass_test_support::list_dir(&mnt).into_iter().filter(|n| n.ends_with(".tmp")).collect();

@@ -3,18 +3,18 @@
 
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::{Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use bassclient::control::Client;
 use bassclient::Port;
 
-use crate::{bassd_bin, send_signal, PATIENCE};
+use crate::{bassd_bin, send_signal, OwnedChild, PATIENCE};
 
-/// A running `bassd`, sent SIGTERM on drop (SIGKILL if it lingers for 5 s).
+/// A running `bassd`, sent SIGTERM on drop (bassd removes its socket and port; SIGKILL if
+/// it lingers for 5 s).
 pub struct Bassd {
-    /// The broker process (`None` once it has been reaped).
-    pub child: Option<Child>,
+    child: OwnedChild,
     /// Its runtime directory (`$BASS_RUNTIME_DIR`).
     pub dir: PathBuf,
     /// The broker name (`--name`).
@@ -77,13 +77,13 @@ impl BassdBuilder {
         let stderr = log.reopen().expect("open the broker's log file");
         cmd.stdin(Stdio::null()).stdout(Stdio::null()).stderr(stderr);
         let child = cmd.spawn().expect("spawn bassd");
-        let mut b = Bassd { child: Some(child), dir: self.dir, name: self.name, log };
+        let mut b = Bassd { child: OwnedChild(Some(child)), dir: self.dir, name: self.name, log };
         let deadline = Instant::now() + PATIENCE;
         loop {
             if b.try_client().and_then(|mut c| c.status()).is_ok() {
                 return b;
             }
-            if let Some(st) = b.child.as_mut().and_then(|c| c.try_wait().ok().flatten()) {
+            if let Some(st) = b.child.get_mut().and_then(|c| c.try_wait().ok().flatten()) {
                 panic!("bassd exited during start-up ({st}); log:\n{}", b.log_text());
             }
             assert!(
@@ -132,7 +132,12 @@ impl Bassd {
 
     /// Process id (0 once reaped).
     pub fn pid(&self) -> u32 {
-        self.child.as_ref().map_or(0, Child::id)
+        self.child.id()
+    }
+
+    /// Whether the process is still running (has not exited).
+    pub fn is_running(&mut self) -> bool {
+        self.child.get_mut().is_some_and(|c| matches!(c.try_wait(), Ok(None)))
     }
 
     /// Control socket path.
@@ -167,18 +172,18 @@ impl Bassd {
 
     /// Sends `sig` (e.g. `libc::SIGTERM`); see [`Bassd::wait_exit`].
     pub fn signal(&self, sig: i32) {
-        if let Some(c) = self.child.as_ref() {
-            send_signal(c.id(), sig);
+        if self.child.id() != 0 {
+            send_signal(self.child.id(), sig);
         }
     }
 
     /// Waits for the process to exit (after a signal), within [`PATIENCE`].
     pub fn wait_exit(&mut self) -> ExitStatus {
         let deadline = Instant::now() + PATIENCE;
-        let child = self.child.as_mut().expect("bassd already reaped");
+        let child = self.child.get_mut().expect("bassd already reaped");
         loop {
             if let Some(st) = child.try_wait().expect("wait for bassd") {
-                self.child = None;
+                self.child.reaped();
                 return st;
             }
             assert!(Instant::now() < deadline, "bassd did not exit within {PATIENCE:?}");
@@ -188,18 +193,6 @@ impl Bassd {
 
     /// Sends `sig` and reaps the process (for signals that end it, e.g. SIGKILL).
     pub fn kill(&mut self, sig: i32) {
-        if let Some(mut c) = self.child.take() {
-            send_signal(c.id(), sig);
-            let _ = c.wait();
-        }
-    }
-}
-
-impl Drop for Bassd {
-    /// SIGTERM (bassd removes its socket and port), SIGKILL if it lingers for 5 s.
-    fn drop(&mut self) {
-        if let Some(c) = self.child.take() {
-            crate::terminate(c);
-        }
+        self.child.kill(sig);
     }
 }

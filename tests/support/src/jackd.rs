@@ -2,15 +2,16 @@
 //! private name, and ALSA's `jack` PCM plugin (`bass_jack`) pointed at it.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::Mutex;
 use std::time::Instant;
 
-use crate::{send_signal, TempDir};
+use crate::{OwnedChild, TempDir};
 
-/// A `jackd -d dummy` server (2 capture ports, 256-frame periods) with a private name.
+/// A `jackd -d dummy` server (2 capture ports, 256-frame periods) with a private name,
+/// sent SIGTERM on drop so that it releases its registry slot (SIGKILL if it lingers for 5 s).
 pub struct Jackd {
-    child: Option<Child>,
+    child: OwnedChild,
 }
 
 impl Jackd {
@@ -31,7 +32,7 @@ impl Jackd {
                 .stderr(log)
                 .spawn()
                 .expect("start jackd (apt-get install jackd2; scripts/install-deps.sh)");
-            let mut j = Jackd { child: Some(child) };
+            let mut j = Jackd { child: OwnedChild(Some(child)) };
             let up = Command::new("jack_wait")
                 .args(["-s", name, "-w", "-t", "10"])
                 .env("JACK_NO_START_SERVER", "1")
@@ -53,20 +54,8 @@ impl Jackd {
     /// Sends `sig` and reaps the server; returns the instant the signal was sent.
     pub fn kill(&mut self, sig: i32) -> Instant {
         let t = Instant::now();
-        if let Some(mut c) = self.child.take() {
-            send_signal(c.id(), sig);
-            let _ = c.wait();
-        }
+        self.child.kill(sig);
         t
-    }
-}
-
-impl Drop for Jackd {
-    /// SIGTERM (so the server releases its registry slot), SIGKILL if it lingers for 5 s.
-    fn drop(&mut self) {
-        if let Some(c) = self.child.take() {
-            crate::terminate(c);
-        }
     }
 }
 

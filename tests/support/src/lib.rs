@@ -33,17 +33,48 @@ pub fn send_signal(pid: u32, sig: i32) {
     }
 }
 
-/// Ends a child politely and reaps it: SIGTERM (a broker removes its socket and port, a jackd
-/// releases its registry slot), SIGKILL if it is still there after 5 s.
-fn terminate(mut child: std::process::Child) {
-    send_signal(child.id(), rustix::process::Signal::TERM.as_raw());
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
-    while child.try_wait().ok().flatten().is_none() {
-        if std::time::Instant::now() > deadline {
-            let _ = child.kill();
-            let _ = child.wait();
-            return;
+/// A child process of the rig: sent a chosen signal and reaped on request; on drop ended
+/// politely and reaped: SIGTERM (a broker removes its socket and port, a jackd releases its
+/// registry slot), SIGKILL if it is still there after 5 s.
+struct OwnedChild(Option<std::process::Child>);
+
+impl OwnedChild {
+    /// The process, unless it has been reaped.
+    fn get_mut(&mut self) -> Option<&mut std::process::Child> {
+        self.0.as_mut()
+    }
+
+    /// Process id (0 once reaped).
+    fn id(&self) -> u32 {
+        self.0.as_ref().map_or(0, std::process::Child::id)
+    }
+
+    /// Marks the process as reaped (after a successful wait).
+    fn reaped(&mut self) {
+        self.0 = None;
+    }
+
+    /// Sends `sig` and reaps the process (for signals that end it).
+    fn kill(&mut self, sig: i32) {
+        if let Some(mut c) = self.0.take() {
+            send_signal(c.id(), sig);
+            let _ = c.wait();
         }
-        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+}
+
+impl Drop for OwnedChild {
+    fn drop(&mut self) {
+        let Some(mut child) = self.0.take() else { return };
+        send_signal(child.id(), rustix::process::Signal::TERM.as_raw());
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+        while child.try_wait().ok().flatten().is_none() {
+            if std::time::Instant::now() > deadline {
+                let _ = child.kill();
+                let _ = child.wait();
+                return;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
     }
 }
