@@ -78,6 +78,7 @@ fn a_bad_value_is_refused_with_the_option_named_and_status_2() {
         (&["reader", "--port", "/nonexistent", "--mode", "bogus"][..], "invalid value 'bogus' for '--mode"),
         (&["writer", "--port", "/nonexistent", "--nfpc", "64k"][..], "invalid value '64k' for '--nfpc"),
         (&["follow", "--port", "/nonexistent", "--expect", "noise"][..], "possible values: zero, pattern"),
+        (&["writer", "--port", "/nonexistent", "--pace-us", "3600000001"][..], "not in 0..=3600000000"),
         (&["pin-loop", "--name", "x"][..], "--socket <SOCKET>"),
         (&["no-such-role"][..], "unrecognized subcommand 'no-such-role'"),
     ] {

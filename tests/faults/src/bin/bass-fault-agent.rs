@@ -90,8 +90,9 @@ struct WriterArgs {
     /// Chunks on the port.
     #[arg(long, default_value_t = 8)]
     ncop: u32,
-    /// One chunk every U µs on absolute deadlines (0: unpaced).
-    #[arg(long = "pace-us", default_value_t = 0)]
+    /// One chunk every U µs on absolute deadlines (0: unpaced; at most an hour).
+    #[arg(long = "pace-us", default_value_t = 0,
+          value_parser = clap::value_parser!(u64).range(..=3_600_000_000))]
     pace_us: u64,
     /// Stop after K chunks (0: no limit).
     #[arg(long, default_value_t = 0)]
@@ -310,7 +311,7 @@ fn writer(a: &WriterArgs) {
         stdin_stop_flag()
     };
     let (chunks, seconds) = (a.chunks, a.seconds);
-    let pace_ns = i64::try_from(a.pace_us).unwrap_or(i64::MAX / 1000) * 1000;
+    let pace_ns = a.pace_us as i64 * 1000; // at most 3.6e12: no overflow
     let started = Instant::now();
     let mut chunk = vec![0i32; (geometry.frames_per_chunk * geometry.channels) as usize];
     let mut deadline = monotonic();
