@@ -18,6 +18,19 @@ fn hung_up_stdout() -> Stdio {
     Stdio::from(write)
 }
 
+/// Runs the agent with `args`, stdin at EOF and a hung-up stdout; returns its status and
+/// stderr once it has ended.
+fn run_hung_up(args: &[&str]) -> (ExitStatus, String) {
+    let child = Command::new(agent_path())
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(hung_up_stdout())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn the agent");
+    finish(child)
+}
+
 /// Waits (bounded) for `child` to exit, killing it if it does not; returns its status and
 /// what it wrote on stderr.
 fn finish(mut child: Child) -> (ExitStatus, String) {
@@ -41,14 +54,7 @@ fn assert_quiet_end(role: &str, status: ExitStatus, stderr: &str) {
 fn a_writer_whose_test_stopped_reading_ends_quietly() {
     let dir = TempDir::shm("agent-epipe");
     let port = dir.join("bass-epipe.port");
-    let child = Command::new(agent_path())
-        .args(["writer", "--port", port.to_str().unwrap(), "--chunks", "4"])
-        .stdin(Stdio::null())
-        .stdout(hung_up_stdout())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("spawn the agent");
-    let (status, stderr) = finish(child);
+    let (status, stderr) = run_hung_up(&["writer", "--port", port.to_str().unwrap(), "--chunks", "4"]);
     assert_quiet_end("writer", status, &stderr);
 }
 
@@ -57,15 +63,22 @@ fn a_writer_whose_test_stopped_reading_ends_quietly() {
 fn a_pin_loop_whose_test_stopped_reading_ends_quietly() {
     let dir = TempDir::shm("agent-pin-epipe");
     let b = Bassd::start_stock(dir.path(), "pe", &[], &[]);
-    let child = Command::new(agent_path())
-        .args(["pin-loop", "--socket", b.socket().to_str().unwrap(), "--name", "pe"])
-        .args(["--rate", "8000", "--nfpc", "80", "--ncop", "4", "--rounds", "2"])
-        .stdin(Stdio::null())
-        .stdout(hung_up_stdout())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("spawn the agent");
-    let (status, stderr) = finish(child);
+    let socket = b.socket();
+    let (status, stderr) = run_hung_up(&[
+        "pin-loop",
+        "--socket",
+        socket.to_str().unwrap(),
+        "--name",
+        "pe",
+        "--rate",
+        "8000",
+        "--nfpc",
+        "80",
+        "--ncop",
+        "4",
+        "--rounds",
+        "2",
+    ]);
     assert_quiet_end("pin-loop", status, &stderr);
     // The agent did reach the broker: its Acquire went through before it tried to report it.
     let s = b.client().status().expect("status");
