@@ -14,7 +14,8 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use bass_faults::{figure, Agent, Rng, TempDir};
+use bass_faults::{figure, Agent, Rng};
+use bass_test_support::TempDir;
 use bassclient::format::HEADER_SIZE;
 use bassclient::testsignal::fill_pattern_interleaved;
 use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
@@ -180,7 +181,7 @@ fn put(bytes: &mut [u8], off: usize, width: usize, v: u64) {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn random_bytes_never_crash_and_give_named_errors() {
-    let dir = TempDir::new("corrupt-random");
+    let dir = TempDir::shm("corrupt-random");
     let good = valid_port(&dir);
     let seed = bass_faults::seed();
     let mut rng = Rng::with_seed(seed);
@@ -210,7 +211,7 @@ fn random_bytes_never_crash_and_give_named_errors() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn truncation_at_every_boundary_is_corrupt() {
-    let dir = TempDir::new("corrupt-trunc");
+    let dir = TempDir::shm("corrupt-trunc");
     let good = valid_port(&dir);
     let total = good.len();
     let samples = 8192usize; // 4096 + 32 * 4, rounded up to 4096
@@ -265,7 +266,7 @@ fn truncation_at_every_boundary_is_corrupt() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn every_header_field_at_extreme_values_is_handled() {
-    let dir = TempDir::new("corrupt-fields");
+    let dir = TempDir::shm("corrupt-fields");
     let good = valid_port(&dir);
     let mut t = Tally::default();
     let mut summary = Vec::new();
@@ -293,7 +294,7 @@ fn every_header_field_at_extreme_values_is_handled() {
 fn a_hostile_write_intent_never_delivers_frames_it_cannot_vouch_for() {
     // write_intent beyond the format's frame limit (e.g. u64::MAX) is a corrupt header:
     // the reader must not overflow (a panic in a debug build) nor trust any frame.
-    let dir = TempDir::new("corrupt-intent");
+    let dir = TempDir::shm("corrupt-intent");
     let good = valid_port(&dir);
     for intent in [u64::MAX, u64::MAX - 1, (1 << 62) + 1] {
         let mut bytes = good.clone();
@@ -332,7 +333,7 @@ fn a_hostile_write_intent_never_delivers_frames_it_cannot_vouch_for() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn foreign_magic_and_major_versions_are_refused_by_name() {
-    let dir = TempDir::new("corrupt-magic");
+    let dir = TempDir::shm("corrupt-magic");
     let good = valid_port(&dir);
     let mut t = Tally::default();
     let magics: [(&str, [u8; 8]); 5] = [
@@ -370,7 +371,7 @@ fn foreign_magic_and_major_versions_are_refused_by_name() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_port_shrunk_under_a_reader_gives_corrupt_not_sigbus() {
-    let dir = TempDir::new("corrupt-shrink");
+    let dir = TempDir::shm("corrupt-shrink");
     let path = dir.join("bass-shrink.port");
     let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: NFPC, chunks_on_port: NCOP };
     let mut w =
@@ -425,7 +426,7 @@ fn a_port_shrinking_while_a_reader_process_hammers_it_is_measured() {
     // that calls every size-dependent function in a loop is hit while the file is cut to one
     // page and restored. It fails on any other kind of crash; with
     // BASS_FAULTS_STRICT_SHRINK=1 a SIGBUS fails it too.
-    let dir = TempDir::new("corrupt-shrink-live");
+    let dir = TempDir::shm("corrupt-shrink-live");
     let path = dir.join("bass-shrink-live.port");
     let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: 1024, chunks_on_port: 64 };
     let mut w =
