@@ -11,7 +11,8 @@
 
 use std::time::{Duration, Instant};
 
-use bass_faults::{acquire_req, figure, wait_until, Agent, Bassd, Fields, TempDir};
+use bass_faults::{figure, Agent, Fields};
+use bass_test_support::{acquire_req, bin_path, wait_until, Bassd, TempDir};
 use bassclient::control::OpenedPort;
 use bassclient::testsignal::pattern_expected;
 use bassclient::{Error, Port, State};
@@ -32,12 +33,17 @@ fn wait_for_frame(port: &Port, frame: u64) {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_reader_opened_by_name_reads_the_memfd_port_through_the_broker() {
-    let dir = TempDir::new("memfd-name");
+    let dir = TempDir::shm("memfd-name");
     let group = bass_faults::test_group();
-    let b = Bassd::start(&dir.0, "mfd", &["--port-backing", "memfd", "--group", &group.to_string()], &[]);
+    let b = Bassd::start_stock(
+        dir.path(),
+        "mfd",
+        &["--port-backing", "memfd", "--group", &group.to_string()],
+        &[],
+    );
     let got = b.client().acquire(&acquire_req("sim:pattern", 48000, 256, 64, 2)).expect("acquire");
     assert!(!b.port_path().exists(), "a memfd broker puts no port file at {}", b.port_path().display());
-    let env = [("BASS_RUNTIME_DIR", dir.0.to_str().unwrap())];
+    let env = [("BASS_RUNTIME_DIR", dir.path().to_str().unwrap())];
     let mut reader = Agent::spawn_env(&["reader", "--name", "mfd", "--mode", "wait", "--n", "256"], &env);
     reader.expect_line("ready");
     let (_, port) = open_by_broker(&b);
@@ -61,7 +67,7 @@ fn a_reader_opened_by_name_reads_the_memfd_port_through_the_broker() {
             .args(setpriv)
             .arg(bass_faults::agent_path())
             .args(["try-open", "--name", "mfd"])
-            .env("BASS_RUNTIME_DIR", &dir.0)
+            .env("BASS_RUNTIME_DIR", dir.path())
             .output()
             .expect("setpriv");
         let text = String::from_utf8_lossy(&out.stdout).into_owned();
@@ -103,8 +109,8 @@ fn a_reader_opened_by_name_reads_the_memfd_port_through_the_broker() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_stop_acquire_cycle_restarts_readers_of_a_memfd_port_and_the_old_one_is_accounted() {
-    let dir = TempDir::new("memfd-cycle");
-    let b = Bassd::start(&dir.0, "mfc", &["--port-backing", "memfd"], &[]);
+    let dir = TempDir::shm("memfd-cycle");
+    let b = Bassd::start_stock(dir.path(), "mfc", &["--port-backing", "memfd"], &[]);
     let first = b.client().acquire(&acquire_req("sim:pattern", 48000, 256, 32, 2)).expect("acquire");
     let (epoch, old) = open_by_broker(&b);
     assert_eq!(epoch, first.epoch);
@@ -153,7 +159,7 @@ fn a_stop_acquire_cycle_restarts_readers_of_a_memfd_port_and_the_old_one_is_acco
     );
     let after = memfds(b.pid());
     // The CLI follows: `bass acquire --wait` opens the new port (no file: through the broker).
-    let out = std::process::Command::new(bass_faults::bin_path("bass", "BASS_CLI"))
+    let out = std::process::Command::new(bin_path("bass", "BASS_CLI"))
         .args([
             "--name",
             "mfc",
@@ -167,7 +173,7 @@ fn a_stop_acquire_cycle_restarts_readers_of_a_memfd_port_and_the_old_one_is_acco
             "32",
         ])
         .arg("--wait")
-        .env("BASS_RUNTIME_DIR", &dir.0)
+        .env("BASS_RUNTIME_DIR", dir.path())
         .output()
         .expect("run bass");
     let text = String::from_utf8_lossy(&out.stdout);

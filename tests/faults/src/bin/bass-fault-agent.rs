@@ -247,9 +247,9 @@ fn main() {
         Role::Reader(a) => reader(&a),
         Role::Stepped(a) => stepped(&a),
         Role::Victim(a) => victim(&a),
-        Role::Poke(a) => poke(&a.port),
-        Role::ShrinkVictim(a) => shrink_victim(&a.port),
-        Role::TryOpen(a) => try_open(&a.port),
+        Role::Poke(a) => poke(&a),
+        Role::ShrinkVictim(a) => shrink_victim(&a),
+        Role::TryOpen(a) => try_open(&a),
         Role::ControlVictim(a) => control_victim(&a),
         Role::Follow(a) => follow(&a),
         Role::HoldConnections(a) => hold_connections(&a),
@@ -548,7 +548,7 @@ fn victim(a: &VictimArgs) {
 /// the store must fault (SIGSEGV). Prints SURVIVED and exits 0 if it did not.
 fn poke(a: &PortArg) {
     let port = open(a);
-    let path = std::fs::canonicalize(port_path).expect("canonicalize");
+    let path = std::fs::canonicalize(a.path()).expect("canonicalize");
     let p = path.to_string_lossy().into_owned();
     let maps = std::fs::read_to_string("/proc/self/maps").expect("maps");
     let perms: Vec<&str> = maps
