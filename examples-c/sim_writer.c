@@ -80,8 +80,8 @@ int main(int argc, char **argv) {
     sigaction(SIGTERM, &sa, NULL);
 
     bass_writer *w = NULL;
-    bass_result r = bass_writer_create(name, "sim_writer:pattern", (uint32_t)channels, (uint32_t)rate,
-                                       (uint32_t)fpc, (uint32_t)cop, &w);
+    bass_result r = bass_writer_create(name, "sim_writer:pattern", (uint32_t)rate, (uint32_t)fpc, (uint32_t)cop,
+                                       (uint32_t)channels, &w);
     if (r != BASS_OK) {
         fprintf(stderr, "sim_writer: bass_writer_create: %s (%s)\n", bass_result_str(r), bass_last_error());
         return 1;

@@ -438,16 +438,17 @@ bass_result bass_port_view_check(const bass_port *port,
 
 // Creates the port `name` for writing (mode 0640, in `$BASS_RUNTIME_DIR` or /dev/shm),
 // replacing a port of that name whose writer is gone or is this process. Readers of the
-// replaced port get `BASS_ERR_RESTARTED`.
+// replaced port get `BASS_ERR_RESTARTED`. The geometry comes in the order of
+// `bass_acquire`: sample rate, nFramesPerChunk, nChunksOnPort, channels.
 //
 // # Safety
 // `name` and `device` (may be NULL) must be NUL-terminated; `out_writer` valid for a write.
 bass_result bass_writer_create(const char *name,
                                const char *device,
-                               uint32_t channels,
                                uint32_t sample_rate,
                                uint32_t frames_per_chunk,
                                uint32_t chunks_on_port,
+                               uint32_t channels,
                                bass_writer **out_writer);
 
 // Publishes one chunk of interleaved samples (`n_samples` = nFramesPerChunk × channels).

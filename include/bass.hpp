@@ -147,10 +147,11 @@ class port {
 // A port writer (simulators and test rigs; the broker is the writer in production).
 class writer {
   public:
-    writer(const std::string &name, std::uint32_t channels, std::uint32_t sample_rate, std::uint32_t frames_per_chunk,
-           std::uint32_t chunks_on_port, const std::string &device = "c++") {
-        check("bass_writer_create", bass_writer_create(name.c_str(), device.c_str(), channels, sample_rate,
-                                                       frames_per_chunk, chunks_on_port, &h_));
+    // The geometry in the order of bass::acquire and the C ABI: rate, nFPC, nCOP, channels.
+    writer(const std::string &name, std::uint32_t sample_rate, std::uint32_t frames_per_chunk,
+           std::uint32_t chunks_on_port, std::uint32_t channels, const std::string &device = "c++") {
+        check("bass_writer_create", bass_writer_create(name.c_str(), device.c_str(), sample_rate, frames_per_chunk,
+                                                       chunks_on_port, channels, &h_));
     }
     ~writer() { bass_writer_close(h_); }
     writer(writer &&o) noexcept : h_(std::exchange(o.h_, nullptr)) {}

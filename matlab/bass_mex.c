@@ -11,7 +11,7 @@
  *   [l, r, nfr, n, loss]   = bass_mex('GetAudioData', h, N, nfr [, noLoss])
  *   [x, nfr, n, loss]      = bass_mex('GetAudioDataMulti', h, N, nfr)   x: n x channels int32
  *   lfi                    = bass_mex('Wait', h, frame [, timeoutSeconds])
- *   w                      = bass_mex('WriterCreate', name, device, channels, rate, nfpc, ncop)
+ *   w                      = bass_mex('WriterCreate', name, device, rate, nfpc, ncop, channels)
  *   lfi                    = bass_mex('Publish', w, int32 interleaved samples)
  *                            bass_mex('WriterClose', w)
  *
@@ -502,12 +502,12 @@ void mexFunction(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
     } else if (!strcmp(cmd, "Wait")) {
         cmd_wait(nlhs, plhs, nrhs, prhs);
     } else if (!strcmp(cmd, "WriterCreate")) {
-        if (nrhs < 7) usage("WriterCreate needs name, device, channels, rate, nfpc, ncop");
-        uint32_t channels = arg_u32(prhs[3], "channels"), rate = arg_u32(prhs[4], "rate");
-        uint32_t nfpc = arg_u32(prhs[5], "nfpc"), ncop = arg_u32(prhs[6], "ncop");
+        if (nrhs < 7) usage("WriterCreate needs name, device, rate, nfpc, ncop, channels");
+        uint32_t rate = arg_u32(prhs[3], "rate"), nfpc = arg_u32(prhs[4], "nfpc");
+        uint32_t ncop = arg_u32(prhs[5], "ncop"), channels = arg_u32(prhs[6], "channels");
         char *name = opt_string(nrhs, prhs, 1), *device = opt_string(nrhs, prhs, 2);
         bass_writer *w = NULL;
-        bass_result r = bass_writer_create(name, device, channels, rate, nfpc, ncop, &w);
+        bass_result r = bass_writer_create(name, device, rate, nfpc, ncop, channels, &w);
         if (name) mxFree(name);
         if (device) mxFree(device);
         check("WriterCreate", r);

@@ -391,7 +391,8 @@ fn wake_section(r: &Results, md: &mut String) {
         "CLOCK_MONOTONIC from just before the publish (bass: the chunk's `mono_ns`, stamped right before \
          `Writer::publish`; raw futex: right before the store + `FUTEX_WAKE`) to the woken process running \
          (bass: `Port::wait` returned). Publishes are spaced by a random 3–6 ms so waiters are really asleep. \
-         The raw futex ping-pong, the bass 1-reader case and the diagnostic bare-futex reader are interleaved \
+         The raw futex ping-pong, the bass 1-reader case, the diagnostic bare-futex reader and the 1-reader case \
+         on a sealed memfd port (`bassd --port-backing memfd`: no per-call `fstat`) are interleaved \
          publish by publish in the same run; {} publishes per configuration and repetition, {} repetitions, \
          samples pooled. *Last reader* = per publish, the latest of all readers. The polling client is the seed's \
          BASC `GetBlocks`, a periodic 250 ms task calling getAudioData (4 processes, 2205-frame chunks every 50 ms).\n",
@@ -420,11 +421,16 @@ fn wake_section(r: &Results, md: &mut String) {
     if let Some(d) = w.bass_data.get(&1) {
         dist_row(md, "bass, 1 reader, data in hand (after `get_audio_data`)", d, raw);
     }
+    if !w.bass_memfd.all.is_empty() {
+        dist_row(md, "bass, 1 reader of a sealed memfd port (no per-call `fstat`)", &w.bass_memfd, raw);
+    }
     dist_row(md, "seed's 250 ms polling client", &w.poll, raw);
     let _ = writeln!(
         md,
-        "\nPer-repetition ratio bass (1 reader) / raw futex: {}.\n",
-        spread(&w.ratio_1, fmt_ratio)
+        "\nPer-repetition ratio bass (1 reader) / raw futex: {}; the same on a sealed memfd port (interleaved \
+         in the same run): {}.\n",
+        spread(&w.ratio_1, fmt_ratio),
+        spread(&w.ratio_memfd, fmt_ratio)
     );
     let _ = writeln!(md, "Reader CPU per chunk (wake + `get_audio_data` + `chunk_info` + wait again, from `CLOCK_PROCESS_CPUTIME_ID`):");
     for (k, v) in &w.reader_cpu {

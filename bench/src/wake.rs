@@ -6,6 +6,9 @@
 //! - bass: the parent publishes a chunk stamped with CLOCK_MONOTONIC (the chunk table's
 //!   `mono_ns`) just before `Writer::publish`; 1, 8 or 64 reader processes blocked in
 //!   `Port::wait` take the time when `wait` returns, then read the chunk.
+//! - bass on a sealed memfd port (`bassd --port-backing memfd`): the same 1-reader case, the
+//!   reader holding an inherited read-only descriptor of the memfd, so its calls skip the
+//!   per-call `fstat` a port file needs; interleaved with the raw futex and the file reader.
 //! - the seed's BASC client: `GetBlocks` runs every 250 ms and calls getAudioData; the
 //!   latency of a chunk is from its publication to the poll that obtains it.
 //!
@@ -69,6 +72,10 @@ pub struct WakeResults {
     pub bass_data: BTreeMap<usize, Dist>,
     /// Per repetition: bass (1 reader) median / raw futex median.
     pub ratio_1: Vec<f64>,
+    /// bass, 1 reader of a sealed memfd port (no per-call fstat), interleaved with `raw`.
+    pub bass_memfd: Dist,
+    /// Per repetition: bass memfd (1 reader) median / raw futex median.
+    pub ratio_memfd: Vec<f64>,
     /// Raw futex, per waiter count (> 1): every waiter's wake latency.
     pub raw_n: BTreeMap<usize, Dist>,
     /// Raw futex, per waiter count: per wake, the latency of the last waiter to run.
@@ -235,6 +242,7 @@ struct OneReader {
     raw: Vec<f64>,
     bass: Samples,
     bare: Samples,
+    memfd: Samples,
 }
 
 /// A bass port with wake-latency readers attached.
@@ -256,6 +264,27 @@ impl WakePort {
         }
         let kids = spawn_ready(readers, role, &[name.to_owned()]);
         WakePort { w, kids, data }
+    }
+
+    /// Like [`WakePort::start`] with one `wake-reader`, but the port is a sealed memfd and
+    /// the reader gets a read-only descriptor of it (inherited, as bassd would hand it over).
+    fn start_memfd(name: &str) -> WakePort {
+        let geometry =
+            Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: WAKE_NFPC, chunks_on_port: 64 };
+        let params = PortParams { geometry, device: "bench:wake-memfd".into(), group: None };
+        let pending = Writer::prepare_memfd(name, &params, None).expect("create memfd port");
+        let mut w = pending.commit().expect("commit memfd port");
+        let data = vec![7i32; WAKE_NFPC as usize * 2];
+        for _ in 0..64 {
+            w.publish(Source::Interleaved(&data), ChunkMeta::default()).expect("publish");
+        }
+        let fd = w.reader_fd().expect("reader fd").expect("a memfd port");
+        rustix::io::fcntl_setfd(&fd, rustix::io::FdFlags::empty()).expect("inheritable");
+        let fd_arg = std::os::fd::AsRawFd::as_raw_fd(&fd).to_string();
+        let mut kid = Child::spawn("wake-reader", &[name.to_owned(), "fd".into(), fd_arg]);
+        drop(fd);
+        kid.ready();
+        WakePort { w, kids: vec![kid], data }
     }
 
     /// Publishes one chunk stamped with the current time.
@@ -308,6 +337,7 @@ fn one_reader_side_by_side(n: usize) -> OneReader {
     let pinger = Pinger::start();
     let mut a = WakePort::start("bench-wake-a", 1, "wake-reader");
     let mut b = WakePort::start("bench-wake-b", 1, "wake-raw-waiter");
+    let mut m = WakePort::start_memfd("bench-wake-m");
     // Experiment hook: a fourth reader from another build, interleaved with the rest.
     let mut alt = std::env::var_os("BASS_BENCH_ALT_EXE").map(|exe| {
         let mut p = WakePort::start("bench-wake-c", 0, "wake-reader");
@@ -316,7 +346,7 @@ fn one_reader_side_by_side(n: usize) -> OneReader {
         p.kids.push(k);
         p
     });
-    let ways = if alt.is_some() { 4 } else { 3 };
+    let ways = if alt.is_some() { 5 } else { 4 };
     std::thread::sleep(Duration::from_millis(50));
     for k in 0..ways * n {
         std::thread::sleep(random_gap());
@@ -324,6 +354,7 @@ fn one_reader_side_by_side(n: usize) -> OneReader {
             0 => pinger.ping(),
             1 => a.publish(),
             2 => b.publish(),
+            3 => m.publish(),
             _ => alt.as_mut().expect("alt").publish(),
         }
     }
@@ -336,12 +367,21 @@ fn one_reader_side_by_side(n: usize) -> OneReader {
             fmt_ns(v.cpu)
         );
     }
-    OneReader { raw: pinger.finish(), bass: a.finish(), bare: b.finish() }
+    OneReader { raw: pinger.finish(), bass: a.finish(), bare: b.finish(), memfd: m.finish() }
 }
 
 /// Child: a reader blocked in `Port::wait`; prints `lfi wake_ns data_ns` per chunk.
 pub fn child_wake_reader(args: &[String]) {
-    let port = Port::open(&args[0]).expect("open port");
+    let port = match (args.get(1).map(String::as_str), args.get(2)) {
+        (Some("fd"), Some(fd)) => {
+            let fd: i32 = fd.parse().expect("fd number");
+            // SAFETY: the parent left this descriptor open across exec for this process
+            // alone (`WakePort::start_memfd`); nothing else here owns or closes it.
+            let fd = unsafe { <std::os::fd::OwnedFd as std::os::fd::FromRawFd>::from_raw_fd(fd) };
+            Port::from_fd(fd, &args[0]).expect("port from fd")
+        }
+        _ => Port::open(&args[0]).expect("open port"),
+    };
     let mut nfr = port.info().expect("info").last_frame_index + 1;
     let cap = port.geometry().frames_per_chunk as usize * 8;
     let (mut l, mut r) = (vec![0i32; cap], vec![0i32; cap]);
@@ -501,7 +541,18 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
     let n = if quick { 80 } else { 250 };
     let mut res = WakeResults { publishes: n, ..WakeResults::default() };
     for rep in 0..reps {
-        let OneReader { raw, bass, bare } = one_reader_side_by_side(n);
+        let OneReader { raw, bass, bare, memfd } = one_reader_side_by_side(n);
+        let mfd = memfd.each;
+        println!(
+            "  rep {} bass 1 reader, sealed memfd port: median {} p99 {} (CPU/chunk {}) | memfd / raw {}",
+            rep + 1,
+            fmt_ns(median(&mfd)),
+            fmt_ns(quantile(&mfd, 0.99)),
+            fmt_ns(memfd.cpu),
+            fmt_ratio(median(&mfd) / median(&raw))
+        );
+        res.ratio_memfd.push(median(&mfd) / median(&raw));
+        res.bass_memfd.add_rep(mfd);
         let (one, data, cpu_one) = (bass.each, bass.data, bass.cpu);
         let (cpu_bare, bare) = (bare.cpu, bare.each);
         res.reader_cpu.entry(1).or_default().push(cpu_one);
@@ -566,5 +617,9 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
     );
     res.poll.add_rep(poll);
     println!("  bass (1 reader) / raw futex, median per repetition: {}", spread(&res.ratio_1, fmt_ratio));
+    println!(
+        "  bass (1 reader, sealed memfd) / raw futex, median per repetition: {}",
+        spread(&res.ratio_memfd, fmt_ratio)
+    );
     res
 }

@@ -101,7 +101,13 @@ impl Acquisition {
         device: &str,
         p: CaptureParams,
     ) -> std::io::Result<Acquisition> {
-        let port = Port::open_path(writer.path()).map_err(std::io::Error::other)?;
+        // The broker's own read-only view (Status; the descriptor readers of a memfd port are
+        // handed is reopened from it, see crate::handoff).
+        let port = match writer.reader_fd().map_err(std::io::Error::other)? {
+            Some(fd) => Port::from_fd(fd, &writer.path().display().to_string()),
+            None => Port::open_path(writer.path()),
+        }
+        .map_err(std::io::Error::other)?;
         let g = &p.geometry;
         let period_ns = u64::from(g.frames_per_chunk) * 1_000_000_000 / u64::from(g.sample_rate);
         // A few periods, but never less than 250 ms (scheduling noise on a loaded machine).
@@ -171,6 +177,13 @@ impl Acquisition {
             }
         }
         self.shared.writer().stop();
+    }
+
+    /// Marks the port superseded by a new acquisition and wakes its readers (who then see
+    /// `Restarted`). A port file is marked by the new port's commit, which finds it at the
+    /// path; a memfd port has no path, so the broker marks it here.
+    pub fn supersede(&self) {
+        self.shared.writer().set_state(State::Superseded, error_code::NONE, "");
     }
 
     /// Moves a port that ended on an error to stopped (see `Writer::clear_error`); returns

@@ -16,6 +16,7 @@ pub mod capture;
 pub mod cli;
 pub mod convert;
 pub mod device;
+pub mod handoff;
 pub mod os;
 pub mod pins;
 pub mod policy;

@@ -7,6 +7,10 @@
 //! holds one) refers to the inode. A port nobody else holds is closed here and its memory
 //! returns to the system; the others count as pinned.
 //!
+//! A memfd port (`--port-backing memfd`) is accounted the same way: bassd hands every reader
+//! its own read-only open file description of the memfd (crate::handoff), so the lease sees
+//! readers exactly as it sees readers of a port file.
+//!
 //! The bound this enforces (see docs/reliability.md): an Acquire from a client that is not
 //! the broker's own user (nor root) is refused when the pinned superseded ports, the current
 //! port and the new one together would exceed [`PIN_BUDGET_FACTOR`] x `--max-port-bytes`.
@@ -111,6 +115,23 @@ mod tests {
         assert_eq!(l.prune(), 0, "nothing pins it after the unmap");
         assert!(l.is_empty());
         let _ = std::fs::remove_dir(&dir);
+    }
+
+    #[test]
+    fn a_memfd_port_is_pinned_while_a_reader_holds_its_own_descriptor_or_mapping() {
+        // As bassd hands a memfd port out: every reader gets its own read-only description
+        // (bassclient::memfd::reopen_read_only), which the lease sees like a file's reader.
+        let port = bassclient::memfd::create("pins-test", 8192).unwrap();
+        bassclient::memfd::seal(&port).unwrap();
+        let reader = File::from(bassclient::memfd::reopen_read_only(&port).unwrap());
+        let map = unsafe_free_map(&reader);
+        drop(reader);
+        let mut l = Ledger::default();
+        l.add(File::from(bassclient::memfd::reopen_read_only(&port).unwrap()), 8192);
+        drop(port); // the writer is gone (its descriptor and mapping)
+        assert_eq!(l.prune(), 8192, "a reader's mapping of the memfd still pins it");
+        drop(map);
+        assert_eq!(l.prune(), 0, "nothing pins it after the unmap");
     }
 
     /// A shared read-only mapping through memmap2's safe raw API.

@@ -6,14 +6,12 @@
 //! broker captures those frames, then blocks reading the FIFO (and its stall watchdog ends
 //! the acquisition), so nothing overwrites them.
 
-mod common;
-
 use std::io::Write;
 use std::os::fd::AsRawFd;
 use std::path::Path;
 
+use bass_test_support::*;
 use bassclient::testsignal::pattern_sample;
-use common::*;
 
 const NFPC: u32 = 441;
 const CHUNKS: u64 = 10;
@@ -100,7 +98,7 @@ fn capture_through_file_plugin(format: Option<&str>, expect_format: &str) {
     assert!(raw.len() <= 1 << 20);
     w.write_all(&raw).unwrap();
 
-    let mut r = req("bass_file", 48000, NFPC, 20, 2);
+    let mut r = acquire_req("bass_file", 48000, NFPC, 20, 2);
     r.format = format.map(str::to_owned);
     let a = b.client().acquire(&r).unwrap();
     assert_eq!(a.format, expect_format);
@@ -187,7 +185,7 @@ fn plugin_strings_from_clients_are_refused_and_run_or_write_nothing() {
         ("bass_hidden".to_owned(), "not a card reference"),
     ];
     for (dev, why) in &attacks {
-        let e = c.acquire(&req(dev, 44100, 441, 10, 2)).expect_err(dev).to_string();
+        let e = c.acquire(&acquire_req(dev, 44100, 441, 10, 2)).expect_err(dev).to_string();
         assert!(e.contains("device policy") && e.contains(why) && e.contains("[permission]"), "{dev}: {e}");
     }
     assert!(!pwned.exists(), "the pipe command ran");
@@ -198,7 +196,7 @@ fn plugin_strings_from_clients_are_refused_and_run_or_write_nothing() {
 
     // Widened by the operator: the configured PCM opens and captures.
     let b = Bassd::start(dir.path(), "wide", &["--allow-device", "bass_*"], &env);
-    let a = b.client().acquire(&req("bass_hidden", 44100, 441, 10, 2)).unwrap();
+    let a = b.client().acquire(&acquire_req("bass_hidden", 44100, 441, 10, 2)).unwrap();
     assert_eq!(a.epoch, 1);
     wait_frame(&b.port(), 441);
     assert!(!pwned.exists() && !written.exists());

@@ -3,154 +3,33 @@
 //! unplug that ALSA never reports — the jack plugin just stops delivering — so the stall
 //! watchdog must catch it.
 
-mod common;
-
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
+use bass_test_support::*;
 use bassclient::format::{error_code, State};
 use bassclient::{Error, Port};
-use common::*;
 
 const RATE: u32 = 48000;
 
-/// A `jackd -d dummy` server with a private name.
-struct Jackd {
-    child: Option<Child>,
+/// A jack rig with a fixed server name per test: JACK keeps 8 server slots per machine, and
+/// the slot of a server killed with SIGKILL is only reclaimed when a server of the same name
+/// starts.
+fn rig(tag: &str) -> JackRig {
+    JackRig::new(TempDir::new(tag), &format!("bass-test-{tag}"))
 }
 
-impl Jackd {
-    /// Starts the server and waits until it answers. Servers starting at the same instant
-    /// can trip over JACK's shared registry, so starts are serialised and retried.
-    fn start(name: &str, log_dir: &Path) -> Jackd {
-        static START: Mutex<()> = Mutex::new(());
-        let _serial = START.lock().unwrap_or_else(|e| e.into_inner());
-        for attempt in 1..=3 {
-            let log = std::fs::File::create(log_dir.join(format!("jackd-{attempt}.log"))).unwrap();
-            let child = Command::new("jackd")
-                .args([
-                    "-n",
-                    name,
-                    "--no-realtime",
-                    "-d",
-                    "dummy",
-                    "-r",
-                    &RATE.to_string(),
-                    "-p",
-                    "256",
-                    "-C",
-                    "2",
-                    "-P",
-                    "2",
-                ])
-                .env("JACK_NO_AUDIO_RESERVATION", "1")
-                .stdout(Stdio::null())
-                .stderr(log)
-                .spawn()
-                .expect("start jackd (apt-get install jackd2; scripts/install-deps.sh)");
-            let mut j = Jackd { child: Some(child) };
-            let ok = Command::new("jack_wait")
-                .args(["-s", name, "-w", "-t", "10"])
-                .env("JACK_NO_START_SERVER", "1")
-                .stdout(Stdio::null())
-                .stderr(Stdio::null())
-                .status()
-                .map(|s| s.success())
-                .unwrap_or(false);
-            if ok {
-                return j;
-            }
-            j.kill(libc::SIGKILL);
-        }
-        let logs: Vec<String> = (1..=3)
-            .map(|a| std::fs::read_to_string(log_dir.join(format!("jackd-{a}.log"))).unwrap_or_default())
-            .collect();
-        panic!("jackd -n {name} did not come up; logs:\n{}", logs.join("\n---\n"));
-    }
-
-    fn kill(&mut self, sig: i32) {
-        if let Some(mut c) = self.child.take() {
-            // SAFETY: kill(2) on our own child.
-            unsafe { libc::kill(c.id() as i32, sig) };
-            let _ = c.wait();
-        }
-    }
-}
-
-impl Drop for Jackd {
-    /// SIGTERM (so the server releases its slot), SIGKILL if it lingers.
-    fn drop(&mut self) {
-        if let Some(mut c) = self.child.take() {
-            // SAFETY: kill(2) on our own child.
-            unsafe { libc::kill(c.id() as i32, libc::SIGTERM) };
-            let deadline = Instant::now() + Duration::from_secs(5);
-            while c.try_wait().ok().flatten().is_none() {
-                if Instant::now() > deadline {
-                    let _ = c.kill();
-                    let _ = c.wait();
-                    break;
-                }
-                std::thread::sleep(Duration::from_millis(10));
-            }
-        }
-    }
-}
-
-struct Rig {
-    dir: TempDir,
-    jack_name: String,
-    alsa_path: String,
-}
-
-impl Rig {
-    fn new(tag: &str) -> Rig {
-        let dir = TempDir::new(tag);
-        // A fixed name per test: JACK keeps 8 server slots per machine, and the slot of a
-        // server killed with SIGKILL is only reclaimed when a server of the same name starts.
-        let jack_name = format!("bass-test-{tag}");
-        let rc = dir.path().join("asoundrc");
-        std::fs::write(
-            &rc,
-            "pcm.bass_jack {\n  type jack\n  capture_ports { 0 system:capture_1 1 system:capture_2 }\n}\n",
-        )
-        .unwrap();
-        let alsa_path = format!("/usr/share/alsa/alsa.conf:{}", rc.display());
-        Rig { dir, jack_name, alsa_path }
-    }
-
-    fn path(&self) -> &Path {
-        self.dir.path()
-    }
-
-    fn bassd(&self) -> Bassd {
-        Bassd::start(
-            self.path(),
-            "default",
-            // The rig's own PCM: not a card reference, so the operator allows it.
-            &["--allow-device", "bass_jack"],
-            &[
-                ("ALSA_CONFIG_PATH", &self.alsa_path),
-                ("JACK_DEFAULT_SERVER", &self.jack_name),
-                ("JACK_NO_START_SERVER", "1"),
-                ("JACK_NO_AUDIO_RESERVATION", "1"),
-            ],
-        )
-    }
-}
-
-fn port_path(b: &Bassd) -> PathBuf {
-    b.port_path()
+/// A broker capturing the rig's own PCM (not a card reference, so the operator allows it).
+fn bassd(rig: &JackRig) -> Bassd {
+    Bassd::start(rig.path(), "default", &["--allow-device", "bass_jack"], &rig.env())
 }
 
 #[test]
 fn jack_capture_is_paced_and_a_killed_server_is_a_lost_device_until_the_next_acquire() {
-    let rig = Rig::new("jack");
-    let mut jackd = Jackd::start(&rig.jack_name, rig.path());
-    let b = rig.bassd();
+    let rig = rig("jack");
+    let mut jackd = rig.jackd(RATE);
+    let b = bassd(&rig);
     let mut c = b.client();
-    let a = c.acquire(&req("bass_jack", RATE, 480, 200, 2)).unwrap();
+    let a = c.acquire(&acquire_req("bass_jack", RATE, 480, 200, 2)).unwrap();
     assert_eq!(a.format, "FLOAT_LE", "the jack plugin offers FLOAT only");
     let mut epoch = a.epoch;
     let port = b.port();
@@ -175,7 +54,7 @@ fn jack_capture_is_paced_and_a_killed_server_is_a_lost_device_until_the_next_acq
     for sig in [libc::SIGKILL, libc::SIGTERM] {
         // A reader waiting for far-future frames is woken with the device error.
         let waiter = std::thread::spawn({
-            let path = port_path(&b);
+            let path = b.port_path();
             move || Port::open_path(&path).unwrap().wait(u64::MAX >> 8, PATIENCE)
         });
         // Let the waiter block first (it also works if it opens after the loss).
@@ -193,9 +72,9 @@ fn jack_capture_is_paced_and_a_killed_server_is_a_lost_device_until_the_next_acq
         assert_eq!(s.epoch, epoch);
 
         // A new server and a new Acquire: capture resumes with a new epoch.
-        jackd = Jackd::start(&rig.jack_name, rig.path());
+        jackd = rig.jackd(RATE);
         let a = eventually("an Acquire on the restarted jackd", || {
-            c.acquire(&req("bass_jack", RATE, 480, 200, 2)).ok()
+            c.acquire(&acquire_req("bass_jack", RATE, 480, 200, 2)).ok()
         });
         assert_eq!(a.epoch, epoch + 1);
         epoch = a.epoch;
@@ -208,19 +87,19 @@ fn jack_capture_is_paced_and_a_killed_server_is_a_lost_device_until_the_next_acq
 
 #[test]
 fn jack_refuses_what_the_device_cannot_do_with_clear_messages() {
-    let rig = Rig::new("jackbad");
-    let _jackd = Jackd::start(&rig.jack_name, rig.path());
-    let b = rig.bassd();
+    let rig = rig("jackbad");
+    let _jackd = rig.jackd(RATE);
+    let b = bassd(&rig);
     let mut c = b.client();
-    let mut s16 = req("bass_jack", RATE, 480, 20, 2);
+    let mut s16 = acquire_req("bass_jack", RATE, 480, 20, 2);
     s16.format = Some("S16_LE".into());
     let cases = [
         (
-            req("bass_jack", 44100, 441, 20, 2),
+            acquire_req("bass_jack", 44100, 441, 20, 2),
             "sample rate 44100 Hz is not supported by device \"bass_jack\" (it supports only 48000 Hz)",
         ),
         (
-            req("bass_jack", RATE, 480, 20, 3),
+            acquire_req("bass_jack", RATE, 480, 20, 3),
             "3 channels are not supported by device \"bass_jack\" (it supports only 2)",
         ),
         (s16, "sample format S16_LE is not supported by device \"bass_jack\""),
@@ -235,7 +114,7 @@ fn jack_refuses_what_the_device_cannot_do_with_clear_messages() {
         assert_eq!(c.status().unwrap().state, State::Idle as u32);
     }
     // And the broker is still fine.
-    c.acquire(&req("bass_jack", RATE, 480, 20, 2)).unwrap();
+    c.acquire(&acquire_req("bass_jack", RATE, 480, 20, 2)).unwrap();
     wait_frame(&b.port(), 960);
 }
 
@@ -243,11 +122,11 @@ fn jack_refuses_what_the_device_cannot_do_with_clear_messages() {
 /// and zero-filled, and the acquisition goes on.
 #[test]
 fn an_overrun_is_recovered_counted_and_zero_filled() {
-    let rig = Rig::new("jackxrun");
-    let _jackd = Jackd::start(&rig.jack_name, rig.path());
-    let b = rig.bassd();
+    let rig = rig("jackxrun");
+    let _jackd = rig.jackd(RATE);
+    let b = bassd(&rig);
     let mut c = b.client();
-    c.acquire(&req("bass_jack", RATE, 480, 400, 2)).unwrap();
+    c.acquire(&acquire_req("bass_jack", RATE, 480, 400, 2)).unwrap();
     let port = b.port();
     wait_frame(&port, 4800);
     b.signal(libc::SIGSTOP);
@@ -273,7 +152,7 @@ fn an_overrun_is_recovered_counted_and_zero_filled() {
 /// after the gap continue exactly where they stopped.
 #[test]
 fn an_alsa_reported_overrun_is_recovered_and_the_data_resume_exactly() {
-    let rig = Rig::new("jackepipe");
+    let rig = rig("jackepipe");
     let fifo = rig.path().join("in.fifo");
     {
         use std::os::unix::ffi::OsStrExt;
@@ -287,7 +166,7 @@ fn an_alsa_reported_overrun_is_recovered_and_the_data_resume_exactly() {
         fifo.display()
     );
     std::fs::write(rig.path().join("asoundrc"), rc).unwrap();
-    let _jackd = Jackd::start(&rig.jack_name, rig.path());
+    let _jackd = rig.jackd(RATE);
     let mut w = std::fs::OpenOptions::new().read(true).write(true).open(&fifo).unwrap();
     let b = Bassd::start(
         rig.path(),
@@ -300,7 +179,7 @@ fn an_alsa_reported_overrun_is_recovered_and_the_data_resume_exactly() {
             ("JACK_NO_AUDIO_RESERVATION", "1"),
         ],
     );
-    let a = b.client().acquire(&req("bass_held", RATE, 480, 400, 2)).unwrap();
+    let a = b.client().acquire(&acquire_req("bass_held", RATE, 480, 400, 2)).unwrap();
     assert_eq!(a.format, "FLOAT_LE");
     // The broker is now blocked on the empty FIFO; let the jack plugin overrun its buffer.
     std::thread::sleep(Duration::from_millis(1000));

@@ -3,14 +3,12 @@
 //!
 //! `BASS_CLI=/path/to/bass` runs these tests against another build of the tool.
 
-mod common;
-
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::mpsc;
 use std::time::Instant;
 
-use common::*;
+use bass_test_support::*;
 use serde_json::Value;
 
 /// A `bass` child whose stdout lines arrive on a channel.
@@ -79,11 +77,11 @@ fn blocks_follows_interrupting_acquires_and_ends_only_on_a_real_stop() {
     let dir = TempDir::new("follow");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
     let mut c = b.client();
-    c.acquire(&req("sim:pattern", 8000, 80, 50, 2)).unwrap();
+    c.acquire(&acquire_req("sim:pattern", 8000, 80, 50, 2)).unwrap();
     let mut r = Running::spawn(&b, &["blocks"]);
     r.expect("for epoch 1", |l| l.starts_with("port default: epoch 1,"));
     for epoch in 2..=25u64 {
-        assert_eq!(c.acquire(&req("sim:pattern", 8000, 80, 50, 2)).unwrap().epoch, epoch);
+        assert_eq!(c.acquire(&acquire_req("sim:pattern", 8000, 80, 50, 2)).unwrap().epoch, epoch);
         let want = format!("port default: epoch {epoch},");
         r.expect(&format!("for epoch {epoch}"), |l| l.starts_with(&want));
         r.expect(&format!("a block of epoch {epoch}"), |l| l.starts_with("block "));
@@ -99,7 +97,7 @@ fn blocks_follows_interrupting_acquires_and_ends_only_on_a_real_stop() {
 fn blocks_exits_non_zero_when_the_device_fails() {
     let dir = TempDir::new("devfail");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
-    b.client().acquire(&req("sim:unplug", 8000, 100, 100, 2)).unwrap();
+    b.client().acquire(&acquire_req("sim:unplug", 8000, 100, 100, 2)).unwrap();
     let o = bass(&b, &["blocks"]);
     assert_eq!(o.status.code(), Some(5), "{}", text(&o));
     assert!(text(&o).contains("device error") && text(&o).contains("unplugged"), "{}", text(&o));
@@ -112,7 +110,7 @@ fn blocks_shows_the_gap_frames_of_each_block() {
     // said `loss 0` and nothing else.
     let dir = TempDir::new("gaps");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
-    b.client().acquire(&req("sim:xrun", 8000, 100, 100, 2)).unwrap();
+    b.client().acquire(&acquire_req("sim:xrun", 8000, 100, 100, 2)).unwrap();
     let o = bass(&b, &["blocks", "--json", "--block", "100", "--count", "50", "--offset", "-100000"]);
     assert_eq!(o.status.code(), Some(0), "{}", text(&o));
     let mut blocks = 0;
@@ -235,7 +233,7 @@ fn json_output_parses_with_the_c_field_names() {
     let devs: Vec<Value> =
         String::from_utf8_lossy(&o.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
     assert!(devs.iter().any(|d| d["name"] == "sim:pattern" && d["description"].is_string()), "{devs:?}");
-    b.client().acquire(&req("sim:pattern", 8000, 80, 50, 2)).unwrap();
+    b.client().acquire(&acquire_req("sim:pattern", 8000, 80, 50, 2)).unwrap();
     let port = b.port();
     wait_frame(&port, 160);
     let o = bass(&b, &["status", "--json"]);

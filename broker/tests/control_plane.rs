@@ -1,16 +1,14 @@
 //! Every service through the control socket, bad requests, the raw protocol, named brokers,
 //! and the lifecycle (second instance, killed broker, SIGTERM).
 
-mod common;
-
 use std::os::fd::AsFd;
 use std::process::Command;
 
+use bass_test_support::*;
 use bassclient::control;
 use bassclient::format::State;
 use bassclient::testsignal::pattern_sample;
 use bassclient::Error;
-use common::*;
 
 #[test]
 fn every_service_works_through_the_socket() {
@@ -26,9 +24,9 @@ fn every_service_works_through_the_socket() {
 
     let s = c.status().unwrap();
     assert_eq!((s.state, s.epoch, s.last_frame_index), (State::Idle as u32, 0, 0));
-    assert_eq!(s.broker_pid, b.pid() as u32);
+    assert_eq!(s.broker_pid, b.pid());
 
-    let a = c.acquire(&req("sim:pattern", 16000, 160, 20, 2)).unwrap();
+    let a = c.acquire(&acquire_req("sim:pattern", 16000, 160, 20, 2)).unwrap();
     assert_eq!(a.epoch, 1);
     assert_eq!(a.port, b.port_path());
     let port = b.port();
@@ -47,7 +45,7 @@ fn every_service_works_through_the_socket() {
     assert_eq!(read_frames(&port, last, last)[1][0], pattern_sample(last, 1));
     // Stop is idempotent; Acquire after Stop starts a new epoch.
     c.stop().unwrap();
-    assert_eq!(c.acquire(&req("sim:pattern", 16000, 160, 20, 2)).unwrap().epoch, 2);
+    assert_eq!(c.acquire(&acquire_req("sim:pattern", 16000, 160, 20, 2)).unwrap().epoch, 2);
 }
 
 #[test]
@@ -55,10 +53,10 @@ fn acquire_while_acquiring_restarts_with_the_new_parameters() {
     let dir = TempDir::new("restart");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
     let mut c = b.client();
-    c.acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+    c.acquire(&acquire_req("sim:pattern", 8000, 80, 10, 2)).unwrap();
     let old = b.port();
     wait_frame(&old, 80);
-    let a = c.acquire(&req("sim:sine", 48000, 480, 5, 1)).unwrap();
+    let a = c.acquire(&acquire_req("sim:sine", 48000, 480, 5, 1)).unwrap();
     assert_eq!(a.epoch, 2);
     assert!(matches!(old.wait(u64::MAX >> 8, PATIENCE), Err(Error::Restarted)));
     let new = b.port();
@@ -73,20 +71,20 @@ fn bad_requests_are_refused_and_the_running_acquisition_continues() {
     let dir = TempDir::new("bad");
     let b = Bassd::start(dir.path(), "default", &["--max-port-bytes", "10000000"], &[]);
     let mut c = b.client();
-    c.acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+    c.acquire(&acquire_req("sim:pattern", 8000, 80, 10, 2)).unwrap();
     let port = b.port();
-    let mut with_format = req("sim:pattern", 8000, 80, 10, 2);
+    let mut with_format = acquire_req("sim:pattern", 8000, 80, 10, 2);
     with_format.format = Some("U8".into());
     let cases = [
-        (req("sim:pattern", 8000, 0, 10, 2), "nFramesPerChunk = 0"),
-        (req("sim:pattern", 8000, 80, 0, 2), "nChunksOnPort = 0"),
-        (req("sim:pattern", 0, 80, 10, 2), "sampleRate = 0"),
-        (req("sim:pattern", 8000, 80, 10, 0), "channels = 0"),
-        (req("sim:pattern", 8000, 80, 10, 65), "channels = 65"),
-        (req("sim:pattern", 8000, u32::MAX, u32::MAX, 64), "exceeds the format's limit"),
-        (req("sim:pattern", 8000, 100_000, 100, 2), "memory cap of 10000000 bytes"),
-        (req("sim:nosuch", 8000, 80, 10, 2), "unknown simulated device \"sim:nosuch\""),
-        (req("", 8000, 80, 10, 2), "device name is empty"),
+        (acquire_req("sim:pattern", 8000, 0, 10, 2), "nFramesPerChunk = 0"),
+        (acquire_req("sim:pattern", 8000, 80, 0, 2), "nChunksOnPort = 0"),
+        (acquire_req("sim:pattern", 0, 80, 10, 2), "sampleRate = 0"),
+        (acquire_req("sim:pattern", 8000, 80, 10, 0), "channels = 0"),
+        (acquire_req("sim:pattern", 8000, 80, 10, 65), "channels = 65"),
+        (acquire_req("sim:pattern", 8000, u32::MAX, u32::MAX, 64), "exceeds the format's limit"),
+        (acquire_req("sim:pattern", 8000, 100_000, 100, 2), "memory cap of 10000000 bytes"),
+        (acquire_req("sim:nosuch", 8000, 80, 10, 2), "unknown simulated device \"sim:nosuch\""),
+        (acquire_req("", 8000, 80, 10, 2), "device name is empty"),
         (with_format, "unknown sample format \"U8\""),
     ];
     for (r, want) in cases {
@@ -112,9 +110,9 @@ fn an_unknown_alsa_device_leaves_the_running_port_untouched_and_a_later_acquire_
     // Not a card reference: the device policy would refuse it before ALSA sees it.
     let b = Bassd::start(dir.path(), "default", &["--allow-device", "bass_no_such_pcm"], &[]);
     let mut c = b.client();
-    c.acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+    c.acquire(&acquire_req("sim:pattern", 8000, 80, 10, 2)).unwrap();
     let old = b.port();
-    let e = c.acquire(&req("bass_no_such_pcm", 8000, 80, 10, 2)).unwrap_err();
+    let e = c.acquire(&acquire_req("bass_no_such_pcm", 8000, 80, 10, 2)).unwrap_err();
     assert!(
         matches!(&e, Error::Broker(m) if m.contains("bass_no_such_pcm") && m.contains("the port is unchanged (epoch 1")
             && m.ends_with("[device]")),
@@ -125,7 +123,7 @@ fn an_unknown_alsa_device_leaves_the_running_port_untouched_and_a_later_acquire_
     assert_eq!(b.port().epoch(), 1);
     let s = c.status().unwrap();
     assert_eq!((s.state, s.error_code, s.epoch), (State::Capturing as u32, 0, 1));
-    assert_eq!(c.acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap().epoch, 2);
+    assert_eq!(c.acquire(&acquire_req("sim:pattern", 8000, 80, 10, 2)).unwrap().epoch, 2);
 }
 
 #[test]
@@ -164,8 +162,8 @@ fn two_named_brokers_coexist() {
     let dir = TempDir::new("named");
     let a = Bassd::start(dir.path(), "left", &[], &[]);
     let b = Bassd::start(dir.path(), "right", &[], &[]);
-    a.client().acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
-    b.client().acquire(&req("sim:silence", 16000, 160, 10, 1)).unwrap();
+    a.client().acquire(&acquire_req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+    b.client().acquire(&acquire_req("sim:silence", 16000, 160, 10, 1)).unwrap();
     let (pa, pb) = (a.port(), b.port());
     assert_ne!(a.port_path(), b.port_path());
     wait_frame(&pa, 160);
@@ -187,14 +185,14 @@ fn a_second_bassd_with_the_same_name_refuses_to_start() {
     assert!(err.contains("a broker named \"default\" is already running"), "{err}");
     assert!(err.contains(&format!("pid {}", first.pid())), "{err}");
     // The first one is unaffected.
-    assert_eq!(first.client().status().unwrap().broker_pid, first.pid() as u32);
+    assert_eq!(first.client().status().unwrap().broker_pid, first.pid());
 }
 
 #[test]
 fn a_killed_brokers_socket_and_port_are_replaced_safely() {
     let dir = TempDir::new("stale");
     let mut b = Bassd::start(dir.path(), "default", &[], &[]);
-    b.client().acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+    b.client().acquire(&acquire_req("sim:pattern", 8000, 80, 10, 2)).unwrap();
     let port = b.port();
     wait_frame(&port, 80);
     b.signal(libc::SIGKILL);
@@ -204,7 +202,7 @@ fn a_killed_brokers_socket_and_port_are_replaced_safely() {
     assert!(matches!(b.try_client(), Err(Error::NoBroker { .. })));
     let b2 = Bassd::start(dir.path(), "default", &[], &[]);
     assert!(b2.log_text().contains("stale control socket"), "{}", b2.log_text());
-    let a = b2.client().acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+    let a = b2.client().acquire(&acquire_req("sim:pattern", 8000, 80, 10, 2)).unwrap();
     assert_eq!(a.epoch, 2, "the epoch continues from the dead broker's port");
     let p2 = b2.port();
     wait_frame(&p2, 80);
@@ -216,7 +214,7 @@ fn sigterm_stops_the_capture_marks_the_port_stopped_and_removes_the_socket() {
     for sig in [libc::SIGTERM, libc::SIGINT] {
         let dir = TempDir::new("sigterm");
         let mut b = Bassd::start(dir.path(), "default", &[], &[]);
-        b.client().acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+        b.client().acquire(&acquire_req("sim:pattern", 8000, 80, 10, 2)).unwrap();
         let port = b.port();
         wait_frame(&port, 80);
         let waiter = std::thread::spawn({
@@ -306,16 +304,22 @@ fn operator_bounds_refuse_a_starving_request_until_widened() {
     let dir = TempDir::new("bounds");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
     let mut c = b.client();
-    c.acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+    c.acquire(&acquire_req("sim:pattern", 8000, 80, 10, 2)).unwrap();
     let cases = [
         (
-            req("sim:pattern", 768_000, 1, 4096, 64),
+            acquire_req("sim:pattern", 768_000, 1, 4096, 64),
             "above this broker's limit of 192000 Hz (bassd --max-rate)",
         ),
-        (req("sim:pattern", 192_000, 1, 4096, 64), "above this broker's limit of 32 (bassd --max-channels)"),
-        (req("sim:pattern", 192_000, 1, 4096, 2), "minimum chunk duration of 500 µs (bassd --min-chunk-us)"),
         (
-            req("sim:pattern", 8000, 8000, 3601, 1),
+            acquire_req("sim:pattern", 192_000, 1, 4096, 64),
+            "above this broker's limit of 32 (bassd --max-channels)",
+        ),
+        (
+            acquire_req("sim:pattern", 192_000, 1, 4096, 2),
+            "minimum chunk duration of 500 µs (bassd --min-chunk-us)",
+        ),
+        (
+            acquire_req("sim:pattern", 8000, 8000, 3601, 1),
             "above this broker's limit of 3600 s (bassd --max-window-s)",
         ),
     ];
@@ -329,7 +333,7 @@ fn operator_bounds_refuse_a_starving_request_until_widened() {
     let wide = ["--max-rate", "768000", "--max-channels", "64", "--min-chunk-us", "0"];
     let b = Bassd::start(dir.path(), "wide", &wide, &[]);
     let mut c = b.client();
-    let a = c.acquire(&req("sim:pattern", 768_000, 1, 4096, 64)).unwrap();
+    let a = c.acquire(&acquire_req("sim:pattern", 768_000, 1, 4096, 64)).unwrap();
     assert_eq!(a.epoch, 1);
     c.stop().unwrap();
 }
@@ -357,5 +361,5 @@ fn idle_control_connections_are_closed_and_clients_reconnect() {
     assert!(closed);
     // `c` was idle as long: its next request goes through a fresh connection.
     assert_eq!(c.status().unwrap().state, State::Idle as u32);
-    assert_eq!(c.acquire(&req("sim:pattern", 8000, 80, 10, 2)).unwrap().epoch, 1);
+    assert_eq!(c.acquire(&acquire_req("sim:pattern", 8000, 80, 10, 2)).unwrap().epoch, 1);
 }

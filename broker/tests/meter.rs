@@ -1,11 +1,9 @@
 //! `bass meter` against a real bassd: redrawn in place under a pseudo-terminal (util-linux
 //! `script`), one JSON object per update, 1 to 64 channels.
 
-mod common;
-
 use std::process::{Command, Output};
 
-use common::*;
+use bass_test_support::*;
 use serde_json::Value;
 
 fn meter(b: &Bassd, args: &[&str]) -> Output {
@@ -21,7 +19,7 @@ fn meter(b: &Bassd, args: &[&str]) -> Output {
 fn the_meter_redraws_in_place_on_a_terminal() {
     let dir = TempDir::new("meter-pty");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
-    b.client().acquire(&req("sim:sine", 8000, 80, 100, 2)).unwrap();
+    b.client().acquire(&acquire_req("sim:sine", 8000, 80, 100, 2)).unwrap();
     let cmd = format!("{} --name default meter -n 4 -i 0.1", bass_bin());
     let o = Command::new("script")
         .args(["-qec", &cmd, "/dev/null"])
@@ -46,7 +44,7 @@ fn the_meter_prints_one_json_object_per_update_for_1_to_64_channels() {
     // 64 channels are above the broker's default bound (32): the operator widens it.
     let b = Bassd::start(dir.path(), "default", &["--max-channels", "64"], &[]);
     for ch in [1u32, 2, 64] {
-        b.client().acquire(&req("sim:sine", 8000, 80, 100, ch)).unwrap();
+        b.client().acquire(&acquire_req("sim:sine", 8000, 80, 100, ch)).unwrap();
         let o = meter(&b, &["--json", "-n", "3", "-i", "0.05"]);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         let ups: Vec<Value> =

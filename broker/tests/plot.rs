@@ -1,11 +1,9 @@
 //! `bass plot` against a real bassd: a PNG of a recording with its gaps shaded, and of the
 //! live port.
 
-mod common;
-
 use std::path::Path;
 
-use common::*;
+use bass_test_support::*;
 
 /// (width, height, RGB pixels) of a PNG.
 fn png(path: &Path) -> (u32, u32, Vec<u8>) {
@@ -21,7 +19,7 @@ fn png(path: &Path) -> (u32, u32, Vec<u8>) {
 fn a_recording_is_plotted_with_its_gaps_shaded() {
     let dir = TempDir::new("plot");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
-    b.client().acquire(&req("sim:xrun", 8000, 100, 200, 2)).unwrap();
+    b.client().acquire(&acquire_req("sim:xrun", 8000, 100, 200, 2)).unwrap();
     let wav = dir.path().join("x.wav");
     let o = bass(&b, &["record", wav.to_str().unwrap(), "--from", "1", "--frames", "12000", "-q"]);
     assert!(o.status.success());

@@ -2,17 +2,15 @@
 //! back through the port is bit-exact at the same frame indices; the sidecar's GAP chunks come
 //! back as GAP chunks; a rate or channel mismatch is refused; `--loop` starts again.
 //!
-//! Brokers come from `Bassd::start_replaying` (tests/common): the one place that gives a
+//! Brokers come from `Bassd::start_replaying` (bass-test-support): the one place that gives a
 //! broker the right to open files from the test directory once a device policy exists.
-
-mod common;
 
 use std::path::Path;
 
+use bass_test_support::*;
 use bassclient::format::{chunk_flags, error_code, State};
 use bassclient::testsignal::pattern_sample;
 use bassclient::Error;
-use common::*;
 
 fn wav_channels(path: &Path) -> Vec<Vec<i32>> {
     let mut r = hound::WavReader::open(path).unwrap();
@@ -26,7 +24,7 @@ fn wav_channels(path: &Path) -> Vec<Vec<i32>> {
 
 /// Records `frames` frames of `device` from frame 1 into DIR/NAME.
 fn record(b: &Bassd, device: &str, nfpc: u32, frames: u64, file: &str) -> std::path::PathBuf {
-    b.client().acquire(&req(device, 8000, nfpc, 200, 2)).unwrap();
+    b.client().acquire(&acquire_req(device, 8000, nfpc, 200, 2)).unwrap();
     let wav = b.dir.join(file);
     let o = bass(b, &["record", wav.to_str().unwrap(), "--from", "1", "--frames", &frames.to_string(), "-q"]);
     assert_eq!(o.status.code(), Some(0), "{}", text(&o));
@@ -73,7 +71,7 @@ fn the_gaps_of_a_recording_are_replayed_as_gaps() {
     let wav = record(&b, "sim:xrun", 100, 9000, "x.wav");
     let rec = wav_channels(&wav);
     let dev = format!("sim:file:{}", wav.display());
-    b.client().acquire(&req(&dev, 8000, 100, 200, 2)).unwrap();
+    b.client().acquire(&acquire_req(&dev, 8000, 100, 200, 2)).unwrap();
     let port = b.port();
     wait_frame(&port, 9000);
     let got = read_frames(&port, 1, 9000);

@@ -1,18 +1,16 @@
 //! The simulated devices through a real bassd and the port: exact contents, frame indices,
 //! timestamps, overrun gap filling, the stall watchdog and device loss.
 
-mod common;
-
+use bass_test_support::*;
 use bassclient::format::{chunk_flags, error_code, State};
 use bassclient::testsignal::pattern_sample;
 use bassclient::Error;
-use common::*;
 
 #[test]
 fn pattern_frames_arrive_exactly_with_nominal_timestamps() {
     let dir = TempDir::new("pattern");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
-    let a = b.client().acquire(&req("sim:pattern", 48000, 480, 50, 2)).unwrap();
+    let a = b.client().acquire(&acquire_req("sim:pattern", 48000, 480, 50, 2)).unwrap();
     assert_eq!((a.epoch, a.format.as_str()), (1, "S32_LE"));
     let port = b.port();
     assert_eq!(port.epoch(), 1);
@@ -45,7 +43,7 @@ fn any_rate_chunk_size_and_channel_count_is_accepted() {
     let b = Bassd::start(dir.path(), "default", &[], &[]);
     let mut c = b.client();
     for (rate, nfpc, ncop, ch) in [(8000, 100, 7, 1), (11025, 37, 3, 5), (96000, 960, 4, 2)] {
-        c.acquire(&req("sim:pattern", rate, nfpc, ncop, ch)).unwrap();
+        c.acquire(&acquire_req("sim:pattern", rate, nfpc, ncop, ch)).unwrap();
         let port = b.port();
         let g = port.geometry().clone();
         assert_eq!((g.sample_rate, g.frames_per_chunk, g.chunks_on_port, g.channels), (rate, nfpc, ncop, ch));
@@ -65,7 +63,7 @@ fn any_rate_chunk_size_and_channel_count_is_accepted() {
 fn sine_device_has_distinct_tones_on_left_and_right() {
     let dir = TempDir::new("sine");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
-    b.client().acquire(&req("sim:sine", 48000, 4800, 10, 2)).unwrap();
+    b.client().acquire(&acquire_req("sim:sine", 48000, 4800, 10, 2)).unwrap();
     let port = b.port();
     wait_frame(&port, 4800);
     let d = read_frames(&port, 1, 4800);
@@ -82,7 +80,7 @@ fn overruns_are_zero_filled_so_frame_index_stays_proportional_to_time() {
     // sim:xrun at 8000 Hz loses 8000/20 + 7 = 407 frames after every 4000 delivered frames.
     let dir = TempDir::new("xrun");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
-    b.client().acquire(&req("sim:xrun", 8000, 100, 100, 2)).unwrap();
+    b.client().acquire(&acquire_req("sim:xrun", 8000, 100, 100, 2)).unwrap();
     let port = b.port();
     wait_frame(&port, 9000);
     let d = read_frames(&port, 1, 9000);
@@ -113,7 +111,7 @@ fn a_stalled_device_ends_in_error_for_a_waiting_reader_and_a_new_acquire_works()
     let dir = TempDir::new("stall");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
     let mut c = b.client();
-    c.acquire(&req("sim:stall", 8000, 100, 100, 2)).unwrap();
+    c.acquire(&acquire_req("sim:stall", 8000, 100, 100, 2)).unwrap();
     let port = b.port();
     // The device delivers 4000 frames, then nothing: the waiting reader is woken with an error.
     match port.wait(1_000_000, PATIENCE) {
@@ -130,7 +128,7 @@ fn a_stalled_device_ends_in_error_for_a_waiting_reader_and_a_new_acquire_works()
     let s = c.status().unwrap();
     assert_eq!((s.state, s.error_code), (State::Error as u32, error_code::DEVICE_STALLED));
     // A later Acquire works: new epoch; the old port says so.
-    let a = c.acquire(&req("sim:pattern", 8000, 100, 100, 2)).unwrap();
+    let a = c.acquire(&acquire_req("sim:pattern", 8000, 100, 100, 2)).unwrap();
     assert_eq!(a.epoch, 2);
     assert!(matches!(port.wait(1_000_000, PATIENCE), Err(Error::Restarted)));
     let port2 = b.port();
@@ -142,7 +140,7 @@ fn a_stalled_device_ends_in_error_for_a_waiting_reader_and_a_new_acquire_works()
 fn an_unplugged_device_ends_in_device_lost() {
     let dir = TempDir::new("unplug");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
-    b.client().acquire(&req("sim:unplug", 8000, 100, 100, 2)).unwrap();
+    b.client().acquire(&acquire_req("sim:unplug", 8000, 100, 100, 2)).unwrap();
     let port = b.port();
     match port.wait(1_000_000, PATIENCE) {
         Err(Error::Device { code, message }) => {
@@ -158,7 +156,7 @@ fn an_unplugged_device_ends_in_device_lost() {
 fn the_rate_estimate_is_published() {
     let dir = TempDir::new("rate");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
-    b.client().acquire(&req("sim:silence", 48000, 480, 100, 2)).unwrap();
+    b.client().acquire(&acquire_req("sim:silence", 48000, 480, 100, 2)).unwrap();
     let port = b.port();
     wait_frame(&port, 9600);
     // Only that it is there and plausible; its accuracy is measured, not tested (docs/broker.md).
@@ -173,7 +171,7 @@ fn the_rate_estimate_is_published() {
 fn a_device_that_falls_behind_flags_its_catch_up_chunks_late() {
     let dir = TempDir::new("late");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
-    b.client().acquire(&req("sim:pattern", 48000, 480, 400, 2)).unwrap();
+    b.client().acquire(&acquire_req("sim:pattern", 48000, 480, 400, 2)).unwrap();
     let port = b.port();
     let before = wait_frame(&port, 4800);
     b.signal(libc::SIGSTOP);
@@ -216,7 +214,7 @@ fn a_device_that_falls_behind_flags_its_catch_up_chunks_late() {
 fn injected_late_stamps_keep_the_published_rate_estimate_within_20_ppm() {
     let dir = TempDir::new("latestamps");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
-    b.client().acquire(&req("sim:latestamps", 48000, 32, 6000, 2)).unwrap();
+    b.client().acquire(&acquire_req("sim:latestamps", 48000, 32, 6000, 2)).unwrap();
     let port = b.port();
     let mut worst: f64 = 0.0;
     // Device seconds 4..8.5: across the stall at 6..6.5 s and 2 s after it.

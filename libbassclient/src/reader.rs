@@ -5,6 +5,7 @@
 //! one `Port` may be shared by any number of threads.
 
 use std::fs::{File, OpenOptions};
+use std::os::fd::{AsFd, OwnedFd};
 use std::os::unix::fs::{MetadataExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{fence, Ordering::Acquire, Ordering::Relaxed};
@@ -12,6 +13,7 @@ use std::time::{Duration, Instant};
 
 use crate::error::{Error, Result};
 use crate::format::{self, Geometry, Header, Layout, State};
+use crate::memfd;
 use crate::paths;
 use crate::ring::{ChannelRing, Plan, Ring};
 use crate::shm::Mapping;
@@ -48,6 +50,8 @@ pub struct Port {
     layout: Layout,
     epoch: u64,
     version_minor: u32,
+    /// The size is sealed (a memfd port): no per-call size check.
+    sealed: bool,
 }
 
 /// Result of one `getAudioData` call.
@@ -133,9 +137,40 @@ impl Port {
     /// the reader trusts ([`paths::expected_port_owners`]: root or the reader itself, or
     /// `$BASS_BROKER_UID`), else [`Error::WrongOwner`]: a port name in a directory others can
     /// write may have been taken by an impostor.
+    ///
+    /// When there is no port file of that name (a broker running with `--port-backing
+    /// memfd`), the broker `name` is asked for its port's descriptor over its control socket
+    /// (`open-port`, see docs/control-protocol.md); a broker that answers with a plain file,
+    /// an older broker, or none at all leaves the path's answer (usually `NotFound`).
     pub fn open(name: &str) -> Result<Port> {
         let path = paths::port_path(name)?;
-        Port::open_path_named(&path, name, Some(&paths::expected_port_owners()?))
+        let by_path = Port::open_path_named(&path, name, Some(&paths::expected_port_owners()?));
+        if !matches!(by_path, Err(Error::NotFound { .. })) {
+            return by_path;
+        }
+        match crate::control::client::port_from_broker(name) {
+            Ok(Some(port)) => Ok(port),
+            // The broker refused this client: say so rather than "no port".
+            Err(e @ Error::Broker(_)) => Err(e),
+            Ok(None) | Err(_) => by_path,
+        }
+    }
+
+    /// Maps the port held by `fd` (a descriptor handed over by a broker, or any open port
+    /// file), validated exactly like a port opened by path; `name` is used in messages.
+    ///
+    /// If the descriptor's size is sealed (`F_SEAL_SHRINK | F_SEAL_GROW`: a memfd port), the
+    /// size is checked once here and never again; otherwise it is treated like a file and
+    /// checked before every access.
+    pub fn from_fd(fd: OwnedFd, name: &str) -> Result<Port> {
+        let sealed = memfd::size_sealed(fd.as_fd());
+        let file = File::from(fd);
+        let meta = file.metadata().map_err(|e| Error::io("fstat of the port descriptor", e))?;
+        if !meta.file_type().is_file() {
+            return Err(Error::Corrupt(format!("the descriptor for port {name} is not a regular file")));
+        }
+        let path = paths::port_path(name).unwrap_or_else(|_| PathBuf::from(name));
+        Port::map(file, &path, &meta, sealed)
     }
 
     /// Opens the port file at `path` (the caller chose the file: its owner is not checked).
@@ -172,13 +207,19 @@ impl Port {
                 });
             }
         }
+        // A port file is never treated as sealed (a file system's files cannot carry seals).
+        Port::map(file, path, &meta, false)
+    }
+
+    /// Maps `file` (`meta` its fstat) and validates the header against its length.
+    fn map(file: File, path: &Path, meta: &std::fs::Metadata, sealed: bool) -> Result<Port> {
         let len = meta.len();
         if len == 0 {
             return Err(Error::Corrupt(format!("{} is empty", path.display())));
         }
         let mapping = Mapping::new(&file, len, false)?;
         let v = match format::validate(mapping.header(), len) {
-            Err(Error::NotReady) => return Err(not_ready(path, &meta)),
+            Err(Error::NotReady) => return Err(not_ready(path, meta)),
             other => other?,
         };
         let epoch = mapping.header().epoch.load(Relaxed);
@@ -190,7 +231,13 @@ impl Port {
             layout: v.layout,
             epoch,
             version_minor: v.version_minor,
+            sealed,
         })
+    }
+
+    /// Whether the port's size is sealed (a memfd port): reads skip the size check.
+    pub fn size_sealed(&self) -> bool {
+        self.sealed
     }
 
     /// Path of the port file.
@@ -238,8 +285,12 @@ impl Port {
     }
 
     /// Guards every size-dependent access: a port file shrunk under our mapping would
-    /// raise SIGBUS on access, so refuse before touching it.
+    /// raise SIGBUS on access, so refuse before touching it. A sealed port cannot shrink
+    /// (its size was checked against the header when it was mapped): nothing to do.
     fn check_size(&self) -> Result<()> {
+        if self.sealed {
+            return Ok(());
+        }
         let len = self.file.metadata().map_err(|e| Error::io("fstat of the port file", e))?.len();
         if len < self.layout.total_size {
             return Err(Error::Corrupt(format!(

@@ -1,4 +1,5 @@
-//! The port writer: creates a port file and publishes chunks into it.
+//! The port writer: creates a port (a file in the runtime directory, or a sealed memfd, see
+//! [`crate::memfd`]) and publishes chunks into it.
 //!
 //! Used by the broker, and through the C ABI by simulators and test rigs.
 
@@ -10,6 +11,7 @@ use std::sync::Arc;
 
 use crate::error::{Error, Result};
 use crate::format::{self, ChunkEntry, Geometry, Header, Layout, State};
+use crate::memfd;
 use crate::paths;
 use crate::portfile;
 use crate::ring::{Ring, Source};
@@ -39,11 +41,25 @@ pub struct ChunkMeta {
     pub flags: u32,
 }
 
+/// What holds a port's memory.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Backing {
+    /// A file in the runtime directory: readers open it by path; it outlives its writer, so
+    /// the last window can be read after a broker crash. Readers check its size on every
+    /// call (a shrunk file would kill them with SIGBUS).
+    File,
+    /// A sealed memfd (see [`crate::memfd`]): no path; readers get a descriptor from the
+    /// broker; its size cannot change, so readers skip the size check; it lives only while
+    /// a writer or a reader holds it.
+    Memfd,
+}
+
 /// Writes one port. One writer per port; not shareable between threads without a lock.
 pub struct Writer {
     mapping: Arc<Mapping>,
     waker: Waker,
-    _file: File,
+    file: File,
+    backing: Backing,
     path: PathBuf,
     geometry: Geometry,
     layout: Layout,
@@ -93,10 +109,7 @@ impl Writer {
         portfile::check_space(&dir, &dir_path, layout.total_size)?;
         let (tmp_name, file) = portfile::create_temp(&dir, &dir_path, &name)?;
         let mut pending = PendingPort {
-            dir,
-            dir_path,
-            name,
-            tmp_name: Some(tmp_name),
+            place: Place::File { dir, dir_path, name, tmp_name: Some(tmp_name) },
             path: path.to_owned(),
             file,
             mapping: None,
@@ -108,9 +121,60 @@ impl Writer {
         Ok(pending)
     }
 
-    /// Path of the port file.
+    /// Builds the port `name` as a sealed memfd (see [`crate::memfd`]) without publishing it.
+    ///
+    /// Nothing is created in the runtime directory. The epoch continues from
+    /// `previous_epoch` (the port of the same name this one replaces, which the caller holds
+    /// and marks superseded) or from a port file of that name left there, whichever is
+    /// newer; [`PendingPort::commit`] marks such a left-over file superseded and removes it,
+    /// so that no reader opening the name by path finds a port that will never move again.
+    pub fn prepare_memfd(
+        name: &str,
+        params: &PortParams,
+        previous_epoch: Option<u64>,
+    ) -> Result<PendingPort> {
+        let path = paths::port_path(name)?;
+        let geometry = params.geometry.clone();
+        let layout = geometry.layout()?;
+        let dir_path = path.parent().map(Path::to_owned).unwrap_or_else(|| PathBuf::from("."));
+        // A left-over port file (of a file-backed run): only looked at, replaced at commit.
+        let dir = portfile::open_dir(&dir_path).ok();
+        let previous = match &dir {
+            Some(d) => Previous::inspect(d, &format!("bass-{name}.port"), &path)?,
+            None => None,
+        };
+        let file = memfd::create(name, layout.total_size)?;
+        let mut pending = PendingPort {
+            place: Place::Memfd { dir, name: format!("bass-{name}.port"), previous_epoch },
+            path,
+            file,
+            mapping: None,
+            geometry,
+            layout,
+            previous,
+        };
+        pending.build(params)?;
+        Ok(pending)
+    }
+
+    /// Path of the port file (for a memfd port: the path a file port of that name would
+    /// have; nothing is there).
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// What holds the port's memory.
+    pub fn backing(&self) -> Backing {
+        self.backing
+    }
+
+    /// For a memfd port, a new read-only descriptor of it for one reader (see
+    /// [`memfd::reopen_read_only`]); None for a file port (readers open its path).
+    pub fn reader_fd(&self) -> Result<Option<OwnedFd>> {
+        match self.backing {
+            Backing::File => Ok(None),
+            Backing::Memfd => memfd::reopen_read_only(&self.file).map(Some),
+        }
     }
 
     /// The port's geometry.
@@ -261,20 +325,29 @@ impl Writer {
         Some(old)
     }
 
-    /// Stops and removes the port file (readers that have it mapped keep their view).
+    /// Stops and removes the port file (readers that have it mapped keep their view). A
+    /// memfd port has no file: it is only stopped, and goes when its last holder closes it.
     pub fn remove(self) -> Result<()> {
         self.stop();
+        if self.backing == Backing::Memfd {
+            return Ok(());
+        }
         std::fs::remove_file(&self.path).map_err(|e| Error::io(format!("remove {}", self.path.display()), e))
     }
+}
+
+/// Where a pending port lives until it is committed.
+enum Place {
+    /// A file built under a temporary name in `dir`, renamed to `name` by the commit.
+    File { dir: OwnedFd, dir_path: PathBuf, name: String, tmp_name: Option<String> },
+    /// A sealed memfd; a left-over port file `name` in `dir` (if any) is removed by the commit.
+    Memfd { dir: Option<OwnedFd>, name: String, previous_epoch: Option<u64> },
 }
 
 /// A port built by [`Writer::prepare_at`] but not yet in place: its file exists only under a
 /// temporary name, which is removed if the pending port is dropped.
 pub struct PendingPort {
-    dir: OwnedFd,
-    dir_path: PathBuf,
-    name: String,
-    tmp_name: Option<String>,
+    place: Place,
     path: PathBuf,
     file: File,
     mapping: Option<Mapping>,
@@ -285,10 +358,17 @@ pub struct PendingPort {
 
 impl PendingPort {
     fn build(&mut self, params: &PortParams) -> Result<()> {
-        portfile::set_mode_group(&self.file, params.group)?;
-        portfile::allocate(&self.file, &self.dir_path, self.layout.total_size)?;
+        if let Place::File { dir_path, .. } = &self.place {
+            portfile::set_mode_group(&self.file, params.group)?;
+            portfile::allocate(&self.file, dir_path, self.layout.total_size)?;
+        }
         let mapping = Mapping::new(&self.file, self.layout.total_size, true)?;
         init_header(mapping.header(), &self.geometry, &self.layout, &params.device);
+        if matches!(self.place, Place::Memfd { .. }) {
+            // Allocated (memfd::create) and mapped writable: from here on its size is final
+            // and nobody gains write access to it.
+            memfd::seal(&self.file)?;
+        }
         self.mapping = Some(mapping);
         Ok(())
     }
@@ -300,7 +380,11 @@ impl PendingPort {
 
     /// The epoch of the port this one replaces, if any.
     pub fn previous_epoch(&self) -> Option<u64> {
-        self.previous.as_ref().map(|p| p.epoch)
+        let from_file = self.previous.as_ref().map(|p| p.epoch);
+        match &self.place {
+            Place::Memfd { previous_epoch: Some(e), .. } => Some(from_file.map_or(*e, |f| f.max(*e))),
+            _ => from_file,
+        }
     }
 
     /// Publishes the port: epoch (the previous port's + 1), writer, version last, then the
@@ -308,16 +392,27 @@ impl PendingPort {
     /// window).
     pub fn commit(mut self) -> Result<Writer> {
         let mapping = self.mapping.take().ok_or_else(|| Error::InvalidArgument("port not built".into()))?;
-        let epoch = self.previous.as_ref().map_or(1, |p| p.epoch + 1);
+        let epoch = self.previous_epoch().map_or(1, |e| e + 1);
         finish_header(mapping.header(), epoch);
-        let tmp = self.tmp_name.take().unwrap_or_default();
-        if let Err(e) = rustix::fs::renameat(&self.dir, tmp.as_str(), &self.dir, self.name.as_str()) {
-            let _ = rustix::fs::unlinkat(&self.dir, tmp.as_str(), rustix::fs::AtFlags::empty());
-            return Err(Error::io(
-                format!("rename {tmp} to {} in {}", self.name, self.dir_path.display()),
-                e.into(),
-            ));
-        }
+        let backing = match &mut self.place {
+            Place::File { dir, dir_path, name, tmp_name } => {
+                let tmp = tmp_name.take().unwrap_or_default();
+                if let Err(e) = rustix::fs::renameat(&*dir, tmp.as_str(), &*dir, name.as_str()) {
+                    let _ = rustix::fs::unlinkat(&*dir, tmp.as_str(), rustix::fs::AtFlags::empty());
+                    return Err(Error::io(
+                        format!("rename {tmp} to {name} in {}", dir_path.display()),
+                        e.into(),
+                    ));
+                }
+                Backing::File
+            }
+            Place::Memfd { dir, name, .. } => {
+                if let (Some(dir), Some(_)) = (dir.as_ref(), self.previous.as_ref()) {
+                    let _ = rustix::fs::unlinkat(dir, name.as_str(), rustix::fs::AtFlags::empty());
+                }
+                Backing::Memfd
+            }
+        };
         if let Some(p) = self.previous.take() {
             p.supersede();
         }
@@ -327,7 +422,8 @@ impl PendingPort {
         Ok(Writer {
             mapping,
             waker,
-            _file: file,
+            file,
+            backing,
             path: self.path.clone(),
             geometry: self.geometry.clone(),
             layout: self.layout,
@@ -338,8 +434,10 @@ impl PendingPort {
 
 impl Drop for PendingPort {
     fn drop(&mut self) {
-        if let Some(tmp) = self.tmp_name.take() {
-            let _ = rustix::fs::unlinkat(&self.dir, tmp.as_str(), rustix::fs::AtFlags::empty());
+        if let Place::File { dir, tmp_name, .. } = &mut self.place {
+            if let Some(tmp) = tmp_name.take() {
+                let _ = rustix::fs::unlinkat(&*dir, tmp.as_str(), rustix::fs::AtFlags::empty());
+            }
         }
     }
 }

@@ -36,7 +36,7 @@ fn replay(vectors: &str, port_name: &str) -> String {
                 channels = g[0] as usize;
                 // SAFETY: valid C strings and out pointers.
                 check("bass_writer_create", unsafe {
-                    bass_writer_create(name.as_ptr(), device.as_ptr(), g[0], g[1], g[2], g[3], &mut writer)
+                    bass_writer_create(name.as_ptr(), device.as_ptr(), g[1], g[2], g[3], g[0], &mut writer)
                 });
                 // SAFETY: valid C string and out pointer.
                 check("bass_port_open", unsafe { bass_port_open(name.as_ptr(), &mut port) });

@@ -47,6 +47,16 @@ fn every_documented_message_round_trips_through_the_codec() {
         assert_eq!(again, written, "doc line {line}: the codec writes this message differently");
     }
     assert!(requests >= 5 && replies >= 6, "{requests} requests, {replies} replies");
+    // Every request and every kind of reply is shown at least once.
+    for kind in [
+        r#""request": "open-port""#,
+        r#""reply": "port-fd""#,
+        r#""reply": "port-file""#,
+        r#""request": "acquire""#,
+        r#""reply": "acquired""#,
+    ] {
+        assert!(examples.iter().any(|(_, b)| b.contains(kind)), "no example of {kind} in the doc");
+    }
 }
 
 #[test]

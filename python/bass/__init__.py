@@ -288,18 +288,18 @@ class Port:
 class Writer:
     """A port writer (for simulators and test rigs; the broker is the writer in production)."""
 
-    def __init__(self, name, channels=2, sample_rate=44100, frames_per_chunk=2205, chunks_on_port=20,
+    def __init__(self, name, sample_rate=44100, frames_per_chunk=2205, chunks_on_port=20, channels=2,
                  device="python"):
         self._h = None
         h = ctypes.c_void_p()
         if name is None:
             raise TypeError("name must be a str")
-        channels = _uint(channels, "channels", "uint32_t")
         sample_rate = _uint(sample_rate, "sample_rate", "uint32_t")
         frames_per_chunk = _uint(frames_per_chunk, "frames_per_chunk", "uint32_t")
         chunks_on_port = _uint(chunks_on_port, "chunks_on_port", "uint32_t")
+        channels = _uint(channels, "channels", "uint32_t")
         _check("bass_writer_create", lib.bass_writer_create(
-            _bytes(name), _bytes(device, "device"), channels, sample_rate, frames_per_chunk, chunks_on_port,
+            _bytes(name), _bytes(device, "device"), sample_rate, frames_per_chunk, chunks_on_port, channels,
             ctypes.byref(h)))
         self._h = h
         self.channels, self.frames_per_chunk = channels, frames_per_chunk

@@ -136,6 +136,7 @@ _SIGNATURES = {
     ),
     "bass_port_get_info": (c_int, [_P, POINTER(PortInfo)]),
     "bass_port_wait": (c_int, [_P, c_uint64, c_uint32, POINTER(c_uint64)]),
+    # name, device, sample_rate, frames_per_chunk, chunks_on_port, channels, out_writer
     "bass_writer_create": (c_int, [c_char_p, c_char_p, c_uint32, c_uint32, c_uint32, c_uint32, POINTER(_P)]),
     "bass_writer_publish_interleaved": (c_int, [_P, _I32P, c_size_t, POINTER(ChunkMeta), POINTER(c_uint64)]),
     "bass_writer_publish_planar": (

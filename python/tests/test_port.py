@@ -27,6 +27,23 @@ def test_fresh_port_reads_the_zero_frame_then_nothing():
         assert port.get_audio_data(5, 1).n == 0
 
 
+@pytest.mark.parametrize("positional", [False, True])
+def test_writer_geometry_reaches_the_port_in_acquires_order(positional):
+    # sample_rate, frames_per_chunk, chunks_on_port, channels: the order of bass.acquire and of
+    # bass_writer_create; four distinct values, so a swap anywhere on the way shows.
+    geometry = dict(sample_rate=22050, frames_per_chunk=5, chunks_on_port=7, channels=3)
+    w = bass.Writer("g", *geometry.values()) if positional else bass.Writer("g", **geometry)
+    with w, bass.Port("g") as port:
+        i = port.info()
+        assert {k: i[k] for k in geometry} == geometry
+        assert i["frames_on_port"] == 35
+        chunk = pattern_chunk(1, 5, channels=3)
+        w.publish(chunk)
+        x, nfr, n, loss = port.get_audio_data_multi(5, 1)
+        assert (n, nfr, loss) == (5, 6, 0)
+        assert x.T.tolist() == chunk.tolist()
+
+
 def test_get_audio_data_returns_int32_columns_of_the_published_frames():
     with bass.Writer("p", frames_per_chunk=4, chunks_on_port=3) as w, bass.Port("p") as port:
         publish_chunks(w, 0, 2, 4)

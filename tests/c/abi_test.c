@@ -91,8 +91,8 @@ static void test_null_arguments(bass_port *port, bass_writer *w) {
     EXPECT(bass_port_view(port, 4, &nfr, NULL), BASS_ERR_NULL_ARGUMENT);
     EXPECT(bass_port_view_channel(port, NULL, 0, &s0, &s1), BASS_ERR_NULL_ARGUMENT);
     EXPECT(bass_port_view_check(port, NULL, &loss), BASS_ERR_NULL_ARGUMENT);
-    EXPECT(bass_writer_create(NULL, NULL, 2, 48000, 4, 3, &w), BASS_ERR_NULL_ARGUMENT);
-    EXPECT(bass_writer_create("x", NULL, 2, 48000, 4, 3, NULL), BASS_ERR_NULL_ARGUMENT);
+    EXPECT(bass_writer_create(NULL, NULL, 48000, 4, 3, 2, &w), BASS_ERR_NULL_ARGUMENT);
+    EXPECT(bass_writer_create("x", NULL, 48000, 4, 3, 2, NULL), BASS_ERR_NULL_ARGUMENT);
     EXPECT(bass_writer_publish_interleaved(w, NULL, 8, NULL, NULL), BASS_ERR_NULL_ARGUMENT);
     EXPECT(bass_writer_publish_interleaved(NULL, l, 8, NULL, NULL), BASS_ERR_NULL_ARGUMENT);
     EXPECT(bass_writer_publish_planar(w, NULL, 2, 4, NULL, NULL), BASS_ERR_NULL_ARGUMENT);
@@ -312,6 +312,47 @@ static void test_bad_files(void) {
     CHECK(p == NULL);
 }
 
+/* bass_writer_create takes the geometry in bass_acquire's order: sample rate, nFramesPerChunk,
+ * nChunksOnPort, channels. All four are uint32_t, so a call in another order compiles; four
+ * distinct values read back through bass_port_get_info (and the shape of the data) catch it. */
+static void test_writer_create_geometry_order(void) {
+    enum { RATE = 22050, G_NFPC = 5, G_NCOP = 7, G_CH = 3 };
+    bass_writer *w = NULL;
+    bass_port *p = NULL;
+    EXPECT(bass_writer_create("geometry", "geometry-order", RATE, G_NFPC, G_NCOP, G_CH, &w), BASS_OK);
+    EXPECT(bass_port_open("geometry", &p), BASS_OK);
+    if (!w || !p) {
+        bass_writer_close(w);
+        return;
+    }
+    bass_port_info info;
+    EXPECT(bass_port_get_info(p, &info), BASS_OK);
+    CHECK(info.sample_rate == RATE);
+    CHECK(info.frames_per_chunk == G_NFPC);
+    CHECK(info.chunks_on_port == G_NCOP);
+    CHECK(info.channels == G_CH);
+    CHECK(info.frames_on_port == (uint64_t)G_NFPC * G_NCOP);
+
+    /* One chunk of G_NFPC frames × G_CH channels is accepted, and reads back channel by channel. */
+    int32_t chunk[G_NFPC * G_CH];
+    for (unsigned f = 0; f < G_NFPC; f++)
+        for (unsigned c = 0; c < G_CH; c++) chunk[f * G_CH + c] = pattern(f + 1, c);
+    uint64_t lfi = 0;
+    EXPECT(bass_writer_publish_interleaved(w, chunk, G_NFPC * G_CH, NULL, &lfi), BASS_OK);
+    CHECK(lfi == G_NFPC);
+    int32_t out[G_CH][G_NFPC];
+    int32_t *chans[G_CH] = {out[0], out[1], out[2]};
+    uint64_t nfr = 1, loss = 9;
+    size_t n = 0;
+    EXPECT(bass_get_audio_data_multi(p, G_NFPC, &nfr, chans, G_CH, &n, &loss), BASS_OK);
+    CHECK(n == G_NFPC && loss == 0 && nfr == G_NFPC + 1);
+    for (unsigned c = 0; c < G_CH; c++)
+        for (unsigned f = 0; f < G_NFPC; f++) CHECK(out[c][f] == pattern(f + 1, c));
+
+    EXPECT(bass_port_close(p), BASS_OK);
+    EXPECT(bass_writer_close(w), BASS_OK);
+}
+
 static void test_handles(bass_port *port) {
     uint64_t nfr = 0, loss = 0;
     size_t n = 0;
@@ -340,12 +381,12 @@ int main(void) {
     test_errors_and_strings();
 
     bass_writer *w = NULL;
-    EXPECT(bass_writer_create("abi", "c-abi-test", CH, 48000, 0, NCOP, &w), BASS_ERR_INVALID_ARGUMENT);
+    EXPECT(bass_writer_create("abi", "c-abi-test", 48000, 0, NCOP, CH, &w), BASS_ERR_INVALID_ARGUMENT);
     CHECK(strstr(bass_last_error(), "nFramesPerChunk = 0") != NULL);
-    EXPECT(bass_writer_create("abi", "c-abi-test", 0, 48000, NFPC, NCOP, &w), BASS_ERR_INVALID_ARGUMENT);
-    EXPECT(bass_writer_create("abi", "c-abi-test", CH, 48000, 0xFFFFFFFFu, 0xFFFFFFFFu, &w),
+    EXPECT(bass_writer_create("abi", "c-abi-test", 48000, NFPC, NCOP, 0, &w), BASS_ERR_INVALID_ARGUMENT);
+    EXPECT(bass_writer_create("abi", "c-abi-test", 48000, 0xFFFFFFFFu, 0xFFFFFFFFu, CH, &w),
            BASS_ERR_INVALID_ARGUMENT);
-    EXPECT(bass_writer_create("abi", "c-abi-test", CH, 48000, NFPC, NCOP, &w), BASS_OK);
+    EXPECT(bass_writer_create("abi", "c-abi-test", 48000, NFPC, NCOP, CH, &w), BASS_OK);
     bass_port *port = NULL;
     EXPECT(bass_port_open("abi", &port), BASS_OK);
     if (!port || !w) {
@@ -363,6 +404,7 @@ int main(void) {
     test_threads_share_a_handle(port);
     test_bad_files();
     test_handles(port);
+    test_writer_create_geometry_order();
 
     EXPECT(bass_port_close(port), BASS_OK);
     EXPECT(bass_writer_close(w), BASS_OK);

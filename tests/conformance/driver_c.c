@@ -45,8 +45,8 @@ int main(int argc, char **argv) {
             unsigned long fpc = strtoul(strtok_r(NULL, " ", &save), NULL, 10);
             unsigned long cop = strtoul(strtok_r(NULL, " ", &save), NULL, 10);
             snprintf(port_name, sizeof port_name, "conf-c-%ld", (long)getpid());
-            bass_result r = bass_writer_create(port_name, "conformance", (uint32_t)channels, (uint32_t)rate,
-                                               (uint32_t)fpc, (uint32_t)cop, &w);
+            bass_result r = bass_writer_create(port_name, "conformance", (uint32_t)rate, (uint32_t)fpc,
+                                               (uint32_t)cop, (uint32_t)channels, &w);
             if (r) die("bass_writer_create", r);
             if ((r = bass_port_open(port_name, &p))) die("bass_port_open", r);
             printf("case %s %lu %lu %lu %lu\n", name, channels, rate, fpc, cop);

@@ -38,7 +38,7 @@ int main(int argc, char **argv) {
                 std::uint32_t ch, rate, fpc, cop;
                 ss >> cname >> ch >> rate >> fpc >> cop;
                 p.reset();
-                w = std::make_unique<bass::writer>(name, ch, rate, fpc, cop, "conformance");
+                w = std::make_unique<bass::writer>(name, rate, fpc, cop, ch, "conformance");
                 p = std::make_unique<bass::port>(name);
                 out << "case " << cname << ' ' << ch << ' ' << rate << ' ' << fpc << ' ' << cop;
             } else if (op == "publish") {

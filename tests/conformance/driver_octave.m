@@ -20,7 +20,7 @@ function driver_octave(vectors, out_path)
     switch tok{1}
       case 'case'
         g = str2double(tok(3:6));
-        w = bass_mex('WriterCreate', name, 'conformance', g(1), g(2), g(3), g(4));
+        w = bass_mex('WriterCreate', name, 'conformance', g(2), g(3), g(4), g(1));
         h = bass_mex('Open', name);
         fprintf(out, 'case %s %d %d %d %d\n', tok{2}, g);
       case 'publish'

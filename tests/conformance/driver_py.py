@@ -23,7 +23,7 @@ def main(path):
                 continue
             if tok[0] == "case":
                 channels, rate, fpc, cop = map(int, tok[2:6])
-                writer = bass.Writer(name, channels, rate, fpc, cop, device="conformance")
+                writer = bass.Writer(name, rate, fpc, cop, channels, device="conformance")
                 port = bass.Port(name)
                 out.write(" ".join(tok) + "\n")
             elif tok[0] == "publish":

@@ -36,6 +36,12 @@ struct BassdArgs {
     #[arg(long, value_name = "MS", default_value_t = 0,
           value_parser = clap::value_parser!(u64).range(0..=3_600_000))]
     stall_ms: u64,
+    /// What holds the port: `file` (a file in the runtime directory; readers open it by path,
+    /// and its last window stays readable after the broker dies) or `memfd` (a sealed memfd
+    /// handed to readers over the control socket: its size cannot change under a reader, so
+    /// reads skip a per-call fstat; it lives only while the broker or a reader holds it)
+    #[arg(long, value_name = "BACKING", default_value = "file", value_parser = ["file", "memfd"])]
+    port_backing: String,
     /// Start capturing from DEVICE at start-up (with the acquisition options below)
     #[arg(short = 'D', long = "acquire", value_name = "DEVICE")]
     acquire: Option<String>,
@@ -118,5 +124,10 @@ fn config(a: &BassdArgs) -> Result<Config> {
             max_window_s: h.max_window_s,
         },
         idle_timeout: std::time::Duration::from_millis(h.idle_timeout_ms),
+        port_backing: if a.port_backing == "memfd" {
+            bassclient::Backing::Memfd
+        } else {
+            bassclient::Backing::File
+        },
     })
 }

@@ -187,7 +187,7 @@ fn acquire(name: &str, a: &AcquireCmd, timeout: Duration) -> Result<()> {
         got.port.display()
     );
     if a.wait {
-        let port = Port::open_path(&got.port).context("open the new port")?;
+        let port = open_reported(&got.port, name).context("open the new port")?;
         port.wait(u64::from(req.frames_per_chunk), timeout)?;
         let first = t0.elapsed();
         println!(
@@ -199,12 +199,21 @@ fn acquire(name: &str, a: &AcquireCmd, timeout: Duration) -> Result<()> {
     Ok(())
 }
 
+/// The port a broker reported: its path, or (a `--port-backing memfd` broker, whose port has
+/// no file there) the port by name, handed over by the broker.
+fn open_reported(path: &std::path::Path, name: &str) -> bassclient::Result<Port> {
+    match Port::open_path(path) {
+        Err(bassclient::Error::NotFound { .. }) => Port::open(name),
+        other => other,
+    }
+}
+
 fn status(name: &str, json: bool, timeout: Duration) -> Result<()> {
     let s = connect(name, timeout)?.status().map_err(|e| explain(e, name, None))?;
     let state = s.state().map_or("unknown".to_string(), |st| format!("{st:?}").to_lowercase());
     // Frames a replica (bass-bridge mirror) never received, from the port itself.
     let lost_upstream = (s.epoch > 0)
-        .then(|| Port::open_path(std::path::Path::new(&s.port)).and_then(|p| p.info()).ok())
+        .then(|| open_reported(std::path::Path::new(&s.port), name).and_then(|p| p.info()).ok())
         .flatten()
         .map_or(0, |i| i.lost_upstream_frames);
     if json {

@@ -6,7 +6,7 @@ use std::os::fd::{AsFd, OwnedFd};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use super::messages::{AcquireRequest, Acquired, DeviceInfo, Reply, Request, Status};
+use super::messages::{AcquireRequest, Acquired, DeviceInfo, ErrorKind, Reply, Request, Status};
 use super::socket;
 use crate::error::{Error, Result};
 use crate::paths;
@@ -146,6 +146,84 @@ impl Client {
             Reply::Devices { devices } => Ok(devices),
             other => Err(unexpected("list-devices", &other)),
         }
+    }
+}
+
+/// The broker's answer to `open-port`.
+#[derive(Debug)]
+pub enum OpenedPort {
+    /// A sealed memfd port: its read-only descriptor.
+    Fd {
+        /// Epoch of the port.
+        epoch: u64,
+        /// The descriptor (close-on-exec).
+        fd: OwnedFd,
+    },
+    /// A file port: open this path.
+    File(PathBuf),
+}
+
+impl Client {
+    /// Asks for the current port (`open-port`): a memfd port's descriptor, or a file port's
+    /// path. Any descriptor the reply does not call for is closed.
+    pub fn open_port(&mut self) -> Result<OpenedPort> {
+        match self.open_port_reply()? {
+            (Reply::PortFd(p), Some(fd)) => Ok(OpenedPort::Fd { epoch: p.epoch, fd }),
+            (Reply::PortFd(_), None) => {
+                Err(Error::Protocol("the broker's port-fd reply came without a descriptor".into()))
+            }
+            (Reply::PortFile { port }, _) => Ok(OpenedPort::File(port)),
+            (Reply::Error { kind, message }, _) => {
+                Err(Error::Broker(format!("{message} [{}]", kind.as_str())))
+            }
+            (other, _) => Err(unexpected("open-port", &other)),
+        }
+    }
+
+    /// Sends `open-port` and returns the reply as it came, with its descriptor if any.
+    fn open_port_reply(&mut self) -> Result<(Reply, Option<OwnedFd>)> {
+        let bytes = super::wire::encode_request(&Request::OpenPort);
+        if let Err(e) = socket::send_datagram(self.fd.as_fd(), &bytes) {
+            // A broker that refuses a connection answers before closing it: read that reply.
+            match socket::recv_reply_with_fd(self.fd.as_fd()) {
+                Ok(Some(r)) => return Ok(r),
+                // Closed as idle before the request reached the broker: once more, anew.
+                Ok(None) if peer_closed(&e) => {
+                    let mut fresh = Client::connect_path(&self.path, &self.name)?;
+                    fresh.set_timeout(self.timeout)?;
+                    *self = fresh;
+                    socket::send_datagram(self.fd.as_fd(), &bytes)?;
+                }
+                _ => return Err(e),
+            }
+        }
+        socket::recv_reply_with_fd(self.fd.as_fd())?.ok_or_else(closed_without_reply)
+    }
+}
+
+/// How long [`crate::Port::open`] waits for a broker's `open-port` reply before it leaves
+/// the path's answer (a broker busy opening a device, or stopped, must not hang an opener
+/// for the full [`DEFAULT_TIMEOUT`]).
+pub const OPEN_PORT_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// For [`crate::Port::open`]: the port of broker `name` through its control socket, if that
+/// broker hands out a memfd port. `Ok(None)`: no broker, a file port, or a broker that does
+/// not know `open-port` (the caller falls back to the path). A broker that refuses this
+/// client's user is [`Error::Broker`].
+pub(crate) fn port_from_broker(name: &str) -> Result<Option<crate::Port>> {
+    let path = paths::socket_path(name)?;
+    if path.symlink_metadata().is_err() {
+        return Ok(None);
+    }
+    let mut c = Client::connect_path(&path, name)?;
+    c.set_timeout(OPEN_PORT_TIMEOUT)?;
+    match c.open_port_reply()? {
+        (Reply::PortFd(_), Some(fd)) => crate::Port::from_fd(fd, name).map(Some),
+        (Reply::Error { kind: ErrorKind::Permission, message }, _) => {
+            Err(Error::Broker(format!("{message} [{}]", ErrorKind::Permission.as_str())))
+        }
+        // A file port, an older broker ("unknown request"), no port yet: the path decides.
+        _ => Ok(None),
     }
 }
 

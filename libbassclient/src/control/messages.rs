@@ -64,6 +64,10 @@ pub enum Request {
     Stop,
     /// The broker's and the port's state.
     Status,
+    /// The current port for reading: a broker whose port is a sealed memfd answers
+    /// [`Reply::PortFd`] with a read-only descriptor of it attached (SCM_RIGHTS); one whose
+    /// port is a file answers [`Reply::PortFile`] (open the path).
+    OpenPort,
 }
 
 /// Reply to an Acquire.
@@ -75,6 +79,16 @@ pub struct Acquired {
     pub port: PathBuf,
     /// Device sample format negotiated (e.g. `S16_LE`; `S32_LE` for simulated devices).
     pub format: String,
+}
+
+/// Answer to OpenPort when the port is a sealed memfd: its descriptor travels with this
+/// message as SCM_RIGHTS ancillary data (exactly one descriptor).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PortFd {
+    /// Epoch of the port.
+    pub epoch: u64,
+    /// Bytes of the port (the descriptor's size, sealed).
+    pub size: u64,
 }
 
 /// A capture device.
@@ -190,6 +204,13 @@ pub enum Reply {
     },
     /// Answer to Status.
     Status(Status),
+    /// Answer to OpenPort: the port is a sealed memfd, its descriptor is attached.
+    PortFd(PortFd),
+    /// Answer to OpenPort: the port is a plain file; open it by path.
+    PortFile {
+        /// Path of the port file.
+        port: PathBuf,
+    },
     /// The request was refused.
     Error {
         /// Why.

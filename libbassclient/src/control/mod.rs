@@ -17,7 +17,7 @@
 //! decodes with these same types:
 //! - [`messages`] — the requests and replies (serde derives),
 //! - [`wire`] — the datagram form and the version check,
-//! - [`socket`] — the SEQPACKET socket calls,
+//! - [`socket`] — the SEQPACKET socket calls (and the descriptor hand-over of `open-port`),
 //! - [`client`] — [`Client`].
 
 pub mod client;
@@ -25,10 +25,14 @@ pub mod messages;
 pub mod socket;
 pub mod wire;
 
+pub use client::OpenedPort;
 pub use client::{Client, DEFAULT_TIMEOUT};
 pub use messages::{
-    AcquireRequest, Acquired, DeviceInfo, ErrorKind, Reply, Request, Status, DEFAULT_CHANNELS,
+    AcquireRequest, Acquired, DeviceInfo, ErrorKind, PortFd, Reply, Request, Status, DEFAULT_CHANNELS,
     DEFAULT_CHUNKS_ON_PORT, DEFAULT_DEVICE, DEFAULT_FRAMES_PER_CHUNK, DEFAULT_SAMPLE_RATE,
 };
-pub use socket::{recv_datagram, recv_reply, send_datagram, send_reply, send_request, seqpacket_socket};
+pub use socket::{
+    recv_datagram, recv_reply, recv_reply_with_fd, send_datagram, send_reply, send_reply_with_fd,
+    send_request, seqpacket_socket,
+};
 pub use wire::{WireError, MAX_MESSAGE, PROTOCOL};

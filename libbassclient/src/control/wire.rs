@@ -125,6 +125,7 @@ mod tests {
             Request::ListDevices,
             Request::Stop,
             Request::Status,
+            Request::OpenPort,
             Request::Acquire(AcquireRequest { format: Some("S16_LE".into()), ..Default::default() }),
         ];
         for r in reqs {
@@ -138,6 +139,8 @@ mod tests {
                 }],
             },
             Reply::Stopped { message: "stopped".into() },
+            Reply::PortFd(crate::control::messages::PortFd { epoch: 3, size: 1 << 20 }),
+            Reply::PortFile { port: "/run/bass/bass-default.port".into() },
             Reply::Status(Status {
                 rate_estimate_hz: 48000.25,
                 device: "sim:sine".into(),

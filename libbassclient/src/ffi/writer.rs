@@ -35,7 +35,8 @@ fn writer(w: *mut bass_writer) -> Result<Arc<Mutex<Writer>>, Failure> {
 
 /// Creates the port `name` for writing (mode 0640, in `$BASS_RUNTIME_DIR` or /dev/shm),
 /// replacing a port of that name whose writer is gone or is this process. Readers of the
-/// replaced port get `BASS_ERR_RESTARTED`.
+/// replaced port get `BASS_ERR_RESTARTED`. The geometry comes in the order of
+/// `bass_acquire`: sample rate, nFramesPerChunk, nChunksOnPort, channels.
 ///
 /// # Safety
 /// `name` and `device` (may be NULL) must be NUL-terminated; `out_writer` valid for a write.
@@ -43,10 +44,10 @@ fn writer(w: *mut bass_writer) -> Result<Arc<Mutex<Writer>>, Failure> {
 pub unsafe extern "C" fn bass_writer_create(
     name: *const c_char,
     device: *const c_char,
-    channels: u32,
     sample_rate: u32,
     frames_per_chunk: u32,
     chunks_on_port: u32,
+    channels: u32,
     out_writer: *mut *mut bass_writer,
 ) -> bass_result {
     boundary("bass_writer_create", || {

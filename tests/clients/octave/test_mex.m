@@ -4,11 +4,13 @@
 function test_mex()
   pat = @(f, c) int32(bitor(bitshift(bitand(uint64(f), uint64(67108863)), 6), uint64(c)));  % f < 2^25 here
 
-  w = bass_mex('WriterCreate', 'mex', 'octave-test', 2, 48000, 4, 3);
+  w = bass_mex('WriterCreate', 'mex', 'octave-test', 48000, 4, 3, 2);
   h = bass_mex('Open', 'mex');
   % a new writer's port is 'starting' until its first chunk (format 2.1; was shown as 'unknown')
   info = bass_mex('Info', h);
   assert(strcmp(info.state, 'starting') && info.nFramesOnPort == 12 && info.lastFrameIndex == 0);
+  % WriterCreate takes rate, nfpc, ncop, channels (Acquire's order)
+  assert(info.sampleRate == 48000 && info.nFramesPerChunk == 4 && info.nChunksOnPort == 3 && info.channels == 2);
   assert(isa(info.lastFrameIndex, 'uint64'));
 
   % frame 0 is the zero frame; nfr in the future gives n = 0

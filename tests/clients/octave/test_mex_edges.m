@@ -3,7 +3,7 @@
 % argument, text where a number goes, and handles across `clear bass_mex` (an unload, as
 % `clear functions` / Matlab's `clear mex`). Any failed assertion is an error (exit status 1).
 function test_mex_edges()
-  w = bass_mex('WriterCreate', 'edges', 'octave-test', 2, 48000, 4, 3);
+  w = bass_mex('WriterCreate', 'edges', 'octave-test', 48000, 4, 3, 2);
   h = bass_mex('Open', 'edges');
   bass_mex('Publish', w, int32(1:8));   % frames 1..4
   rt = getenv('BASS_RUNTIME_DIR');
@@ -31,7 +31,7 @@ function test_mex_edges()
     expect_error('bass:badArgument', @() bass_mex('GetAudioData', h, 4, bad{k}), 'nfr');
     expect_error('bass:badArgument', @() bass_mex('GetAudioDataMulti', h, bad{k}, 1), 'N');
     expect_error('bass:badArgument', @() bass_mex('Acquire', 'sim:pattern', bad{k}, 480, 100, 2, 'no-such-broker'), 'sampleRate');
-    expect_error('bass:badArgument', @() bass_mex('WriterCreate', 'x', 'x', bad{k}, 48000, 4, 3), 'channels');
+    expect_error('bass:badArgument', @() bass_mex('WriterCreate', 'x', 'x', 48000, 4, 3, bad{k}), 'channels');
   end
   expect_error('bass:badArgument', @() bass_mex('GetAudioData', h, 4, 2^64), 'nfr');
   expect_error('bass:badArgument', @() bass_mex('GetAudioData', h, 4, 1, 'yes'), 'noLoss');
@@ -42,7 +42,7 @@ function test_mex_edges()
   expect_error('bass:badArgument', @() bass_mex('Acquire', 'sim:pattern', 48000, 480, 100, 2^40, 'no-such-broker'), 'channels');
   expect_error('bass:badArgument', @() bass_mex('Acquire', 'sim:pattern', 48000, 480, 100, 2, 42), 'broker');
   expect_error('bass:badArgument', @() bass_mex('Acquire', 42, 48000, 480, 100), 'device');
-  expect_error('bass:badArgument', @() bass_mex('WriterCreate', 'x', 'x', 2, 2^32 + 48000, 4, 3), 'rate');
+  expect_error('bass:badArgument', @() bass_mex('WriterCreate', 'x', 'x', 2^32 + 48000, 4, 3, 2), 'rate');
   % in range: reaches the broker (none here)
   expect_error('bass:noBroker', @() bass_mex('Acquire', 'sim:pattern', 2^32 - 1, 480, 100, uint8(2), 'no-such-broker'), '');
   [l, r, nfr, n] = bass_mex('GetAudioData', h, uint64(2)^64 - 1, int8(1));

@@ -106,8 +106,8 @@ static void test_nulls(bass_port *p, bass_writer *w) {
     EXPECT(bass_port_view_check(NULL, &v, &u), BASS_ERR_NULL_ARGUMENT);
     EXPECT(bass_port_view_check(p, NULL, &u), BASS_ERR_NULL_ARGUMENT);
     EXPECT(bass_port_view_check(p, &v, NULL), BASS_ERR_NULL_ARGUMENT);
-    EXPECT(bass_writer_create(NULL, "d", CH, 48000, NFPC, NCOP, &wo), BASS_ERR_NULL_ARGUMENT);
-    EXPECT(bass_writer_create("abuse-null", "d", CH, 48000, NFPC, NCOP, NULL), BASS_ERR_NULL_ARGUMENT);
+    EXPECT(bass_writer_create(NULL, "d", 48000, NFPC, NCOP, CH, &wo), BASS_ERR_NULL_ARGUMENT);
+    EXPECT(bass_writer_create("abuse-null", "d", 48000, NFPC, NCOP, CH, NULL), BASS_ERR_NULL_ARGUMENT);
     EXPECT(bass_writer_publish_interleaved(NULL, l, NFPC * CH, NULL, NULL), BASS_ERR_NULL_ARGUMENT);
     EXPECT(bass_writer_publish_interleaved(w, NULL, NFPC * CH, NULL, NULL), BASS_ERR_NULL_ARGUMENT);
     const int32_t *planes[CH] = {l, NULL};
@@ -188,11 +188,11 @@ static void test_sizes(bass_port *p, bass_writer *w) {
     EXPECT(bass_port_view_channel(p, &v, UINT32_MAX, &s0, &s1), BASS_ERR_INVALID_ARGUMENT);
     EXPECT(bass_writer_set_state(w, UINT32_MAX, 0, NULL), BASS_ERR_INVALID_ARGUMENT);
     bass_writer *wo = NULL;
-    EXPECT(bass_writer_create("abuse-big", NULL, UINT32_MAX, 48000, NFPC, NCOP, &wo), BASS_ERR_INVALID_ARGUMENT);
-    EXPECT(bass_writer_create("abuse-big", NULL, CH, 0, NFPC, NCOP, &wo), BASS_ERR_INVALID_ARGUMENT);
-    EXPECT(bass_writer_create("abuse-big", NULL, CH, 48000, UINT32_MAX, UINT32_MAX, &wo), BASS_ERR_INVALID_ARGUMENT);
-    EXPECT(bass_writer_create("abuse-big", NULL, 64, 48000, 1u << 20, 1u << 12, &wo), BASS_ERR_INVALID_ARGUMENT);
-    EXPECT(bass_writer_create("abuse-big", NULL, CH, 48000, 0, 0, &wo), BASS_ERR_INVALID_ARGUMENT);
+    EXPECT(bass_writer_create("abuse-big", NULL, 48000, NFPC, NCOP, UINT32_MAX, &wo), BASS_ERR_INVALID_ARGUMENT);
+    EXPECT(bass_writer_create("abuse-big", NULL, 0, NFPC, NCOP, CH, &wo), BASS_ERR_INVALID_ARGUMENT);
+    EXPECT(bass_writer_create("abuse-big", NULL, 48000, UINT32_MAX, UINT32_MAX, CH, &wo), BASS_ERR_INVALID_ARGUMENT);
+    EXPECT(bass_writer_create("abuse-big", NULL, 48000, 1u << 20, 1u << 12, 64, &wo), BASS_ERR_INVALID_ARGUMENT);
+    EXPECT(bass_writer_create("abuse-big", NULL, 48000, 0, 0, CH, &wo), BASS_ERR_INVALID_ARGUMENT);
     CHECK(wo == NULL);
 }
 
@@ -200,7 +200,7 @@ static void test_handles(bass_writer *w_live) {
     bass_port *p = NULL;
     bass_writer *w = NULL;
     EXPECT(bass_port_open("abuse", &p), BASS_OK);
-    EXPECT(bass_writer_create("abuse-closed", "x", CH, 48000, NFPC, NCOP, &w), BASS_OK);
+    EXPECT(bass_writer_create("abuse-closed", "x", 48000, NFPC, NCOP, CH, &w), BASS_OK);
     EXPECT(bass_port_close(p), BASS_OK);
     EXPECT(bass_writer_close(w), BASS_OK);
     uint64_t nfr = 0, loss, u;
@@ -328,7 +328,7 @@ static void sleep_ms(long ms) {
 static void test_threads(void) {
     bass_writer *w = NULL;
     bass_port *p = NULL;
-    EXPECT(bass_writer_create("abuse-mt", "mt", CH, 48000, NFPC, NCOP, &w), BASS_OK);
+    EXPECT(bass_writer_create("abuse-mt", "mt", 48000, NFPC, NCOP, CH, &w), BASS_OK);
     EXPECT(bass_port_open("abuse-mt", &p), BASS_OK);
     if (!w || !p) return;
     struct shared s = {.port = p};
@@ -409,7 +409,7 @@ int main(void) {
     }
     bass_writer *w = NULL;
     bass_port *p = NULL;
-    EXPECT(bass_writer_create("abuse", "abuse", CH, 48000, NFPC, NCOP, &w), BASS_OK);
+    EXPECT(bass_writer_create("abuse", "abuse", 48000, NFPC, NCOP, CH, &w), BASS_OK);
     EXPECT(bass_port_open("abuse", &p), BASS_OK);
     if (!w || !p) return 1;
     uint64_t next = 1;

@@ -1,17 +1,17 @@
 //! Helpers shared by the fault and abuse suite (issue 5): spawning the fault agent
 //! (`bass-fault-agent`, the child processes the tests kill, stop and starve), reading
-//! their result lines, counting file descriptors and resident memory through /proc,
-//! private runtime directories, and the pattern check every delivered sample goes through.
+//! their result lines, counting file descriptors and resident memory through /proc, and
+//! the pattern check every delivered sample goes through. The rig the suite shares with the
+//! broker's tests (temporary directories, bassd, jackd, bounded waits) is `bass-test-support`.
 //!
 //! Every test prints its measured figures as lines starting with `FIGURE`, which
 //! `tests/faults/run.sh` collects into one summary.
 
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, Write};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Child, ChildStdout, Command, Stdio};
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use bassclient::testsignal::pattern_expected;
 
@@ -23,159 +23,9 @@ macro_rules! figure {
     };
 }
 
-/// A private directory under /dev/shm (real shared memory), removed on drop.
-pub struct TempDir(pub PathBuf);
-
-impl TempDir {
-    /// Creates `/dev/shm/bass-faults-<tag>-<pid>-<n>`.
-    pub fn new(tag: &str) -> TempDir {
-        static N: AtomicU64 = AtomicU64::new(0);
-        let base: PathBuf =
-            if Path::new("/dev/shm").is_dir() { "/dev/shm".into() } else { std::env::temp_dir() };
-        let dir = base.join(format!(
-            "bass-faults-{tag}-{}-{}",
-            std::process::id(),
-            N.fetch_add(1, Ordering::Relaxed)
-        ));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("create temp dir");
-        TempDir(dir)
-    }
-
-    /// A path inside the directory.
-    pub fn join(&self, name: &str) -> PathBuf {
-        self.0.join(name)
-    }
-
-    /// Names of the files in the directory, sorted.
-    pub fn entries(&self) -> Vec<String> {
-        list_dir(&self.0)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
-/// Names of the files in `dir`, sorted.
-pub fn list_dir(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir)
-        .map(|rd| rd.filter_map(|e| e.ok()).map(|e| e.file_name().to_string_lossy().into_owned()).collect())
-        .unwrap_or_default();
-    v.sort();
-    v
-}
-
 /// Path of the fault agent binary (built by cargo alongside the tests).
 pub fn agent_path() -> PathBuf {
-    bin_path("bass-fault-agent", "BASS_FAULT_AGENT")
-}
-
-/// Path of a workspace binary (`bassd`, `bass`, the agent): `$env_var` if set, else next to
-/// the running test (integration tests live in target/<profile>/deps, binaries one level up).
-/// The broker binaries are built by `cargo build --release --workspace` (make test-faults).
-pub fn bin_path(name: &str, env_var: &str) -> PathBuf {
-    if let Some(p) = std::env::var_os(env_var) {
-        return p.into();
-    }
-    let exe = std::env::current_exe().expect("current exe");
-    let dir = exe.parent().expect("exe dir");
-    for cand in [dir.join(name), dir.parent().unwrap_or(dir).join(name)] {
-        if cand.is_file() {
-            return cand;
-        }
-    }
-    panic!("{name} not found next to {} (build the workspace first, or set {env_var})", exe.display())
-}
-
-/// A running `bassd` with its own runtime directory, killed on drop.
-pub struct Bassd {
-    /// The broker process.
-    pub child: Option<Child>,
-    /// Its runtime directory (`$BASS_RUNTIME_DIR`).
-    pub dir: PathBuf,
-    /// Broker name.
-    pub name: String,
-}
-
-impl Bassd {
-    /// Starts `bassd --name NAME --rt-priority 0 ARGS` in `dir` and waits until its control
-    /// socket answers a status request (guarded by a generous 20 s).
-    pub fn start(dir: &Path, name: &str, args: &[&str], env: &[(&str, &str)]) -> Bassd {
-        let mut cmd = Command::new(bin_path("bassd", "BASS_BASSD"));
-        cmd.args(["--name", name, "--rt-priority", "0"]).args(args);
-        cmd.env("BASS_RUNTIME_DIR", dir).env("BASS_LOG", "error");
-        for (k, v) in env {
-            cmd.env(k, v);
-        }
-        cmd.stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::null());
-        let child = cmd.spawn().expect("spawn bassd");
-        let mut b = Bassd { child: Some(child), dir: dir.to_owned(), name: name.to_owned() };
-        let ok = wait_until(Duration::from_secs(20), || {
-            if let Some(st) = b.child.as_mut().and_then(|c| c.try_wait().ok().flatten()) {
-                panic!("bassd exited during start-up: {st}");
-            }
-            b.try_client().and_then(|mut c| c.status()).is_ok()
-        });
-        assert!(ok, "bassd did not answer within 20 s");
-        b
-    }
-
-    /// Process id.
-    pub fn pid(&self) -> u32 {
-        self.child.as_ref().map(|c| c.id()).unwrap_or(0)
-    }
-
-    /// Control socket path.
-    pub fn socket(&self) -> PathBuf {
-        self.dir.join(format!("bass-{}.sock", self.name))
-    }
-
-    /// Port file path.
-    pub fn port_path(&self) -> PathBuf {
-        self.dir.join(format!("bass-{}.port", self.name))
-    }
-
-    /// A control client, if the broker answers.
-    pub fn try_client(&self) -> bassclient::Result<bassclient::control::Client> {
-        bassclient::control::Client::connect_path(&self.socket(), &self.name)
-    }
-
-    /// A control client (panics if the broker does not answer).
-    pub fn client(&self) -> bassclient::control::Client {
-        self.try_client().expect("connect to bassd")
-    }
-
-    /// Sends `sig` and reaps the process.
-    pub fn kill(&mut self, sig: libc::c_int) {
-        if let Some(mut c) = self.child.take() {
-            // SAFETY: kill(2) on our own child.
-            unsafe { libc::kill(c.id() as libc::pid_t, sig) };
-            let _ = c.wait();
-        }
-    }
-}
-
-impl Drop for Bassd {
-    fn drop(&mut self) {
-        if let Some(c) = self.child.as_ref() {
-            // SAFETY: kill(2) on our own child; SIGTERM lets bassd remove its socket.
-            unsafe { libc::kill(c.id() as libc::pid_t, libc::SIGTERM) };
-            let end = Instant::now() + Duration::from_secs(5);
-            while Instant::now() < end {
-                if let Some(c) = self.child.as_mut() {
-                    if c.try_wait().ok().flatten().is_some() {
-                        self.child = None;
-                        return;
-                    }
-                }
-                std::thread::sleep(Duration::from_millis(5));
-            }
-        }
-        self.kill(libc::SIGKILL);
-    }
+    bass_test_support::bin_path("bass-fault-agent", "BASS_FAULT_AGENT")
 }
 
 /// Whether the suite runs as root (the other-uid checks need setpriv as root).
@@ -195,24 +45,6 @@ pub fn test_group() -> u32 {
     }
 }
 
-/// An Acquire request.
-pub fn acquire_req(
-    device: &str,
-    rate: u32,
-    nfpc: u32,
-    ncop: u32,
-    channels: u32,
-) -> bassclient::control::AcquireRequest {
-    bassclient::control::AcquireRequest {
-        device: device.into(),
-        sample_rate: rate,
-        frames_per_chunk: nfpc,
-        chunks_on_port: ncop,
-        channels,
-        format: None,
-    }
-}
-
 /// A running agent process with line-oriented stdout.
 pub struct Agent {
     /// The child.
@@ -226,6 +58,19 @@ impl Agent {
     /// Spawns the agent with `args` (first the role).
     pub fn spawn(args: &[&str]) -> Agent {
         Agent::spawn_env(args, &[])
+    }
+
+    /// A pattern writer creating port `port` (`nfpc` frames per chunk, `ncop` chunks on the
+    /// port, then `extra` options: pacing, length), returned once the port exists (its
+    /// `ready` line) and held there until the test sends `go` (so readers can start first).
+    pub fn writer_held(port: &str, nfpc: u32, ncop: u32, extra: &[&str]) -> Agent {
+        let (nfpc, ncop) = (nfpc.to_string(), ncop.to_string());
+        let mut args = vec!["writer", "--port", port, "--nfpc", &nfpc, "--ncop", &ncop];
+        args.extend_from_slice(extra);
+        args.push("--wait-go");
+        let mut w = Agent::spawn(&args);
+        w.expect_line("ready");
+        w
     }
 
     /// Spawns the agent with `args` and extra environment variables.
@@ -290,8 +135,7 @@ impl Agent {
 
     /// Sends a signal.
     pub fn signal(&self, sig: libc::c_int) {
-        // SAFETY: kill(2) on our own child's pid; no memory is involved.
-        unsafe { libc::kill(self.pid() as libc::pid_t, sig) };
+        bass_test_support::send_signal(self.pid(), sig);
     }
 
     /// Reads to EOF and waits; returns the exit status and every line.
@@ -416,20 +260,6 @@ pub fn median_max(v: &[Duration]) -> (Duration, Duration) {
     let mut s = v.to_vec();
     s.sort();
     (s[s.len() / 2], s[s.len() - 1])
-}
-
-/// Polls `cond` every millisecond until it holds or `timeout` passes; returns whether it held.
-pub fn wait_until(timeout: Duration, mut cond: impl FnMut() -> bool) -> bool {
-    let end = Instant::now() + timeout;
-    loop {
-        if cond() {
-            return true;
-        }
-        if Instant::now() >= end {
-            return false;
-        }
-        std::thread::sleep(Duration::from_millis(1));
-    }
 }
 
 /// The PRNG of the randomised tests (fastrand's, seeded with [`seed`], so that a run is

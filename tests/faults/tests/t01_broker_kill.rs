@@ -18,7 +18,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use bass_faults::{acquire_req, count_corrupted, figure, median_max, Agent, Bassd, Rng, TempDir};
+use bass_faults::{count_corrupted, figure, median_max, Agent, Rng};
+use bass_test_support::{acquire_req, Bassd, TempDir};
 use bassclient::{Error, Port};
 
 const PATIENCE: Duration = Duration::from_secs(20);
@@ -139,8 +140,8 @@ fn killed_broker_ends_every_wait_with_writer_gone_and_delivers_nothing_unpublish
     let mut rng = Rng::with_seed(seed);
     let mut outcomes = Vec::new();
     for _ in 0..runs() {
-        let dir = TempDir::new("bkill");
-        let mut b = Bassd::start(&dir.0, "k", &[], &[]);
+        let dir = TempDir::shm("bkill");
+        let mut b = Bassd::start_stock(dir.path(), "k", &[], &[]);
         b.client().acquire(&acquire_req("sim:pattern", 48000, 480, 20, 2)).expect("acquire");
         let delay = Duration::from_micros(rng.u64(..80_000));
         let path = b.port_path();
@@ -156,7 +157,7 @@ fn writer_killed_mid_chunk_leaves_only_intact_frames_readable() {
     let mut rng = Rng::with_seed(seed);
     let mut outcomes = Vec::new();
     for _ in 0..runs() {
-        let dir = TempDir::new("wkill");
+        let dir = TempDir::shm("wkill");
         let path = dir.join("bass-wkill.port");
         let mut w =
             Agent::spawn(&["writer", "--port", path.to_str().unwrap(), "--nfpc", "65536", "--ncop", "4"]);

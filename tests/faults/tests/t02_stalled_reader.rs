@@ -16,7 +16,8 @@
 
 use std::time::Duration;
 
-use bass_faults::{acquire_req, figure, Agent, Bassd, Fields, TempDir};
+use bass_faults::{figure, Agent, Fields};
+use bass_test_support::{acquire_req, Bassd, TempDir};
 use bassclient::testsignal::fill_pattern_interleaved;
 use bassclient::{ChunkMeta, Geometry, PortParams, Source, Writer};
 
@@ -27,7 +28,7 @@ fn proc_state(pid: u32) -> char {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn stopped_reader_reports_exactly_the_frames_that_left_the_window_and_no_stale_sample() {
-    let dir = TempDir::new("stall");
+    let dir = TempDir::shm("stall");
     let path = dir.join("bass-stall.port");
     let (nfpc, ncop) = (64u32, 8u32);
     let nfop = u64::from(nfpc * ncop);
@@ -50,7 +51,7 @@ fn stopped_reader_reports_exactly_the_frames_that_left_the_window_and_no_stale_s
     for (round, stall_chunks) in [(1u32, 20u32), (2, 9), (3, 8), (4, 200)].into_iter() {
         r.signal(libc::SIGSTOP);
         assert!(
-            bass_faults::wait_until(Duration::from_secs(5), || proc_state(r.pid()) == 'T'),
+            bass_test_support::wait_until(Duration::from_secs(5), || proc_state(r.pid()) == 'T'),
             "reader not stopped"
         );
         let nfr_before = w.last_frame_index() + 1;
@@ -85,27 +86,13 @@ fn stopped_reader_reports_exactly_the_frames_that_left_the_window_and_no_stale_s
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn live_writer_is_not_delayed_by_a_stopped_reader_whose_losses_are_exact() {
-    let dir = TempDir::new("stall-live");
+    let dir = TempDir::shm("stall-live");
     let path = dir.join("bass-stall-live.port");
     let p = path.to_str().unwrap();
     // 48 kHz in real time: 10 ms chunks, a 100 ms window.
     let (nfpc, ncop, pace_us) = (480u64, 10u64, 10_000u64);
     let nfop = nfpc * ncop;
-    let mut w = Agent::spawn(&[
-        "writer",
-        "--port",
-        p,
-        "--nfpc",
-        "480",
-        "--ncop",
-        "10",
-        "--pace-us",
-        "10000",
-        "--seconds",
-        "4",
-        "--wait-go",
-    ]);
-    w.expect_line("ready");
+    let mut w = Agent::writer_held(p, 480, 10, &["--pace-us", "10000", "--seconds", "4"]);
     let mut r = Agent::spawn(&["reader", "--port", p, "--mode", "wait", "--n", "480", "--log-loss"]);
     r.expect_line("ready");
     w.send("go");
@@ -160,8 +147,8 @@ fn live_writer_is_not_delayed_by_a_stopped_reader_whose_losses_are_exact() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn broker_shows_no_xrun_while_a_reader_is_stopped_longer_than_the_window() {
-    let dir = TempDir::new("stall-bassd");
-    let b = Bassd::start(&dir.0, "st", &[], &[]);
+    let dir = TempDir::shm("stall-bassd");
+    let b = Bassd::start_stock(dir.path(), "st", &[], &[]);
     let mut c = b.client();
     // 48 kHz, 10 ms chunks, a 100 ms window.
     c.acquire(&acquire_req("sim:pattern", 48000, 480, 10, 2)).unwrap();

@@ -9,7 +9,8 @@
 
 use std::time::{Duration, Instant};
 
-use bass_faults::{current_syscall, fd_targets, figure, Agent, Rng, TempDir};
+use bass_faults::{current_syscall, fd_targets, figure, Agent, Rng};
+use bass_test_support::TempDir;
 
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
@@ -18,22 +19,10 @@ fn readers_killed_mid_read_and_mid_wait_leak_nothing_and_disturb_no_one() {
         std::env::var("BASS_FAULTS_KILLS").ok().and_then(|s| s.parse().ok()).unwrap_or(100);
     let seed = bass_faults::seed();
     let mut rng = Rng::with_seed(seed);
-    let dir = TempDir::new("kill");
+    let dir = TempDir::shm("kill");
     let path = dir.join("bass-kill.port");
     let p = path.to_str().unwrap();
-    let mut w = Agent::spawn(&[
-        "writer",
-        "--port",
-        p,
-        "--nfpc",
-        "64",
-        "--ncop",
-        "8",
-        "--pace-us",
-        "1000",
-        "--wait-go",
-    ]);
-    w.expect_line("ready");
+    let mut w = Agent::writer_held(p, 64, 8, &["--pace-us", "1000"]);
     let mut steady: Vec<Agent> = [("copy", "64", "200"), ("wait", "128", "0")]
         .iter()
         .map(|(m, n, pause)| {
@@ -71,7 +60,7 @@ fn readers_killed_mid_read_and_mid_wait_leak_nothing_and_disturb_no_one() {
     let kill_time = started.elapsed();
     let lfi_after_kills = lfi_of();
     assert!(
-        bass_faults::wait_until(Duration::from_secs(5), || lfi_of() > lfi_after_kills + 64),
+        bass_test_support::wait_until(Duration::from_secs(5), || lfi_of() > lfi_after_kills + 64),
         "the writer stopped publishing after the kills"
     );
     let fds_after = fd_targets(w.pid());

@@ -10,15 +10,16 @@
 use std::os::unix::process::ExitStatusExt;
 use std::time::Duration;
 
-use bass_faults::{acquire_req, fd_count, figure, Agent, Bassd, Rng, TempDir};
+use bass_faults::{fd_count, figure, Agent, Rng};
+use bass_test_support::{acquire_req, Bassd, TempDir};
 
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn killed_readers_and_control_clients_leak_nothing_in_bassd() {
     let seed = bass_faults::seed();
     let mut rng = Rng::with_seed(seed);
-    let dir = TempDir::new("bclients");
-    let b = Bassd::start(&dir.0, "kc", &[], &[]);
+    let dir = TempDir::shm("bclients");
+    let b = Bassd::start_stock(dir.path(), "kc", &[], &[]);
     let mut c = b.client();
     let epoch = c.acquire(&acquire_req("sim:pattern", 48000, 480, 20, 2)).unwrap().epoch;
     let port = b.port_path();
@@ -46,7 +47,7 @@ fn killed_readers_and_control_clients_leak_nothing_in_bassd() {
             .entry(["reader mid-read", "reader mid-wait", "control client mid-request"][i % 3])
             .or_default() += 1;
     }
-    let settled = bass_faults::wait_until(Duration::from_secs(5), || fd_count(b.pid()) <= fds_before);
+    let settled = bass_test_support::wait_until(Duration::from_secs(5), || fd_count(b.pid()) <= fds_before);
     let fds_after = fd_count(b.pid());
     let entries_after = dir.entries();
     let st = c.status().expect("broker answers");

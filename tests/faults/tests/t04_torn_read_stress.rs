@@ -10,7 +10,8 @@
 
 use std::time::{Duration, Instant};
 
-use bass_faults::{env_secs, figure, Agent, TempDir};
+use bass_faults::{env_secs, figure, Agent};
+use bass_test_support::TempDir;
 
 /// (mode, N, pause µs) of each reader; the last one is SIGSTOPped and SIGCONTed.
 const READERS: [(&str, usize, u64); 6] = [
@@ -26,24 +27,10 @@ const READERS: [(&str, usize, u64); 6] = [
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn readers_of_any_speed_get_no_torn_sample_and_account_every_frame_for_a_minute() {
     let secs = env_secs("BASS_FAULTS_TORN_SECS", 60);
-    let dir = TempDir::new("torn");
+    let dir = TempDir::shm("torn");
     let port = dir.join("bass-torn.port");
     let p = port.to_str().unwrap();
-    let mut writer = Agent::spawn(&[
-        "writer",
-        "--port",
-        p,
-        "--nfpc",
-        "64",
-        "--ncop",
-        "8",
-        "--pace-us",
-        "50",
-        "--seconds",
-        &secs.to_string(),
-        "--wait-go",
-    ]);
-    writer.expect_line("ready");
+    let mut writer = Agent::writer_held(p, 64, 8, &["--pace-us", "50", "--seconds", &secs.to_string()]);
     let mut readers: Vec<Agent> = READERS
         .iter()
         .map(|(mode, n, pause)| {

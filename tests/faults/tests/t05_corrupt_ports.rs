@@ -14,7 +14,8 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use bass_faults::{figure, Agent, Rng, TempDir};
+use bass_faults::{figure, Agent, Rng};
+use bass_test_support::TempDir;
 use bassclient::format::HEADER_SIZE;
 use bassclient::testsignal::fill_pattern_interleaved;
 use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
@@ -180,7 +181,7 @@ fn put(bytes: &mut [u8], off: usize, width: usize, v: u64) {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn random_bytes_never_crash_and_give_named_errors() {
-    let dir = TempDir::new("corrupt-random");
+    let dir = TempDir::shm("corrupt-random");
     let good = valid_port(&dir);
     let seed = bass_faults::seed();
     let mut rng = Rng::with_seed(seed);
@@ -210,7 +211,7 @@ fn random_bytes_never_crash_and_give_named_errors() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn truncation_at_every_boundary_is_corrupt() {
-    let dir = TempDir::new("corrupt-trunc");
+    let dir = TempDir::shm("corrupt-trunc");
     let good = valid_port(&dir);
     let total = good.len();
     let samples = 8192usize; // 4096 + 32 * 4, rounded up to 4096
@@ -265,7 +266,7 @@ fn truncation_at_every_boundary_is_corrupt() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn every_header_field_at_extreme_values_is_handled() {
-    let dir = TempDir::new("corrupt-fields");
+    let dir = TempDir::shm("corrupt-fields");
     let good = valid_port(&dir);
     let mut t = Tally::default();
     let mut summary = Vec::new();
@@ -293,7 +294,7 @@ fn every_header_field_at_extreme_values_is_handled() {
 fn a_hostile_write_intent_never_delivers_frames_it_cannot_vouch_for() {
     // write_intent beyond the format's frame limit (e.g. u64::MAX) is a corrupt header:
     // the reader must not overflow (a panic in a debug build) nor trust any frame.
-    let dir = TempDir::new("corrupt-intent");
+    let dir = TempDir::shm("corrupt-intent");
     let good = valid_port(&dir);
     for intent in [u64::MAX, u64::MAX - 1, (1 << 62) + 1] {
         let mut bytes = good.clone();
@@ -332,7 +333,7 @@ fn a_hostile_write_intent_never_delivers_frames_it_cannot_vouch_for() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn foreign_magic_and_major_versions_are_refused_by_name() {
-    let dir = TempDir::new("corrupt-magic");
+    let dir = TempDir::shm("corrupt-magic");
     let good = valid_port(&dir);
     let mut t = Tally::default();
     let magics: [(&str, [u8; 8]); 5] = [
@@ -370,7 +371,7 @@ fn foreign_magic_and_major_versions_are_refused_by_name() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_port_shrunk_under_a_reader_gives_corrupt_not_sigbus() {
-    let dir = TempDir::new("corrupt-shrink");
+    let dir = TempDir::shm("corrupt-shrink");
     let path = dir.join("bass-shrink.port");
     let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: NFPC, chunks_on_port: NCOP };
     let mut w =
@@ -425,7 +426,7 @@ fn a_port_shrinking_while_a_reader_process_hammers_it_is_measured() {
     // that calls every size-dependent function in a loop is hit while the file is cut to one
     // page and restored. It fails on any other kind of crash; with
     // BASS_FAULTS_STRICT_SHRINK=1 a SIGBUS fails it too.
-    let dir = TempDir::new("corrupt-shrink-live");
+    let dir = TempDir::shm("corrupt-shrink-live");
     let path = dir.join("bass-shrink-live.port");
     let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: 1024, chunks_on_port: 64 };
     let mut w =
@@ -470,5 +471,83 @@ fn a_port_shrinking_while_a_reader_process_hammers_it_is_measured() {
     if std::env::var_os("BASS_FAULTS_STRICT_SHRINK").is_some() {
         assert_eq!(sigbus, 0, "a SIGBUS reached a reader process while the port shrank");
     }
+    drop(w);
+}
+
+#[test]
+#[ignore = "fault suite: run by tests/faults/run.sh"]
+fn a_sealed_memfd_port_cannot_shrink_under_a_reader_process() {
+    // The memfd backing (bassd --port-backing memfd) removes the limitation above: the port
+    // is sealed F_SEAL_SHRINK | F_SEAL_GROW | F_SEAL_FUTURE_WRITE | F_SEAL_SEAL, so even its
+    // owner, through a writable descriptor, cannot change its size or punch holes in it.
+    // A reader process holding it (a descriptor handed over as bassd does, here inherited)
+    // hammers every size-dependent call while the test tries to shrink, grow and punch it.
+    use rustix::fs::{FallocateFlags, Mode, OFlags};
+    use rustix::io::Errno;
+    use std::os::fd::{AsFd, AsRawFd};
+    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: 1024, chunks_on_port: 64 };
+    let params = PortParams { geometry, device: "shrink-memfd".into(), group: None };
+    // A name of its own: a memfd port only looks at the runtime directory for a left-over
+    // port file of that name, and puts nothing there.
+    let name = format!("shrink-memfd-{}", std::process::id());
+    let mut w = Writer::prepare_memfd(&name, &params, None).unwrap().commit().unwrap();
+    assert!(!w.path().exists(), "a memfd port has no file at {}", w.path().display());
+    let mut chunk = vec![0; 2048];
+    for _ in 0..64 {
+        fill_pattern_interleaved(&mut chunk, 2, w.last_frame_index() + 1);
+        w.publish(Source::Interleaved(&chunk), ChunkMeta::default()).unwrap();
+    }
+    let total = w.layout().total_size;
+    // The strongest handle there is: the writer's memfd reopened read-write by its owner.
+    let reader_fd = w.reader_fd().unwrap().expect("a memfd port hands out descriptors");
+    let rw = rustix::fs::open(
+        format!("/proc/self/fd/{}", reader_fd.as_raw_fd()).as_str(),
+        OFlags::RDWR | OFlags::CLOEXEC,
+        Mode::empty(),
+    )
+    .unwrap();
+    let (mut runs, mut refused, mut calls) = (0, 0u64, 0u64);
+    for _ in 0..3 {
+        let fd = w.reader_fd().unwrap().unwrap();
+        rustix::io::fcntl_setfd(&fd, rustix::io::FdFlags::empty()).unwrap(); // inherited by the agent
+        let fd_arg = fd.as_raw_fd().to_string();
+        let mut v = Agent::spawn(&["shrink-victim", "--fd", &fd_arg]);
+        drop(fd);
+        v.expect_line("ready");
+        for _ in 0..2000 {
+            assert_eq!(rustix::fs::ftruncate(&rw, 4096), Err(Errno::PERM), "shrink must be refused");
+            assert_eq!(rustix::fs::ftruncate(&rw, total + 4096), Err(Errno::PERM), "grow must be refused");
+            let punch = FallocateFlags::PUNCH_HOLE | FallocateFlags::KEEP_SIZE;
+            assert_eq!(rustix::fs::fallocate(&rw, punch, 0, total), Err(Errno::PERM), "hole punch refused");
+            refused += 3;
+            std::thread::sleep(Duration::from_micros(100));
+        }
+        v.close_stdin();
+        let (status, lines) = v.finish();
+        assert!(status.success(), "reader process failed: {status}: {lines:?}");
+        let result = lines.iter().find(|l| l.starts_with("RESULT")).expect("RESULT line");
+        let f = bass_faults::Fields::parse(result);
+        assert!(f.u("calls") > 0 && f.u("ok") == f.u("calls"), "every call must succeed: {result}");
+        calls += f.u("calls");
+        runs += 1;
+    }
+    // Every sample of the window is still the pattern.
+    let port = Port::from_fd(reader_fd, "shrink-memfd").unwrap();
+    assert!(port.size_sealed());
+    assert_eq!(rustix::fs::fstat(port.file().as_fd()).unwrap().st_size as u64, total);
+    let nfop = port.frames_on_port() as usize;
+    let mut bufs = vec![vec![0i32; nfop]; 2];
+    let mut nfr = 1;
+    let r = {
+        let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| b.as_mut_slice()).collect();
+        port.get_audio_data(nfop, &mut nfr, &mut outs).unwrap()
+    };
+    assert_eq!((r.frames, r.loss), (nfop, 0));
+    assert_eq!(bass_faults::count_corrupted(1, nfop, &bufs), 0, "every sample must be the pattern");
+    figure!(
+        5,
+        "sealed memfd port: {runs} reader processes, {refused} shrink/grow/punch attempts all EPERM, \
+         {calls} library calls all ok, 0 SIGBUS, {nfop} frames x 2 channels exact"
+    );
     drop(w);
 }

@@ -14,7 +14,8 @@ use std::os::fd::OwnedFd;
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::time::{Duration, Instant};
 
-use bass_faults::{acquire_req, fd_count, figure, median_max, Agent, Bassd, TempDir};
+use bass_faults::{fd_count, figure, median_max, Agent};
+use bass_test_support::{acquire_req, Bassd, TempDir};
 use bassclient::control;
 
 fn connect(path: &std::path::Path) -> OwnedFd {
@@ -73,7 +74,7 @@ impl FdRef for OwnedFd {
 }
 
 fn run_bass_as(b: &Bassd, setpriv: &[&str]) -> (bool, String) {
-    let bass = bass_faults::bin_path("bass", "BASS_CLI");
+    let bass = bass_test_support::bin_path("bass", "BASS_CLI");
     let out = std::process::Command::new("setpriv")
         .args(setpriv)
         .arg(&bass)
@@ -91,9 +92,9 @@ fn run_bass_as(b: &Bassd, setpriv: &[&str]) -> (bool, String) {
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
     let group = bass_faults::test_group();
-    let dir = TempDir::new("ctl");
-    std::fs::set_permissions(&dir.0, std::fs::Permissions::from_mode(0o755)).unwrap();
-    let b = Bassd::start(&dir.0, "ctl", &["--group", &group.to_string()], &[]);
+    let dir = TempDir::shm("ctl");
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+    let b = Bassd::start_stock(dir.path(), "ctl", &["--group", &group.to_string()], &[]);
     let sock = b.socket();
     let meta = std::fs::metadata(&sock).unwrap();
     assert_eq!(meta.mode() & 0o777, 0o660, "control socket mode");
@@ -180,7 +181,7 @@ fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
         drop(fd);
     }
     let cycles_s = t.elapsed().as_secs_f64();
-    let drained = bass_faults::wait_until(Duration::from_secs(10), || fd_count(b.pid()) <= fds_before);
+    let drained = bass_test_support::wait_until(Duration::from_secs(10), || fd_count(b.pid()) <= fds_before);
     assert!(drained, "the broker kept connections of the 1000 cycles open: {} fds", fd_count(b.pid()));
 
     // A client that connects, sends requests and never reads its replies.
@@ -246,7 +247,7 @@ fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
     assert_eq!(s.state(), Some(bassclient::State::Capturing));
     assert_eq!((s.xruns, s.gap_frames), (0, 0), "the abuse caused xruns or gaps");
     drop(good);
-    let settled = bass_faults::wait_until(Duration::from_secs(5), || fd_count(b.pid()) <= fds_before);
+    let settled = bass_test_support::wait_until(Duration::from_secs(5), || fd_count(b.pid()) <= fds_before);
     let fds_after = fd_count(b.pid());
     let mut c = b.client();
     c.stop().unwrap();

@@ -14,7 +14,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use bass_faults::{acquire_req, count_corrupted, figure, Bassd, Rng, TempDir};
+use bass_faults::{count_corrupted, figure, Rng};
+use bass_test_support::{acquire_req, Bassd, TempDir};
 use bassclient::{Error, Port};
 
 /// A descriptor of a port file that was replaced (unlinked).
@@ -38,9 +39,9 @@ fn refusal(r: bassclient::Result<bassclient::control::Acquired>) -> Option<Strin
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn bad_acquires_are_refused_clearly_and_the_last_valid_one_wins() {
-    let dir = TempDir::new("acq");
+    let dir = TempDir::shm("acq");
     let cap: u64 = 16 << 20;
-    let b = Bassd::start(&dir.0, "acq", &["--max-port-bytes", &cap.to_string()], &[]);
+    let b = Bassd::start_stock(dir.path(), "acq", &["--max-port-bytes", &cap.to_string()], &[]);
     let mut c = b.client();
     let first = c.acquire(&acquire_req("sim:pattern", 48000, 480, 20, 2)).expect("valid acquire");
     let cases: Vec<(&str, bassclient::control::AcquireRequest, &str)> = vec![
@@ -184,7 +185,7 @@ fn bad_acquires_are_refused_clearly_and_the_last_valid_one_wins() {
     let superseded =
         || bass_faults::fd_targets(b.pid()).into_iter().filter(|t| is_superseded_port(t)).count();
     assert!(
-        bass_faults::wait_until(Duration::from_secs(20), || superseded() == 0),
+        bass_test_support::wait_until(Duration::from_secs(20), || superseded() == 0),
         "bassd still holds {} superseded ports after their reader left",
         superseded()
     );

@@ -11,7 +11,8 @@ use std::os::unix::process::ExitStatusExt;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
-use bass_faults::{figure, Agent, Fields, TempDir};
+use bass_faults::{figure, Agent, Fields};
+use bass_test_support::TempDir;
 use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
 
 fn geometry() -> Geometry {
@@ -22,7 +23,7 @@ fn geometry() -> Geometry {
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn port_is_0640_with_the_configured_group_and_readers_map_it_read_only() {
     let group = bass_faults::test_group();
-    let dir = TempDir::new("perm");
+    let dir = TempDir::shm("perm");
     let path = dir.join("bass-perm.port");
     let plain = dir.join("bass-plain.port");
     let _w0 =
@@ -95,8 +96,8 @@ fn another_uid_reads_only_through_the_group_and_never_writes() {
         figure!(9, "SKIPPED other-uid check: needs root and setpriv");
         return;
     }
-    let dir = TempDir::new("perm-uid");
-    std::fs::set_permissions(&dir.0, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
+    let dir = TempDir::shm("perm-uid");
+    std::fs::set_permissions(dir.path(), std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
     let path = dir.join("bass-uid.port");
     let mut w = Writer::create_at(
         &path,
@@ -127,7 +128,7 @@ fn another_uid_reads_only_through_the_group_and_never_writes() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn no_reader_ever_opens_a_half_initialised_port() {
-    let dir = TempDir::new("perm-init");
+    let dir = TempDir::shm("perm-init");
     let path = dir.join("bass-init.port");
     let done = Arc::new(AtomicBool::new(false));
     let opens = Arc::new(std::sync::atomic::AtomicU64::new(0));
@@ -163,7 +164,7 @@ fn no_reader_ever_opens_a_half_initialised_port() {
         w.publish(Source::Zeros, ChunkMeta::default()).unwrap();
     }
     // However the threads were scheduled, let the reader open the final port at least once.
-    bass_faults::wait_until(std::time::Duration::from_secs(10), || opens.load(Ordering::Relaxed) > 0);
+    bass_test_support::wait_until(std::time::Duration::from_secs(10), || opens.load(Ordering::Relaxed) > 0);
     done.store(true, Ordering::Relaxed);
     let (ok, not_found, max_epoch) = reader.join().expect("reader thread");
     let leftovers: Vec<String> = dir.entries().into_iter().filter(|e| e != "bass-init.port").collect();

@@ -12,95 +12,11 @@
 //! sample it reads is the dummy backend's silence. Skipped (reported) if jackd or the ALSA
 //! jack plugin is missing.
 
-use std::path::Path;
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use bass_faults::{acquire_req, figure, median_max, Agent, Bassd, Fields, TempDir};
+use bass_faults::{figure, median_max, Agent, Fields};
+use bass_test_support::{acquire_req, jack_missing, Bassd, JackRig, Jackd, TempDir};
 use bassclient::format::error_code;
-
-struct Jackd(Option<Child>);
-
-impl Jackd {
-    fn start(name: &str, log_dir: &Path) -> Jackd {
-        for attempt in 1..=3 {
-            let log = std::fs::File::create(log_dir.join(format!("jackd-{attempt}.log"))).unwrap();
-            let child = Command::new("jackd")
-                .args([
-                    "-n",
-                    name,
-                    "--no-realtime",
-                    "-d",
-                    "dummy",
-                    "-r",
-                    "48000",
-                    "-p",
-                    "256",
-                    "-C",
-                    "2",
-                    "-P",
-                    "2",
-                ])
-                .env("JACK_NO_AUDIO_RESERVATION", "1")
-                .stdout(Stdio::null())
-                .stderr(log)
-                .spawn()
-                .expect("start jackd");
-            let mut j = Jackd(Some(child));
-            let ok = Command::new("jack_wait")
-                .args(["-s", name, "-w", "-t", "10"])
-                .env("JACK_NO_START_SERVER", "1")
-                .stdout(Stdio::null())
-                .stderr(Stdio::null())
-                .status()
-                .map(|s| s.success())
-                .unwrap_or(false);
-            if ok {
-                return j;
-            }
-            j.kill(libc::SIGKILL);
-            eprintln!("jackd attempt {attempt} did not come up");
-        }
-        panic!("jackd -n {name} did not come up");
-    }
-
-    fn kill(&mut self, sig: libc::c_int) -> Instant {
-        let t = Instant::now();
-        if let Some(mut c) = self.0.take() {
-            // SAFETY: kill(2) on our own child.
-            unsafe { libc::kill(c.id() as libc::pid_t, sig) };
-            let _ = c.wait();
-        }
-        t
-    }
-}
-
-impl Drop for Jackd {
-    fn drop(&mut self) {
-        self.kill(libc::SIGKILL);
-    }
-}
-
-fn available() -> Result<(), String> {
-    for tool in ["jackd", "jack_wait"] {
-        if Command::new("sh")
-            .args(["-c", &format!("command -v {tool}")])
-            .output()
-            .map(|o| !o.status.success())
-            .unwrap_or(true)
-        {
-            return Err(format!("{tool} not installed"));
-        }
-    }
-    let plugin =
-        ["/usr/lib/x86_64-linux-gnu/alsa-lib", "/usr/lib/aarch64-linux-gnu/alsa-lib", "/usr/lib/alsa-lib"]
-            .iter()
-            .any(|d| Path::new(d).join("libasound_module_pcm_jack.so").exists());
-    if !plugin {
-        return Err("ALSA jack plugin (libasound2-plugins) not installed".into());
-    }
-    Ok(())
-}
 
 fn mono_ns() -> u64 {
     bassclient::sys::monotonic_ns()
@@ -109,35 +25,17 @@ fn mono_ns() -> u64 {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn killed_jackd_is_an_error_readers_see_and_a_new_acquire_resumes_in_a_new_epoch() {
-    if let Err(why) = available() {
+    if let Some(why) = jack_missing() {
         figure!(10, "SKIPPED: {why}");
         return;
     }
-    let dir = TempDir::new("jack");
     // A fixed server name: JACK keeps 8 server slots per machine and frees a SIGKILLed
     // server's slot only when a server of the same name starts again, so a per-run name
     // would use up the slots after a few runs.
-    let jack_name = "bass-faults-t10".to_string();
-    let rc = dir.join("asoundrc");
-    std::fs::write(
-        &rc,
-        "pcm.bass_jack {\n  type jack\n  capture_ports { 0 system:capture_1 1 system:capture_2 }\n}\n",
-    )
-    .unwrap();
-    let alsa_path = format!("/usr/share/alsa/alsa.conf:{}", rc.display());
-    let logs = TempDir::new("jack-logs");
-    let mut jackd = Jackd::start(&jack_name, &logs.0);
-    let b = Bassd::start(
-        &dir.0,
-        "jk",
-        &["--allow-device", "bass_jack"],
-        &[
-            ("ALSA_CONFIG_PATH", &alsa_path),
-            ("JACK_DEFAULT_SERVER", &jack_name),
-            ("JACK_NO_START_SERVER", "1"),
-            ("JACK_NO_AUDIO_RESERVATION", "1"),
-        ],
-    );
+    let rig = JackRig::new(TempDir::shm("jack"), "bass-faults-t10");
+    let logs = TempDir::shm("jack-logs");
+    let mut jackd = Jackd::start(&rig.jack_name, 48000, logs.path());
+    let b = Bassd::start_stock(rig.path(), "jk", &["--allow-device", "bass_jack"], &rig.env());
     let mut c = b.client();
     let mut epoch = c.acquire(&acquire_req("bass_jack", 48000, 480, 200, 2)).expect("acquire on jack").epoch;
     let mut follower = Agent::spawn(&[
@@ -172,7 +70,7 @@ fn killed_jackd_is_an_error_readers_see_and_a_new_acquire_resumes_in_a_new_epoch
         assert_eq!(s.state(), Some(bassclient::State::Error), "status after the loss");
         assert_eq!(s.epoch, epoch);
         // Recovery: a new server and a new Acquire.
-        jackd = Jackd::start(&jack_name, &logs.0);
+        jackd = Jackd::start(&rig.jack_name, 48000, logs.path());
         let end = Instant::now() + Duration::from_secs(20);
         let a = loop {
             match c.acquire(&acquire_req("bass_jack", 48000, 480, 200, 2)) {

@@ -9,7 +9,8 @@
 
 use std::time::{Duration, Instant};
 
-use bass_faults::{figure, status_kb, Agent, TempDir};
+use bass_faults::{figure, status_kb, Agent};
+use bass_test_support::TempDir;
 
 const NFPC: u64 = 4096;
 
@@ -19,22 +20,10 @@ fn a_billion_frames_keep_accounting_exact_and_memory_flat() {
     let frames: u64 =
         std::env::var("BASS_FAULTS_SOAK_FRAMES").ok().and_then(|s| s.parse().ok()).unwrap_or(4_500_000_000);
     let chunks = frames.div_ceil(NFPC);
-    let dir = TempDir::new("soak");
+    let dir = TempDir::shm("soak");
     let port = dir.join("bass-soak.port");
     let p = port.to_str().unwrap();
-    let mut w = Agent::spawn(&[
-        "writer",
-        "--port",
-        p,
-        "--nfpc",
-        "4096",
-        "--ncop",
-        "16",
-        "--chunks",
-        &chunks.to_string(),
-        "--wait-go",
-    ]);
-    w.expect_line("ready");
+    let mut w = Agent::writer_held(p, 4096, 16, &["--chunks", &chunks.to_string()]);
     let kinds = [("copy", "4096"), ("wait", "8192"), ("view", "4096")];
     let mut readers: Vec<Agent> =
         kinds.iter().map(|(m, n)| Agent::spawn(&["reader", "--port", p, "--mode", m, "--n", n])).collect();

@@ -90,7 +90,7 @@ fn heap_ring_readers_never_see_torn_frames_and_account_every_frame() {
 #[cfg_attr(miri, ignore = "Miri cannot mmap a file")]
 fn mapped_port_threads_never_see_torn_frames_and_account_every_frame() {
     use bassclient::{ChunkMeta, Geometry, Port, PortParams, Writer};
-    let dir = bass_faults::TempDir::new("tsan-port");
+    let dir = bass_test_support::TempDir::shm("tsan-port");
     let path = dir.join("bass-tsan.port");
     let geometry = Geometry {
         channels: CH as u32,

@@ -9,7 +9,8 @@
 use std::sync::mpsc;
 use std::time::Duration;
 
-use bass_faults::{fd_count, figure, wait_until, Bassd, TempDir};
+use bass_faults::{fd_count, figure};
+use bass_test_support::{wait_until, Bassd, TempDir};
 use bassclient::control::Client;
 use bassclient::Port;
 
@@ -19,9 +20,9 @@ const CONNECTIONS: usize = 60;
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn running_out_of_descriptors_refuses_connections_and_recovers_while_capture_goes_on() {
-    let dir = TempDir::new("emfile");
+    let dir = TempDir::shm("emfile");
     let args = ["--acquire", "sim:pattern", "--rate", "48000", "--frames", "480", "--chunks", "20"];
-    let mut b = Bassd::start(&dir.0, "fd", &args, &[]);
+    let mut b = Bassd::start_stock(dir.path(), "fd", &args, &[]);
     let pid = b.pid();
     let fds_before = fd_count(pid);
     assert!((fds_before as u64) < LIMIT - 10, "bassd already has {fds_before} descriptors");
@@ -48,7 +49,7 @@ fn running_out_of_descriptors_refuses_connections_and_recovers_while_capture_goe
         let _ = tx.send((held, refusals));
     });
     let (held, refusals) = rx.recv_timeout(Duration::from_secs(60)).expect("the 60 connections hung");
-    assert!(b.child.as_mut().unwrap().try_wait().unwrap().is_none(), "bassd exited when descriptors ran out");
+    assert!(b.is_running(), "bassd exited when descriptors ran out");
     assert!(!refusals.is_empty(), "the descriptor limit was never reached ({} served)", held.len());
     for r in &refusals {
         assert!(r.contains("out of file descriptors"), "unexpected refusal: {r}");

@@ -17,7 +17,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use bass_faults::{acquire_req, figure, is_root, wait_until, Bassd, TempDir};
+use bass_faults::{figure, is_root};
+use bass_test_support::{acquire_req, wait_until, Bassd, TempDir};
 use bassclient::{Error, Port, State};
 
 const NOBODY: &str = "65534";
@@ -86,12 +87,12 @@ fn a_port_that_does_not_fit_is_refused_up_front_and_the_broker_lives() {
         println!("skipped: mounting a tmpfs needs root");
         return;
     }
-    let base = TempDir::new("fullfs");
+    let base = TempDir::shm("fullfs");
     let mnt = base.join("s");
     let _fs = Tmpfs::mount(&mnt, "8m");
     // The issue's repro asks for 768 kHz: above the default --max-rate (issue 14 item 3), so
     // the operator widens it here; what is tested is the space check.
-    let mut b = Bassd::start(&mnt, "default", &["--max-rate", "768000"], &[]);
+    let mut b = Bassd::start_stock(&mnt, "default", &["--max-rate", "768000"], &[]);
     let mut c = b.client();
     c.acquire(&acquire_req("sim:pattern", 8000, 800, 10, 2)).expect("small acquire");
     wait_frames(&b, 4000);
@@ -117,10 +118,10 @@ fn a_port_that_does_not_fit_is_refused_up_front_and_the_broker_lives() {
     let (epoch, lfi, samples) = window(&b.port_path());
     // The same refusal again through the file system's own limit: the space check races
     // nothing here, so it is the up-front check that answered; bassd is alive.
-    assert!(b.child.as_mut().unwrap().try_wait().unwrap().is_none(), "bassd died");
+    assert!(b.is_running(), "bassd died");
     assert_eq!(window(&b.port_path()), (epoch, lfi, samples), "the stopped port changed");
     let leftovers: Vec<String> =
-        bass_faults::list_dir(&mnt).into_iter().filter(|n| n.ends_with(".tmp")).collect();
+        bass_test_support::list_dir(&mnt).into_iter().filter(|n| n.ends_with(".tmp")).collect();
     assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
     b.kill(libc::SIGTERM);
 }
@@ -128,8 +129,8 @@ fn a_port_that_does_not_fit_is_refused_up_front_and_the_broker_lives() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_failed_acquire_after_stop_keeps_the_stopped_port_exactly() {
-    let dir = TempDir::new("keep");
-    let b = Bassd::start(&dir.0, "keep", &[], &[]);
+    let dir = TempDir::shm("keep");
+    let b = Bassd::start_stock(dir.path(), "keep", &[], &[]);
     let mut c = b.client();
     c.acquire(&acquire_req("sim:pattern", 8000, 800, 10, 2)).unwrap();
     wait_frames(&b, 8000);
@@ -163,8 +164,8 @@ fn a_failed_acquire_after_stop_keeps_the_stopped_port_exactly() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_switch_that_fails_keeps_the_old_window_and_stop_clears_the_error() {
-    let dir = TempDir::new("switch");
-    let b = Bassd::start(&dir.0, "switch", &[], &[]);
+    let dir = TempDir::shm("switch");
+    let b = Bassd::start_stock(dir.path(), "switch", &[], &[]);
     let mut c = b.client();
     // A new acquisition says it is starting until its first chunk (60 s away here).
     c.acquire(&acquire_req("sim:pattern", 1000, 60000, 2, 1)).unwrap();
@@ -205,7 +206,7 @@ fn a_switch_that_fails_keeps_the_old_window_and_stop_clears_the_error() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_zero_filled_port_gives_up_with_never_ready_after_a_bounded_time() {
-    let dir = TempDir::new("zero");
+    let dir = TempDir::shm("zero");
     let path = dir.join("bass-zero.port");
     std::fs::write(&path, vec![0u8; 3 * 4096]).unwrap();
     let t0 = Instant::now();
@@ -239,10 +240,10 @@ fn a_planted_symlink_or_foreign_file_is_refused_and_its_target_untouched() {
         println!("skipped: needs root (setpriv to another uid)");
         return;
     }
-    let dir = TempDir::new("plant");
-    std::fs::set_permissions(dir.0.as_path(), std::fs::Permissions::from_mode(0o1777)).unwrap();
+    let dir = TempDir::shm("plant");
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o1777)).unwrap();
     // The victim: a root file that happens to be a valid, stopped port.
-    let victims = TempDir::new("victim");
+    let victims = TempDir::shm("victim");
     let victim = victims.join("victim.port");
     let g = bassclient::Geometry { channels: 2, sample_rate: 8000, frames_per_chunk: 80, chunks_on_port: 4 };
     drop(
@@ -256,7 +257,7 @@ fn a_planted_symlink_or_foreign_file_is_refused_and_its_target_untouched() {
     let link = dir.join("bass-default.port");
     let out = as_nobody("ln", &["-s", victim.to_str().unwrap(), link.to_str().unwrap()]);
     assert!(out.status.success(), "ln -s as nobody: {}", String::from_utf8_lossy(&out.stderr));
-    let b = Bassd::start(dir.0.as_path(), "default", &[], &[]);
+    let b = Bassd::start_stock(dir.path(), "default", &[], &[]);
     let mut c = b.client();
     let m = broker_error(c.acquire(&acquire_req("sim:pattern", 8000, 80, 4, 2)));
     figure!(14, "item 1: port name planted as a symlink -> {m}");
@@ -286,8 +287,8 @@ fn a_root_reader_refuses_a_port_squatted_by_another_user() {
         println!("skipped: needs root (setpriv to another uid)");
         return;
     }
-    let dir = TempDir::new("squat");
-    std::fs::set_permissions(dir.0.as_path(), std::fs::Permissions::from_mode(0o1777)).unwrap();
+    let dir = TempDir::shm("squat");
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o1777)).unwrap();
     let port = dir.join("bass-default.port");
     let mut squatter = Command::new("setpriv")
         .args(["--reuid", NOBODY, "--regid", NOBODY, "--clear-groups"])
@@ -300,7 +301,7 @@ fn a_root_reader_refuses_a_port_squatted_by_another_user() {
     let mut line = String::new();
     BufReader::new(squatter.stdout.take().unwrap()).read_line(&mut line).unwrap();
     assert!(line.starts_with("ready"), "squatter: {line:?}");
-    std::env::set_var("BASS_RUNTIME_DIR", dir.0.as_path());
+    std::env::set_var("BASS_RUNTIME_DIR", dir.path());
     std::env::remove_var("BASS_BROKER_UID");
     let e = Port::open("default").err().expect("a squatted port must not open");
     figure!(14, "item 2b: root reader, port of nobody -> {e}");
@@ -311,11 +312,11 @@ fn a_root_reader_refuses_a_port_squatted_by_another_user() {
     assert!(Port::open("default").is_ok(), "BASS_BROKER_UID=65534 accepts nobody's port");
     std::env::remove_var("BASS_BROKER_UID");
     // A runtime directory only its owner can write vouches for its owner's ports.
-    std::fs::set_permissions(dir.0.as_path(), std::fs::Permissions::from_mode(0o755)).unwrap();
-    std::os::unix::fs::chown(dir.0.as_path(), Some(65534), Some(65534)).unwrap();
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+    std::os::unix::fs::chown(dir.path(), Some(65534), Some(65534)).unwrap();
     assert!(Port::open("default").is_ok(), "a 0755 directory of nobody vouches for nobody's port");
-    std::os::unix::fs::chown(dir.0.as_path(), Some(0), Some(0)).unwrap();
-    std::fs::set_permissions(dir.0.as_path(), std::fs::Permissions::from_mode(0o1777)).unwrap();
+    std::os::unix::fs::chown(dir.path(), Some(0), Some(0)).unwrap();
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o1777)).unwrap();
     drop(squatter.stdin.take());
     let _ = squatter.kill();
     let _ = squatter.wait();
@@ -356,11 +357,11 @@ fn a_group_member_cannot_pin_more_than_the_stated_bound_of_superseded_ports() {
         return;
     }
     let gid = bass_faults::test_group().to_string();
-    let dir = TempDir::new("pin");
-    std::fs::set_permissions(dir.0.as_path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+    let dir = TempDir::shm("pin");
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
     let cap: u64 = 32 << 20;
     let b =
-        Bassd::start(dir.0.as_path(), "pin", &["--group", &gid, "--max-port-bytes", &cap.to_string()], &[]);
+        Bassd::start_stock(dir.path(), "pin", &["--group", &gid, "--max-port-bytes", &cap.to_string()], &[]);
     // The issue's loop: ten Acquires of a ~28.6 MiB port, each new port opened and kept.
     let member = |rounds: &str| {
         Command::new("setpriv")
@@ -402,19 +403,23 @@ fn a_group_member_cannot_pin_more_than_the_stated_bound_of_superseded_ports() {
     let mut c = b.client();
     c.acquire(&acquire_req("sim:silence", 48000, 48000, 78, 2)).expect("root's Acquire");
     drop(m.stdin.take());
-    let _ = m.wait();
+    let st = m.wait().expect("wait for the member");
+    assert!(st.success(), "the member ended with {st}");
     let mut again = member("1");
     let mut l = String::new();
     BufReader::new(again.stdout.take().unwrap()).read_line(&mut l).unwrap();
     assert!(l.contains(" ok "), "a member that released its mappings is refused: {l}");
+    // The test stops reading here: the agent may meet EPIPE on its RESULT line and must end
+    // quietly (status 0), not panic.
     drop(again.stdin.take());
-    let _ = again.wait();
+    let st = again.wait().expect("wait for the second member");
+    assert!(st.success(), "the second member ended with {st} after the test stopped reading");
 }
 
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_new_port_is_wholly_allocated_not_sparse() {
-    let dir = TempDir::new("alloc");
+    let dir = TempDir::shm("alloc");
     let path = dir.join("bass-alloc.port");
     let g =
         bassclient::Geometry { channels: 2, sample_rate: 48000, frames_per_chunk: 4800, chunks_on_port: 100 };
@@ -438,7 +443,7 @@ fn a_new_port_is_wholly_allocated_not_sparse() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_temporary_port_left_by_a_dead_writer_is_removed_by_the_next_one() {
-    let dir = TempDir::new("stale");
+    let dir = TempDir::shm("stale");
     // A leftover of a writer (pid 2^22 + 1 cannot exist: above pid_max's ceiling) next to
     // one of a live process (ours is never touched by another writer).
     let dead = dir.join(".bass-stale.port.4194305.0.tmp");

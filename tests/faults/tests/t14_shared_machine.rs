@@ -16,7 +16,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::Duration;
 
-use bass_faults::{bin_path, figure, is_root, test_group, wait_until, Agent, Bassd, TempDir};
+use bass_faults::{figure, is_root, test_group, Agent};
+use bass_test_support::{bin_path, wait_until, Bassd, TempDir};
 
 const NOBODY: [&str; 3] = ["--reuid=65534", "--regid=65534", "--clear-groups"];
 
@@ -31,8 +32,8 @@ fn as_nobody(cmd: &str, args: &[&str]) -> Output {
 
 /// A world-writable (1777) runtime directory, like /dev/shm.
 fn sticky_dir(tag: &str) -> TempDir {
-    let d = TempDir::new(tag);
-    std::fs::set_permissions(&d.0, std::fs::Permissions::from_mode(0o1777)).unwrap();
+    let d = TempDir::shm(tag);
+    std::fs::set_permissions(d.path(), std::fs::Permissions::from_mode(0o1777)).unwrap();
     d
 }
 
@@ -66,11 +67,11 @@ fn files_planted_in_the_runtime_directory_are_refused_not_followed() {
         return;
     }
     let d = sticky_dir("plant");
-    let victims = TempDir::new("victims");
+    let victims = TempDir::shm("victims");
     let victim = victims.join("v");
     std::fs::write(&victim, "data\n").unwrap();
     let dangling = victims.join("created-by-root");
-    let dir = d.0.to_str().unwrap();
+    let dir = d.path().to_str().unwrap();
     let mut lines = Vec::new();
     let cases: [(&str, Vec<String>, &str); 4] = [
         (
@@ -94,7 +95,7 @@ fn files_planted_in_the_runtime_directory_are_refused_not_followed() {
         let args: Vec<&str> = cmd[1..].iter().map(String::as_str).collect();
         let out = as_nobody(&cmd[0], &args);
         assert!(out.status.success(), "planting for {name}: {}", String::from_utf8_lossy(&out.stderr));
-        let err = bassd_refuses(&d.0, name);
+        let err = bassd_refuses(d.path(), name);
         assert!(err.contains(why), "{name}: {err}");
         lines.push(format!("{name}: {}", err.trim()));
     }
@@ -110,12 +111,12 @@ fn files_planted_in_the_runtime_directory_are_refused_not_followed() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn the_lock_holders_text_is_never_echoed() {
-    let d = TempDir::new("locktext");
+    let d = TempDir::shm("locktext");
     let lock = d.join("bass-busy.lock");
     std::fs::write(&lock, "\x1b]0;evil\x07\x1b[2J 1234\n").unwrap();
     let f = std::fs::File::open(&lock).unwrap();
     rustix::fs::flock(&f, rustix::fs::FlockOperation::NonBlockingLockExclusive).unwrap();
-    let err = bassd_refuses(&d.0, "busy");
+    let err = bassd_refuses(d.path(), "busy");
     assert!(err.contains("already running (pid unknown"), "{err}");
     assert!(!err.contains('\x1b') && !err.contains("evil"), "the lock's text was echoed: {err:?}");
     figure!("14.2", "a lock holding escape sequences: {}", err.trim());
@@ -134,7 +135,7 @@ fn clients_refuse_a_control_socket_served_by_another_user() {
         .args(NOBODY)
         .arg(&bassd)
         .args(["--name", "imp", "--rt-priority", "0"])
-        .env("BASS_RUNTIME_DIR", &d.0)
+        .env("BASS_RUNTIME_DIR", d.path())
         .env("BASS_LOG", "error")
         .stdin(Stdio::null())
         .stdout(Stdio::null())
@@ -145,7 +146,7 @@ fn clients_refuse_a_control_socket_served_by_another_user() {
     let bass = bin_path("bass", "BASS_CLI");
     let status = |extra: &[(&str, &str)]| {
         let mut c = Command::new(&bass);
-        c.args(["--name", "imp", "status"]).env("BASS_RUNTIME_DIR", &d.0).env_remove("BASS_BROKER_UID");
+        c.args(["--name", "imp", "status"]).env("BASS_RUNTIME_DIR", d.path()).env_remove("BASS_BROKER_UID");
         for (k, v) in extra {
             c.env(k, v);
         }
@@ -226,10 +227,10 @@ fn group_members_cannot_take_the_connections_kept_for_root() {
         figure!("14.5", "SKIPPED: needs root and setpriv");
         return;
     }
-    let d = TempDir::new("reserved");
-    std::fs::set_permissions(&d.0, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let d = TempDir::shm("reserved");
+    std::fs::set_permissions(d.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
     let group = test_group().to_string();
-    let b = Bassd::start(&d.0, "res", &["--group", &group], &[]);
+    let b = Bassd::start_stock(d.path(), "res", &["--group", &group], &[]);
     let sock = b.socket();
     let member = ["--reuid=65534", "--regid=65534", &format!("--groups={group}")];
     let mut agent = Agent::spawn_setpriv(

@@ -12,13 +12,24 @@
 //! bass-fault-agent poke    --port P                (writes through its read-only mapping)
 //! bass-fault-agent shrink-victim --port P          (library calls until stdin closes)
 //! bass-fault-agent try-open --port P               (reports whether it may open / write)
+//! bass-fault-agent try-open --name N               (opens by name: a memfd port through the broker)
 //! bass-fault-agent control-victim --socket S --name N  (status requests forever)
 //! bass-fault-agent follow --port P --n N --expect zero|pattern  (across epochs, until stdin closes)
+//! bass-fault-agent hold-connections --socket S --name N --n K  (holds them until stdin closes)
+//! bass-fault-agent pin-loop --socket S --name N [--device D --rate R --nfpc F --ncop C
+//!                           --channels CH] --rounds K  (Acquire and keep each new port mapped)
 //! ```
+//!
+//! Wherever a port is read, `--fd N` (an inherited descriptor, e.g. of a memfd port) or
+//! `--name N` (`Port::open`, in $BASS_RUNTIME_DIR) may stand for `--port P`.
+//!
+//! Arguments are parsed with clap (`bass-fault-agent ROLE --help`); a bad value is an error
+//! naming the option, exit status 2. Output lines go through `say!`: if the test stops
+//! reading, the agent ends quietly with status 0 instead of panicking on EPIPE.
 
-use std::collections::HashMap;
-use std::io::BufRead;
-use std::path::PathBuf;
+use std::fmt;
+use std::io::{BufRead, ErrorKind, Write};
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -26,61 +37,244 @@ use std::time::{Duration, Instant};
 use bass_faults::count_corrupted;
 use bassclient::testsignal::{fill_pattern_interleaved, pattern_expected};
 use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, State, Writer};
+use clap::{Args, Parser, Subcommand, ValueEnum};
 
-struct Args(HashMap<String, String>);
+/// The child processes of the bass fault suite.
+#[derive(Parser)]
+#[command(name = "bass-fault-agent")]
+struct Cli {
+    #[command(subcommand)]
+    role: Role,
+}
 
-impl Args {
-    fn parse(v: &[String]) -> Args {
-        let mut m = HashMap::new();
-        let mut i = 0;
-        while i < v.len() {
-            let k = v[i].trim_start_matches("--").to_owned();
-            if i + 1 < v.len() && !v[i + 1].starts_with("--") {
-                m.insert(k, v[i + 1].clone());
-                i += 2;
-            } else {
-                m.insert(k, "1".into());
-                i += 1;
-            }
-        }
-        Args(m)
-    }
-    fn u(&self, k: &str, default: u64) -> u64 {
-        self.0.get(k).map(|v| v.parse().unwrap_or_else(|_| panic!("--{k} {v}"))).unwrap_or(default)
-    }
-    fn s(&self, k: &str, default: &str) -> String {
-        self.0.get(k).cloned().unwrap_or_else(|| default.to_owned())
-    }
-    fn flag(&self, k: &str) -> bool {
-        self.0.contains_key(k)
-    }
-    fn port(&self) -> PathBuf {
-        PathBuf::from(self.0.get("port").expect("--port PATH"))
+#[derive(Subcommand)]
+enum Role {
+    /// Publish the pattern signal into a new port.
+    Writer(WriterArgs),
+    /// Read the pattern until the writer stops; report the accounting.
+    Reader(ReaderArgs),
+    /// One read per `read` line on stdin, reported as a `READ` line.
+    Stepped(SteppedArgs),
+    /// Read or wait forever, to be killed mid-call.
+    Victim(VictimArgs),
+    /// Store through the read-only mapping (must fault).
+    Poke(PortArg),
+    /// Call every size-dependent library function until stdin closes.
+    ShrinkVictim(PortArg),
+    /// Report whether this process may open the port for reading and for writing.
+    TryOpen(PortArg),
+    /// Send status requests forever, to be killed mid-request.
+    ControlVictim(BrokerArgs),
+    /// Follow the port across acquisitions until stdin closes.
+    Follow(FollowArgs),
+    /// Open control connections and hold the served ones until stdin closes.
+    HoldConnections(HoldArgs),
+    /// Acquire and keep each new port mapped, round after round.
+    PinLoop(PinArgs),
+}
+
+#[derive(Args)]
+#[group(required = true, multiple = false)]
+struct PortArg {
+    /// The port file.
+    #[arg(long)]
+    port: Option<PathBuf>,
+    /// An inherited descriptor of the port (close-on-exec cleared), e.g. of a memfd port.
+    #[arg(long)]
+    fd: Option<i32>,
+    /// A port name, opened with `Port::open` (a memfd port through its broker).
+    #[arg(long)]
+    name: Option<String>,
+}
+
+impl PortArg {
+    /// The port file, for the roles that need a path.
+    fn path(&self) -> &Path {
+        self.port.as_deref().unwrap_or_else(|| {
+            eprintln!("bass-fault-agent: this role needs --port PATH");
+            std::process::exit(2)
+        })
     }
 }
 
+#[derive(Args)]
+struct WriterArgs {
+    #[command(flatten)]
+    port: PortArg,
+    #[arg(long, default_value_t = 2)]
+    channels: u32,
+    #[arg(long, default_value_t = 48000)]
+    rate: u32,
+    /// Frames per chunk.
+    #[arg(long, default_value_t = 64)]
+    nfpc: u32,
+    /// Chunks on the port.
+    #[arg(long, default_value_t = 8)]
+    ncop: u32,
+    /// One chunk every U µs on absolute deadlines (0: unpaced; at most an hour).
+    #[arg(long = "pace-us", default_value_t = 0,
+          value_parser = clap::value_parser!(u64).range(..=3_600_000_000))]
+    pace_us: u64,
+    /// Stop after K chunks (0: no limit).
+    #[arg(long, default_value_t = 0)]
+    chunks: u64,
+    /// Stop after S seconds (0: no limit).
+    #[arg(long, default_value_t = 0)]
+    seconds: u64,
+    /// After `ready`, wait for a line on stdin before publishing.
+    #[arg(long = "wait-go")]
+    wait_go: bool,
+    /// Group that may read the port.
+    #[arg(long)]
+    group: Option<u32>,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum ReadMode {
+    /// bass_get_audio_data into the reader's buffers.
+    Copy,
+    /// Block in wait until the frames are published, then copy.
+    Wait,
+    /// Zero-copy view, read in place.
+    View,
+}
+
+#[derive(Args)]
+struct ReaderArgs {
+    #[command(flatten)]
+    port: PortArg,
+    #[arg(long, value_enum, default_value_t = ReadMode::Copy)]
+    mode: ReadMode,
+    /// Frames per read.
+    #[arg(long, default_value_t = 64)]
+    n: usize,
+    /// Pause between reads, µs.
+    #[arg(long = "pause-us", default_value_t = 0)]
+    pause_us: u64,
+    /// Print a `LOSS` line for every read that lost frames.
+    #[arg(long = "log-loss")]
+    log_loss: bool,
+}
+
+#[derive(Args)]
+struct SteppedArgs {
+    #[command(flatten)]
+    port: PortArg,
+    /// Frames per read.
+    #[arg(long, default_value_t = 1 << 20)]
+    n: usize,
+    /// The first frame to read.
+    #[arg(long, default_value_t = 1)]
+    nfr: u64,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum VictimMode {
+    /// Read the whole window in a loop.
+    Read,
+    /// Wait for a frame that never comes.
+    Wait,
+}
+
+#[derive(Args)]
+struct VictimArgs {
+    #[command(flatten)]
+    port: PortArg,
+    #[arg(long, value_enum, default_value_t = VictimMode::Read)]
+    mode: VictimMode,
+}
+
+#[derive(Args)]
+struct BrokerArgs {
+    /// The broker's control socket.
+    #[arg(long)]
+    socket: PathBuf,
+    /// The broker's name.
+    #[arg(long, default_value = "default")]
+    name: String,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum Expect {
+    /// Silence: every sample 0.
+    Zero,
+    /// The test pattern.
+    Pattern,
+}
+
+#[derive(Args)]
+struct FollowArgs {
+    #[command(flatten)]
+    port: PortArg,
+    /// Frames per read.
+    #[arg(long, default_value_t = 480)]
+    n: usize,
+    #[arg(long, value_enum, default_value_t = Expect::Zero)]
+    expect: Expect,
+}
+
+#[derive(Args)]
+struct HoldArgs {
+    #[command(flatten)]
+    broker: BrokerArgs,
+    /// Connections to open.
+    #[arg(long, default_value_t = 1)]
+    n: u64,
+}
+
+#[derive(Args)]
+struct PinArgs {
+    #[command(flatten)]
+    broker: BrokerArgs,
+    #[arg(long, default_value = "sim:silence")]
+    device: String,
+    #[arg(long, default_value_t = 48000)]
+    rate: u32,
+    #[arg(long, default_value_t = 480)]
+    nfpc: u32,
+    #[arg(long, default_value_t = 100)]
+    ncop: u32,
+    #[arg(long, default_value_t = 2)]
+    channels: u32,
+    /// Acquire-and-keep rounds.
+    #[arg(long, default_value_t = 10)]
+    rounds: u64,
+}
+
 fn main() {
-    let argv: Vec<String> = std::env::args().skip(1).collect();
-    let role = argv.first().cloned().unwrap_or_default();
-    let args = Args::parse(&argv[1.min(argv.len())..]);
-    match role.as_str() {
-        "writer" => writer(&args),
-        "reader" => reader(&args),
-        "stepped" => stepped(&args),
-        "victim" => victim(&args),
-        "poke" => poke(&args),
-        "shrink-victim" => shrink_victim(&args),
-        "try-open" => try_open(&args),
-        "control-victim" => control_victim(&args),
-        "follow" => follow(&args),
-        "hold-connections" => hold_connections(&args),
-        "pin-loop" => pin_loop(&args),
-        _ => {
-            eprintln!(
-                "usage: bass-fault-agent writer|reader|stepped|victim|poke|shrink-victim --port PATH ..."
-            );
-            std::process::exit(2);
+    match Cli::parse().role {
+        Role::Writer(a) => writer(&a),
+        Role::Reader(a) => reader(&a),
+        Role::Stepped(a) => stepped(&a),
+        Role::Victim(a) => victim(&a),
+        Role::Poke(a) => poke(&a),
+        Role::ShrinkVictim(a) => shrink_victim(&a),
+        Role::TryOpen(a) => try_open(&a),
+        Role::ControlVictim(a) => control_victim(&a),
+        Role::Follow(a) => follow(&a),
+        Role::HoldConnections(a) => hold_connections(&a),
+        Role::PinLoop(a) => pin_loop(&a),
+    }
+}
+
+/// Prints one line for the test on stdout.
+macro_rules! say {
+    ($($arg:tt)*) => {
+        say(format_args!($($arg)*))
+    };
+}
+
+/// Writes `line` and a newline to stdout and flushes. A test that has stopped reading (the
+/// pipe's read end is closed: EPIPE) leaves no one to report to, so the agent ends quietly
+/// with status 0 rather than panicking; any other write error is status 1 with a message.
+fn say(line: fmt::Arguments) {
+    let mut out = std::io::stdout().lock();
+    if let Err(e) = writeln!(out, "{line}").and_then(|()| out.flush()) {
+        if e.kind() == ErrorKind::BrokenPipe {
+            std::process::exit(0);
         }
+        eprintln!("bass-fault-agent: writing to stdout: {e}");
+        std::process::exit(1);
     }
 }
 
@@ -117,30 +311,28 @@ fn ts_ns(ts: &libc::timespec) -> i64 {
 
 /// Publishes the pattern signal, paced on absolute deadlines or unpaced; reports how late
 /// it ever was (a stalled or killed reader must not delay it).
-fn writer(a: &Args) {
+fn writer(a: &WriterArgs) {
     let geometry = Geometry {
-        channels: a.u("channels", 2) as u32,
-        sample_rate: a.u("rate", 48000) as u32,
-        frames_per_chunk: a.u("nfpc", 64) as u32,
-        chunks_on_port: a.u("ncop", 8) as u32,
+        channels: a.channels,
+        sample_rate: a.rate,
+        frames_per_chunk: a.nfpc,
+        chunks_on_port: a.ncop,
     };
-    let group = a.0.get("group").map(|g| g.parse().expect("--group GID"));
     let mut w = Writer::create_at(
-        &a.port(),
-        &PortParams { geometry: geometry.clone(), device: "fault-agent".into(), group },
+        a.port.path(),
+        &PortParams { geometry: geometry.clone(), device: "fault-agent".into(), group: a.group },
     )
     .expect("create port");
-    println!("ready pid={} epoch={}", std::process::id(), w.epoch());
-    let stop = if a.flag("wait-go") {
+    say!("ready pid={} epoch={}", std::process::id(), w.epoch());
+    let stop = if a.wait_go {
         let mut go = String::new();
         std::io::stdin().read_line(&mut go).expect("stdin");
         stdin_stop_flag()
     } else {
         stdin_stop_flag()
     };
-    let chunks = a.u("chunks", 0);
-    let seconds = a.u("seconds", 0);
-    let pace_ns = a.u("pace-us", 0) as i64 * 1000;
+    let (chunks, seconds) = (a.chunks, a.seconds);
+    let pace_ns = a.pace_us as i64 * 1000; // at most 3.6e12: no overflow
     let started = Instant::now();
     let mut chunk = vec![0i32; (geometry.frames_per_chunk * geometry.channels) as usize];
     let mut deadline = monotonic();
@@ -178,7 +370,7 @@ fn writer(a: &Args) {
     }
     let last = w.last_frame_index();
     w.stop();
-    println!(
+    say!(
         "RESULT last={last} chunks={published} max_late_us={} max_publish_us={} rss_start_kb={rss_start} rss_end_kb={} anon_end_kb={} secs={:.3}",
         max_late_ns / 1000,
         max_publish_ns / 1000,
@@ -197,11 +389,21 @@ fn own_status_kb(field: &str) -> u64 {
         .unwrap_or(0)
 }
 
-fn open(a: &Args) -> Port {
-    let path = a.port();
+fn open(a: &PortArg) -> Port {
+    if let Some(fd) = a.fd {
+        use std::os::fd::FromRawFd;
+        // SAFETY: the test passed us this inherited descriptor (close-on-exec cleared) for us
+        // alone; nothing else in this process owns or closes it.
+        let owned = unsafe { std::os::fd::OwnedFd::from_raw_fd(fd) };
+        return Port::from_fd(owned, "inherited").unwrap_or_else(|e| panic!("port from fd {fd}: {e}"));
+    }
+    if let Some(name) = &a.name {
+        return Port::open(name).unwrap_or_else(|e| panic!("open port {name}: {e}"));
+    }
+    let path = a.path();
     let end = Instant::now() + Duration::from_secs(10);
     loop {
-        match Port::open_path(&path) {
+        match Port::open_path(path) {
             Ok(p) => return p,
             Err(Error::NotFound { .. } | Error::NotReady) if Instant::now() < end => {
                 std::thread::sleep(Duration::from_millis(2))
@@ -214,21 +416,20 @@ fn open(a: &Args) -> Port {
 /// Reads the pattern until the writer stops and every frame is accounted for; checks every
 /// sample; prints delivered, lost, corrupted, requested (= frames covered) and whether the
 /// last frame index ever went backwards.
-fn reader(a: &Args) {
-    let port = open(a);
-    let mode = a.s("mode", "copy");
-    let n = a.u("n", 64) as usize;
-    let pause = Duration::from_micros(a.u("pause-us", 0));
-    let log_loss = a.flag("log-loss");
+fn reader(a: &ReaderArgs) {
+    let port = open(&a.port);
+    let (mode, n) = (a.mode, a.n);
+    let pause = Duration::from_micros(a.pause_us);
+    let log_loss = a.log_loss;
     let channels = port.geometry().channels as usize;
     let nfop = port.frames_on_port();
     let mut bufs = vec![vec![0i32; n.min(nfop as usize)]; channels];
-    println!("ready pid={}", std::process::id());
+    say!("ready pid={}", std::process::id());
     let (mut nfr, start) = (1u64, 1u64);
     let (mut delivered, mut lost, mut corrupted, mut reads, mut loss_events) = (0u64, 0u64, 0u64, 0u64, 0u64);
     let (mut last_lfi, mut regressions, mut max_loss, mut view_overwritten) = (0u64, 0u64, 0u64, 0u64);
     loop {
-        if mode == "wait" {
+        if mode == ReadMode::Wait {
             match port.wait(nfr + n as u64 - 1, Duration::from_secs(60)) {
                 Ok(_) | Err(Error::Stopped { .. }) => {}
                 Err(e) => panic!("wait: {e}"),
@@ -240,7 +441,7 @@ fn reader(a: &Args) {
         }
         last_lfi = info.last_frame_index;
         let before = nfr;
-        let (frames, loss) = if mode == "view" {
+        let (frames, loss) = if mode == ReadMode::View {
             let v = port.view(n, &mut nfr).expect("view");
             // Read in place (Relaxed atomic loads), then ask which frames may be overwritten.
             for (c, buf) in bufs.iter_mut().enumerate() {
@@ -271,7 +472,7 @@ fn reader(a: &Args) {
             max_loss = max_loss.max(loss);
             if log_loss {
                 let after = port.info().expect("info").last_frame_index;
-                println!(
+                say!(
                     "LOSS nfr_before={before} loss={loss} n={frames} lfi_before={} lfi_after={after} nfop={nfop}",
                     info.last_frame_index
                 );
@@ -287,7 +488,7 @@ fn reader(a: &Args) {
             std::thread::sleep(pause);
         }
     }
-    println!(
+    say!(
         "RESULT delivered={delivered} lost={lost} corrupted={corrupted} requested={} reads={reads} loss_events={loss_events} max_loss={max_loss} lfi_regressions={regressions} view_overwritten={view_overwritten} rss_kb={}",
         nfr - start,
         own_status_kb("VmRSS")
@@ -295,13 +496,13 @@ fn reader(a: &Args) {
 }
 
 /// One read per "read" line on stdin, reported as a `READ` line.
-fn stepped(a: &Args) {
-    let port = open(a);
-    let n = a.u("n", 1 << 20) as usize;
+fn stepped(a: &SteppedArgs) {
+    let port = open(&a.port);
+    let n = a.n;
     let channels = port.geometry().channels as usize;
     let mut bufs = vec![vec![0i32; n.min(port.frames_on_port() as usize)]; channels];
-    let mut nfr = a.u("nfr", 1);
-    println!("ready pid={}", std::process::id());
+    let mut nfr = a.nfr;
+    say!("ready pid={}", std::process::id());
     let stdin = std::io::stdin();
     for line in stdin.lock().lines() {
         let line = line.expect("stdin");
@@ -316,7 +517,7 @@ fn stepped(a: &Args) {
         let first = before + r.loss;
         let corrupted = count_corrupted(first, r.frames, &bufs);
         let stale = (0..r.frames).filter(|&i| bufs[0][i] != pattern_expected(first + i as u64, 0)).count();
-        println!(
+        say!(
             "READ nfr_before={before} n={} loss={} nfr={nfr} first={first} corrupted={corrupted} stale={stale} lfi_before={lfi_before} lfi_after={lfi_after}",
             r.frames, r.loss
         );
@@ -324,16 +525,16 @@ fn stepped(a: &Args) {
 }
 
 /// Opens the port and reads or waits forever, to be SIGKILLed mid-call.
-fn victim(a: &Args) {
-    let port = open(a);
-    let mode = a.s("mode", "read");
+fn victim(a: &VictimArgs) {
+    let port = open(&a.port);
+    let mode = a.mode;
     let nfop = port.frames_on_port() as usize;
     let channels = port.geometry().channels as usize;
     let mut bufs = vec![vec![0i32; nfop]; channels];
-    println!("ready pid={}", std::process::id());
+    say!("ready pid={}", std::process::id());
     let mut nfr = 0u64;
     loop {
-        if mode == "wait" {
+        if mode == VictimMode::Wait {
             let _ = port.wait(u64::MAX / 4, Duration::from_secs(3600));
         } else {
             let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| b.as_mut_slice()).collect();
@@ -345,9 +546,9 @@ fn victim(a: &Args) {
 
 /// Reports how the port is open and mapped, then stores through the read-only mapping:
 /// the store must fault (SIGSEGV). Prints SURVIVED and exits 0 if it did not.
-fn poke(a: &Args) {
+fn poke(a: &PortArg) {
     let port = open(a);
-    let path = std::fs::canonicalize(a.port()).expect("canonicalize");
+    let path = std::fs::canonicalize(a.path()).expect("canonicalize");
     let p = path.to_string_lossy().into_owned();
     let maps = std::fs::read_to_string("/proc/self/maps").expect("maps");
     let perms: Vec<&str> = maps
@@ -366,21 +567,21 @@ fn poke(a: &Args) {
             }
         }
     }
-    println!("MAPPING perms={} open_flags={}", perms.join(","), flags.join(","));
+    say!("MAPPING perms={} open_flags={}", perms.join(","), flags.join(","));
     let ring = port.channel_ring(0).expect("channel 0");
     ring.word_of(0).store(0x5a5a_5a5a_5a5a_5a5a, Ordering::Relaxed);
-    println!("SURVIVED");
+    say!("SURVIVED");
 }
 
 /// Calls every size-dependent library function in a loop until stdin closes, counting
 /// outcomes; the test shrinks the file meanwhile. A SIGBUS would kill the process.
-fn shrink_victim(a: &Args) {
+fn shrink_victim(a: &PortArg) {
     let port = open(a);
     let stop = stdin_stop_flag();
     let nfop = port.frames_on_port() as usize;
     let channels = port.geometry().channels as usize;
     let mut bufs = vec![vec![0i32; nfop]; channels];
-    println!("ready pid={}", std::process::id());
+    say!("ready pid={}", std::process::id());
     let (mut ok, mut corrupt, mut other, mut calls) = (0u64, 0u64, 0u64, 0u64);
     let mut tally = |r: Result<(), Error>| match r {
         Ok(()) => ok += 1,
@@ -398,37 +599,46 @@ fn shrink_victim(a: &Args) {
         tally(port.view(nfop, &mut nfr).map(drop));
         calls += 5;
     }
-    println!("RESULT calls={calls} ok={ok} corrupt={corrupt} other={other}");
+    say!("RESULT calls={calls} ok={ok} corrupt={corrupt} other={other}");
 }
 
 /// Reports whether this process (typically run under setpriv as another uid) can open the
 /// port for reading through the library, and whether it could open the file for writing.
-fn try_open(a: &Args) {
-    let read = match Port::open_path(&a.port()) {
+fn try_open(a: &PortArg) {
+    if let Some(name) = &a.name {
+        let read = match Port::open(name) {
+            Ok(p) => format!(
+                "ok lfi={} sealed={}",
+                p.info().map(|i| i.last_frame_index).unwrap_or(0),
+                p.size_sealed()
+            ),
+            Err(Error::NotFound { .. }) => "notfound".to_owned(),
+            Err(e) => format!("error:{e}").replace(' ', "_"),
+        };
+        say!("RESULT uid={} read={read}", rustix::process::getuid().as_raw());
+        return;
+    }
+    let port_path = a.path();
+    let read = match Port::open_path(port_path) {
         Ok(p) => format!("ok lfi={}", p.info().map(|i| i.last_frame_index).unwrap_or(0)),
         Err(Error::Io { source, .. }) => format!("io:{}", source.raw_os_error().unwrap_or(0)),
         Err(e) => format!("error:{e}").replace(' ', "_"),
     };
-    let write = match std::fs::OpenOptions::new().write(true).open(a.port()) {
+    let write = match std::fs::OpenOptions::new().write(true).open(port_path) {
         Ok(_) => "ok".to_owned(),
         Err(e) => format!("io:{}", e.raw_os_error().unwrap_or(0)),
     };
-    println!(
-        "RESULT uid={} read={read} write={write}", // SAFETY: getuid cannot fail.
-        unsafe { libc::getuid() }
-    );
+    say!("RESULT uid={} read={read} write={write}", rustix::process::getuid().as_raw());
 }
 
 /// Opens `--n` control connections, asks each for the status, and holds the ones the broker
 /// served until stdin closes; prints `held K refused R last_refusal=TEXT` first.
-fn hold_connections(a: &Args) {
-    let socket = PathBuf::from(a.s("socket", ""));
-    let name = a.s("name", "default");
+fn hold_connections(a: &HoldArgs) {
+    let (socket, name) = (&a.broker.socket, &a.broker.name);
     let mut held = Vec::new();
     let (mut refused, mut last) = (0, String::new());
-    for _ in 0..a.u("n", 1) {
-        match bassclient::control::Client::connect_path(&socket, &name)
-            .and_then(|mut c| c.status().map(|_| c))
+    for _ in 0..a.n {
+        match bassclient::control::Client::connect_path(socket, name).and_then(|mut c| c.status().map(|_| c))
         {
             Ok(c) => held.push(c),
             Err(e) => {
@@ -437,20 +647,19 @@ fn hold_connections(a: &Args) {
             }
         }
     }
-    println!("held {} refused {refused} last_refusal={last}", held.len());
+    say!("held {} refused {refused} last_refusal={last}", held.len());
     let stop = stdin_stop_flag();
     while !stop.load(Ordering::Acquire) {
         std::thread::sleep(Duration::from_millis(20));
     }
-    println!("RESULT held={} refused={refused}", held.len());
+    say!("RESULT held={} refused={refused}", held.len());
 }
 
 /// Connects to a broker's control socket and sends status requests forever, to be
 /// SIGKILLed mid-request.
-fn control_victim(a: &Args) {
-    let socket = PathBuf::from(a.s("socket", ""));
-    let mut c = bassclient::control::Client::connect_path(&socket, &a.s("name", "default")).expect("connect");
-    println!("ready pid={}", std::process::id());
+fn control_victim(a: &BrokerArgs) {
+    let mut c = bassclient::control::Client::connect_path(&a.socket, &a.name).expect("connect");
+    say!("ready pid={}", std::process::id());
     loop {
         let _ = c.status();
     }
@@ -459,33 +668,32 @@ fn control_victim(a: &Args) {
 /// Issue 14 item 4: Acquire, open the new port and keep it mapped, `--rounds` times; prints
 /// one line per round (`ROUND i ok epoch=E` or `ROUND i refused ...`), then `RESULT` and
 /// holds every mapping until stdin closes.
-fn pin_loop(a: &Args) {
-    let socket = PathBuf::from(a.s("socket", ""));
-    let mut c = bassclient::control::Client::connect_path(&socket, &a.s("name", "default")).expect("connect");
+fn pin_loop(a: &PinArgs) {
+    let mut c = bassclient::control::Client::connect_path(&a.broker.socket, &a.broker.name).expect("connect");
     let req = bassclient::control::AcquireRequest {
-        device: a.s("device", "sim:silence"),
-        sample_rate: a.u("rate", 48000) as u32,
-        frames_per_chunk: a.u("nfpc", 480) as u32,
-        chunks_on_port: a.u("ncop", 100) as u32,
-        channels: a.u("channels", 2) as u32,
+        device: a.device.clone(),
+        sample_rate: a.rate,
+        frames_per_chunk: a.nfpc,
+        chunks_on_port: a.ncop,
+        channels: a.channels,
         format: None,
     };
     let mut held = Vec::new();
     let (mut ok, mut refused) = (0, 0);
-    for i in 0..a.u("rounds", 10) {
+    for i in 0..a.rounds {
         match c.acquire(&req) {
             Ok(acq) => {
                 ok += 1;
                 held.push(Port::open_path(&acq.port).expect("open the new port"));
-                println!("ROUND {i} ok epoch={}", acq.epoch);
+                say!("ROUND {i} ok epoch={}", acq.epoch);
             }
             Err(e) => {
                 refused += 1;
-                println!("ROUND {i} refused {}", e.to_string().replace('\n', " "));
+                say!("ROUND {i} refused {}", e.to_string().replace('\n', " "));
             }
         }
     }
-    println!("RESULT acquired={ok} refused={refused} held={}", held.len());
+    say!("RESULT acquired={ok} refused={refused} held={}", held.len());
     let stop = stdin_stop_flag();
     while !stop.load(Ordering::Relaxed) {
         std::thread::sleep(Duration::from_millis(10));
@@ -501,18 +709,18 @@ fn mono_ns() -> u64 {
 /// checks the content (`--expect zero` for silence, `pattern` for the test pattern), and
 /// prints `DEVICE code=.. at_ns=..` when the acquisition ends on a device error and
 /// `EPOCH e at_ns=..` for every port (epoch) it reads.
-fn follow(a: &Args) {
-    let path = a.port();
-    let n = a.u("n", 480) as usize;
-    let expect_zero = a.s("expect", "zero") == "zero";
+fn follow(a: &FollowArgs) {
+    let path = a.port.path();
+    let n = a.n;
+    let expect_zero = a.expect == Expect::Zero;
     let stop = stdin_stop_flag();
-    let port0 = open(a);
-    println!("ready pid={} epoch={}", std::process::id(), port0.epoch());
+    let port0 = open(&a.port);
+    say!("ready pid={} epoch={}", std::process::id(), port0.epoch());
     drop(port0);
     let (mut delivered, mut lost, mut corrupted, mut epochs, mut errors) = (0u64, 0u64, 0u64, 0u64, 0u64);
     let mut last_epoch = 0u64;
     while !stop.load(Ordering::Relaxed) {
-        let port = match Port::open_path(&path) {
+        let port = match Port::open_path(path) {
             Ok(p) if p.epoch() != last_epoch => p,
             Ok(_) | Err(Error::NotFound { .. } | Error::NotReady) => {
                 std::thread::sleep(Duration::from_millis(5));
@@ -522,7 +730,7 @@ fn follow(a: &Args) {
         };
         last_epoch = port.epoch();
         epochs += 1;
-        println!("EPOCH {} at_ns={}", last_epoch, mono_ns());
+        say!("EPOCH {} at_ns={}", last_epoch, mono_ns());
         let mut bufs =
             vec![vec![0i32; n.min(port.frames_on_port() as usize)]; port.geometry().channels as usize];
         let mut nfr = 1u64;
@@ -531,7 +739,7 @@ fn follow(a: &Args) {
                 Ok(_) | Err(Error::Timeout { .. }) => {}
                 Err(Error::Device { code, message }) => {
                     errors += 1;
-                    println!("DEVICE code={code} at_ns={} message={}", mono_ns(), message.replace(' ', "_"));
+                    say!("DEVICE code={code} at_ns={} message={}", mono_ns(), message.replace(' ', "_"));
                     break;
                 }
                 Err(Error::Restarted | Error::Stopped { .. }) => break,
@@ -552,5 +760,5 @@ fn follow(a: &Args) {
             lost += r.loss;
         }
     }
-    println!("RESULT delivered={delivered} lost={lost} corrupted={corrupted} epochs={epochs} device_errors={errors}");
+    say!("RESULT delivered={delivered} lost={lost} corrupted={corrupted} epochs={epochs} device_errors={errors}");
 }
