@@ -146,7 +146,8 @@ fn goals(r: &Results) -> Vec<Goal> {
             let ratio = median(&w.ratio_memfd);
             g.push(Goal {
                 part: "3 wake",
-                goal: "the same on a sealed memfd port (`bassd --port-backing memfd`: no per-call `fstat`)".into(),
+                goal: "the same on a sealed memfd port (`bassd --port-backing memfd`: no per-call `fstat`)"
+                    .into(),
                 measured: format!(
                     "{} (median of per-repetition ratios {}; {} vs {})",
                     fmt_ratio(ratio),
