@@ -19,6 +19,8 @@ use crate::shm::Mapping;
 use crate::sys;
 use crate::waker::Waker;
 
+mod replica;
+
 /// Parameters of a new port.
 #[derive(Clone, Debug)]
 pub struct PortParams {
@@ -530,115 +532,5 @@ impl Previous {
         let h = self.mapping.header();
         h.state.store(State::Superseded as u32, Release);
         wake(h);
-    }
-}
-
-/// Replica support: a writer that follows another port's frame indices (`bass-bridge mirror`).
-///
-/// Kept apart from the broker's create/publish path: these only move `last_frame_index`
-/// forward in ways a local device never needs (a start at a given frame, a run of frames
-/// lost upstream).
-impl Writer {
-    /// Starts an empty port at frame `first_frame`: the next chunk published gets that index.
-    ///
-    /// Only on a port that has published nothing yet (`last_frame_index == 0`), and
-    /// `first_frame` must start a chunk (`(first_frame - 1) % nFPC == 0`), so that chunk
-    /// `c` keeps frames `c*nFPC+1 ..= (c+1)*nFPC` as in the source. Frames before it that a
-    /// reader may still reach (the window behind the start) read as zeros, as frame 0 does on
-    /// a new port; a reader starting at `first_frame` (or later) never sees them.
-    pub fn start_at(&mut self, first_frame: u64) -> Result<()> {
-        let nfpc = u64::from(self.geometry.frames_per_chunk);
-        let h = self.mapping.header();
-        let lfi = h.last_frame_index.load(Relaxed);
-        if lfi != 0 {
-            return Err(Error::InvalidArgument(format!(
-                "start_at({first_frame}) on a port that already published frame {lfi}"
-            )));
-        }
-        if first_frame == 0 || (first_frame - 1) % nfpc != 0 || first_frame > format::MAX_FRAME_INDEX {
-            return Err(Error::InvalidArgument(format!(
-                "start frame {first_frame} does not start a chunk of {nfpc} frames (1, {}, {}, ...)",
-                nfpc + 1,
-                2 * nfpc + 1
-            )));
-        }
-        // No frame is published yet, so no reader can have copied anything: moving the
-        // intent first keeps the protocol's order (intent >= last_frame_index) at every step.
-        h.write_intent.store(first_frame - 1, Relaxed);
-        h.last_frame_index.store(first_frame - 1, Release);
-        h.heartbeat_mono_ns.store(sys::monotonic_ns(), Relaxed);
-        wake(h);
-        Ok(())
-    }
-
-    /// Publishes `frames` zero-filled GAP frames standing for frames lost before they reached
-    /// this writer (upstream of a replica, or on the network). They are counted in
-    /// `gap_frames` and in `lost_upstream_frames`. Returns the new last frame index.
-    ///
-    /// `frames` must be a whole number of chunks. A gap longer than the window is published
-    /// as one window of zeros whose frame indices jump to the gap's end, so its cost is at
-    /// most one window whatever its length; readers count the frames they could not read as
-    /// loss, exactly as for a gap written chunk by chunk.
-    pub fn publish_lost(&mut self, frames: u64, meta: ChunkMeta) -> Result<u64> {
-        let nfpc = u64::from(self.geometry.frames_per_chunk);
-        if frames % nfpc != 0 {
-            return Err(Error::InvalidArgument(format!(
-                "a gap of {frames} frames is not a whole number of {nfpc}-frame chunks"
-            )));
-        }
-        let lfi = self.last_frame_index();
-        let end = lfi.checked_add(frames).filter(|&e| e <= format::MAX_FRAME_INDEX).ok_or_else(|| {
-            Error::InvalidArgument(format!("a gap of {frames} frames after {lfi} passes the limit"))
-        })?;
-        let fop = self.layout.frames_on_port;
-        let meta = ChunkMeta { flags: meta.flags | format::chunk_flags::GAP, ..meta };
-        if frames <= fop {
-            let mut last = lfi;
-            while last < end {
-                last = self.publish(Source::Zeros, meta)?;
-                self.header().lost_upstream_frames.fetch_add(nfpc, Relaxed);
-            }
-            return Ok(last);
-        }
-        // Longer than the window: write one window of zeros as frames end-nFOP+1 ..= end in
-        // one publish. The intent (= end) is announced first, so every old frame
-        // (<= lfi <= end - nFOP) is condemned before its slot is touched, and readers lapped
-        // by the jump count what they missed as loss.
-        let h = self.mapping.header();
-        let from = end - fop;
-        let cop = u64::from(self.geometry.chunks_on_port);
-        let table = self.mapping.chunk_table(&self.layout, self.geometry.chunks_on_port);
-        let ring = Ring {
-            last_frame_index: &h.last_frame_index,
-            write_intent: &h.write_intent,
-            samples: self.mapping.samples(&self.layout, self.geometry.channels),
-            frames_on_port: fop,
-        };
-        let now_mono = sys::monotonic_ns();
-        let mono = if meta.mono_ns == 0 { now_mono } else { meta.mono_ns };
-        let real = if meta.realtime_ns == 0 { sys::realtime_ns() } else { meta.realtime_ns };
-        let channels = self.geometry.channels as usize;
-        let last = ring.publish(from, fop as usize, channels, &Source::Zeros, || {
-            for k in 0..cop {
-                let first = from + k * nfpc + 1;
-                let entry = &table[(((from / nfpc) + k) % cop) as usize];
-                write_entry(entry, first, mono, real, meta.flags, nfpc as u32);
-            }
-        });
-        h.chunks_published.fetch_add(cop, Relaxed);
-        h.gap_frames.fetch_add(frames, Relaxed);
-        h.lost_upstream_frames.fetch_add(frames, Relaxed);
-        h.heartbeat_mono_ns.store(now_mono, Relaxed);
-        if h.state.load(Relaxed) == State::Idle as u32 {
-            h.state.store(State::Capturing as u32, Release);
-        }
-        wake(h);
-        Ok(last)
-    }
-
-    /// Counts `n` frames lost upstream that were published by other means (for example a
-    /// source's own GAP chunk that the replica copies as it is).
-    pub fn add_lost_upstream(&self, n: u64) {
-        self.header().lost_upstream_frames.fetch_add(n, Relaxed);
     }
 }
