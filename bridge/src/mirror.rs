@@ -145,9 +145,11 @@ pub fn run(o: MirrorOpts) -> Result<()> {
         match ev {
             Ok(Event::Chunk(bytes)) => {
                 last_heard = Instant::now();
-                match wire::decode(&bytes) {
-                    Ok(c) => {
-                        on_chunk(&name, &mut replica, &mut st, c, offset)?;
+                match wire::decode_batch(&bytes) {
+                    Ok(chunks) => {
+                        for c in chunks {
+                            on_chunk(&name, &mut replica, &mut st, c, offset)?;
+                        }
                         if in_error {
                             if let Some(r) = &replica {
                                 r.writer.set_state(State::Capturing, error_code::NONE, "");

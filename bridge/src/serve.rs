@@ -29,6 +29,11 @@ pub struct ServeOpts {
     /// Chunks queued in front of the network before the bridge drops (1..=16).
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=16))]
     pub queue: u32,
+    /// Chunks sent in one Zenoh message (1..=64). More costs less CPU and fewer bytes per
+    /// chunk on small chunks, and delays a chunk by up to N-1 chunk periods
+    /// (docs/network.md, "Small chunks"). Mirrors of this version or later read any N.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub chunks_per_message: u32,
     /// Let mirrors forward control requests (ListDevices, Acquire, Stop, Status) to the local
     /// broker (docs/network.md, "Remote control"). Off: the path is read-only.
     #[arg(long)]
@@ -127,6 +132,9 @@ pub fn run(o: ServeOpts) -> Result<()> {
         sequence: &mut sequence,
         lost_frames: 0,
         pending_loss: false,
+        batch: Batch { max: u64::from(o.chunks_per_message), ..Default::default() },
+        sent: 0,
+        dropped: 0,
     };
     let mut last_state_pub = Instant::now() - Duration::from_secs(10);
     let mut publish_state = |s: &SourceState, force: bool| {
@@ -176,6 +184,62 @@ struct Reader<'a> {
     sequence: &'a mut u64,
     lost_frames: u64,
     pending_loss: bool,
+    batch: Batch,
+    /// Chunks of the current port sent / dropped (queue full).
+    sent: u64,
+    dropped: u64,
+}
+
+/// Chunk messages waiting to go out together (`--chunks-per-message`).
+#[derive(Default)]
+struct Batch {
+    max: u64,
+    bytes: Vec<u8>,
+    chunks: u64,
+    first_sequence: u64,
+    frames: u64,
+}
+
+impl Reader<'_> {
+    /// Adds one encoded chunk message of `frames` frames; sends when the batch is full.
+    fn push(&mut self, sequence: u64, bytes: Vec<u8>, frames: u64) -> Result<()> {
+        if self.batch.chunks == 0 {
+            self.batch.first_sequence = sequence;
+            self.batch.bytes = bytes;
+        } else {
+            self.batch.bytes.extend_from_slice(&bytes);
+        }
+        self.batch.chunks += 1;
+        self.batch.frames += frames;
+        if self.batch.chunks >= self.batch.max {
+            self.flush()?;
+        }
+        Ok(())
+    }
+
+    /// Hands the waiting chunks to the sender thread; a full queue drops them, counted.
+    fn flush(&mut self) -> Result<()> {
+        if self.batch.chunks == 0 {
+            return Ok(());
+        }
+        let (chunks, frames) = (self.batch.chunks, self.batch.frames);
+        let out =
+            Outgoing { sequence: self.batch.first_sequence, bytes: std::mem::take(&mut self.batch.bytes) };
+        (self.batch.chunks, self.batch.frames) = (0, 0);
+        match self.tx.try_send(out) {
+            Ok(()) => {
+                self.sent += chunks;
+                self.pending_loss = false;
+            }
+            Err(TrySendError::Full(_)) => {
+                self.dropped += chunks;
+                self.lost_frames += frames;
+                self.pending_loss = true;
+            }
+            Err(TrySendError::Disconnected(_)) => return Err(anyhow!("the sender thread ended")),
+        }
+        Ok(())
+    }
 }
 
 fn state_name(s: Option<State>) -> &'static str {
@@ -205,7 +269,7 @@ impl Reader<'_> {
         let mut nfr = info.last_frame_index + 1;
         let mut planes = vec![vec![0i32; nfpc as usize]; ch];
         let mut inter = vec![0i32; nfpc as usize * ch];
-        let (mut sent, mut dropped) = (0u64, 0u64);
+        (self.sent, self.dropped) = (0, 0);
         let state_of = |port: &Port, state: &str, sent, dropped| -> SourceState {
             let i = port.info().ok();
             SourceState {
@@ -222,22 +286,25 @@ impl Reader<'_> {
                 chunks_dropped: dropped,
             }
         };
-        publish_state(&state_of(port, state_name(info.state), sent, dropped), true);
+        publish_state(&state_of(port, state_name(info.state), self.sent, self.dropped), true);
         let mut last_refresh = Instant::now();
         while !term.load(Ordering::Relaxed) {
             match port.wait(nfr + nfpc - 1, Duration::from_millis(200)) {
                 Ok(_) => {}
                 Err(PortError::Timeout { .. }) => {
+                    // No chunk for a while: what waits in a batch goes now.
+                    self.flush()?;
                     let st = current_state(port)?;
-                    publish_state(&state_of(port, st, sent, dropped), false);
+                    publish_state(&state_of(port, st, self.sent, self.dropped), false);
                     continue;
                 }
-                Err(PortError::Restarted) => return Ok(()),
+                Err(PortError::Restarted) => return self.flush(),
                 Err(PortError::Stopped { .. })
                 | Err(PortError::Device { .. })
                 | Err(PortError::WriterGone { .. }) => {
+                    self.flush()?;
                     let st = current_state(port)?;
-                    publish_state(&state_of(port, st, sent, dropped), false);
+                    publish_state(&state_of(port, st, self.sent, self.dropped), false);
                     std::thread::sleep(Duration::from_millis(100));
                     // A new acquisition replaces the file: reopen when the epoch changed.
                     match Port::open(self.name) {
@@ -312,18 +379,7 @@ impl Reader<'_> {
                     x.publish(&h, &inter);
                 }
                 let bytes = wire::encode(&h, if gap { &[] } else { &inter });
-                match self.tx.try_send(Outgoing { sequence: *self.sequence, bytes }) {
-                    Ok(()) => {
-                        sent += 1;
-                        self.pending_loss = false;
-                    }
-                    Err(TrySendError::Full(_)) => {
-                        dropped += 1;
-                        self.lost_frames += nfpc;
-                        self.pending_loss = true;
-                    }
-                    Err(TrySendError::Disconnected(_)) => return Err(anyhow!("the sender thread ended")),
-                }
+                self.push(*self.sequence, bytes, nfpc)?;
                 *self.sequence += 1;
             }
             // The state others see (queryable, liveliness, status) is refreshed at most every
@@ -331,11 +387,11 @@ impl Reader<'_> {
             // liveness, and at 750 chunks/s that was most of serve's CPU time.
             if last_refresh.elapsed() >= STATE_REFRESH {
                 let st = current_state(port)?;
-                publish_state(&state_of(port, st, sent, dropped), false);
+                publish_state(&state_of(port, st, self.sent, self.dropped), false);
                 last_refresh = Instant::now();
             }
         }
-        Ok(())
+        self.flush()
     }
 }
 

@@ -267,6 +267,46 @@ pub fn decode(b: &[u8]) -> Result<Chunk, DecodeError> {
     Ok(Chunk { header: h, samples })
 }
 
+/// Decodes a message of one or more chunk messages laid end to end (`serve
+/// --chunks-per-message N` sends N in one Zenoh message; N = 1 is a plain message). Each is
+/// validated as by [`decode`]; a truncated or malformed part refuses the whole message.
+pub fn decode_batch(b: &[u8]) -> Result<Vec<Chunk>, DecodeError> {
+    let mut out = Vec::new();
+    let mut rest = b;
+    while !rest.is_empty() {
+        let len = message_len(rest)?;
+        out.push(decode(&rest[..len])?);
+        rest = &rest[len..];
+    }
+    if out.is_empty() {
+        return Err(DecodeError::Short(0));
+    }
+    Ok(out)
+}
+
+/// The length of the chunk message at the start of `b`, from its header (header length,
+/// frames, channels, GAP), checked against what `b` holds.
+fn message_len(b: &[u8]) -> Result<usize, DecodeError> {
+    if b.len() < HEADER_LEN {
+        return Err(DecodeError::Short(b.len()));
+    }
+    let hl = usize::from(u16::from_le_bytes(get(b, offset_of!(Header, header_len))));
+    let fl = u32::from_le_bytes(get(b, offset_of!(Header, flags)));
+    let frames = u32::from_le_bytes(get(b, offset_of!(Header, frames)));
+    let channels = u16::from_le_bytes(get(b, offset_of!(Header, channels)));
+    // Out-of-range values are named by decode; here they only must not overflow.
+    let payload = if fl & flags::GAP != 0 {
+        0
+    } else {
+        frames.min(MAX_FRAMES) as usize * usize::from(channels.min(MAX_CHANNELS)) * 4
+    };
+    let len = hl.max(HEADER_LEN) + payload;
+    if len > b.len() {
+        return Err(DecodeError::Payload { found: b.len().saturating_sub(hl), expected: payload });
+    }
+    Ok(len)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -314,6 +354,29 @@ mod tests {
         assert_eq!(decode(&encode(&h, &[])).unwrap().samples, Vec::<i32>::new());
         let data = sample_header();
         assert_eq!(decode(&encode(&data, &[1, 2])), Err(DecodeError::Payload { found: 8, expected: 512 }));
+    }
+
+    #[test]
+    fn a_batch_decodes_chunk_by_chunk_and_a_truncated_batch_is_refused_whole() {
+        let samples: Vec<i32> = (0..128).collect();
+        let mut batch = Vec::new();
+        for k in 0..3u64 {
+            let h = Header { sequence: 7 + k, first_frame: 321 + 64 * k, ..sample_header() };
+            batch.extend(encode(&h, &samples));
+        }
+        // A GAP chunk (no samples) in the middle of a batch too.
+        let gap = Header { flags: flags::GAP, sequence: 10, first_frame: 321 + 64 * 3, ..sample_header() };
+        batch.extend(encode(&gap, &[]));
+        let chunks = decode_batch(&batch).unwrap();
+        let firsts: Vec<u64> = chunks.iter().map(|c| c.header.first_frame).collect();
+        assert_eq!(firsts, vec![321, 385, 449, 513]);
+        assert_eq!(chunks[2].samples, samples);
+        assert!(chunks[3].samples.is_empty());
+        // One message is a batch of one.
+        assert_eq!(decode_batch(&encode(&sample_header(), &samples)).unwrap().len(), 1);
+        // Cut inside the second chunk: nothing of the message is taken.
+        assert!(matches!(decode_batch(&batch[..96 + 512 + 100]), Err(DecodeError::Payload { .. })));
+        assert_eq!(decode_batch(&[]), Err(DecodeError::Short(0)));
     }
 
     #[test]

@@ -361,6 +361,13 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
                         "closing a control connection idle for {:?}",
                         cfg.idle_timeout
                     );
+                    // A request may have arrived since poll returned. Shut reading first: a
+                    // request sent from now on fails at the client (EPIPE; the library then
+                    // reconnects), one that arrived before is still queued and is answered.
+                    let _ = rustix::net::shutdown(&c.fd, rustix::net::Shutdown::Read);
+                    if request_pending(&c.fd) {
+                        serve_one(&mut broker, &c.fd);
+                    }
                     closed.push(i);
                 }
                 continue;
@@ -544,6 +551,13 @@ fn admit(c: OwnedFd, clients: &mut Vec<Conn>, own_uid: u32, group: Option<u32>) 
 ///
 /// A request in the version-1 text form is answered in that form (`code=version`), the one
 /// reply a version-1 client can read; any other version gets a version-2 `error` naming both.
+/// Whether a datagram waits on connection `c` (without taking it).
+fn request_pending(c: &OwnedFd) -> bool {
+    let mut probe = [0u8; 1];
+    let flags = rustix::net::RecvFlags::PEEK | rustix::net::RecvFlags::DONTWAIT;
+    matches!(rustix::net::recv(c, &mut probe[..], flags), Ok((_, n)) if n > 0)
+}
+
 fn serve_one(broker: &mut Broker, c: &OwnedFd) -> bool {
     let bytes = match control::recv_datagram(c.as_fd()) {
         Ok(None) => return false,

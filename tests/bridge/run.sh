@@ -184,6 +184,13 @@ check_exact "$J" "fault injection"
 LD=$(status late_or_duplicate); GL=$(status gap_frames_lost)
 [[ $LD == 3 && $GL == $((3 * NFPC)) ]] && ok "faults: 3 late/duplicate chunks dropped, 3 chunks of GAP frames" || bad "faults: late_or_duplicate=$LD gap_frames_lost=$GL"
 
+echo "== 9b. four chunks per Zenoh message (serve --chunks-per-message 4)"
+kill $SERVE 2>/dev/null || true; wait $SERVE 2>/dev/null || true
+start_serve --chunks-per-message 4; sleep 1.5
+J=$(reader $((RATE * 2)) 20) || true
+check_exact "$J" "batched messages"
+[[ $(field "$J" gap) == 0 && $(field "$J" lost) == 0 ]] && ok "batched messages: no gap, no loss" || bad "batched messages lost frames: $J"
+
 echo "== 10. remote control: refused without serve --allow-control, forwarded with it"
 if OUT=$(inB timeout 20 "$BIN/bass" --name rep status 2>&1); then bad "status without --allow-control succeeded: $OUT"
 elif grep -q "allow-control" <<<"$OUT"; then ok "remote control refused by default ($(tail -1 <<<"$OUT"))"
