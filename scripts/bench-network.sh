@@ -6,7 +6,8 @@
 # bytes on the wire vs the raw audio rate, and |clock offset estimate| (same machine: the
 # true offset is 0). Prints a markdown table (also to bench/network-results.md).
 # Usage: scripts/bench-network.sh [SECONDS per chunk size, default 20]
-# (BENCH_NET_CHUNKS="64" measures one chunk size only.)
+# Rows are CHUNK:N (N chunks per Zenoh message, `serve --chunks-per-message N`);
+# BENCH_NET_CHUNKS="64:1 64:4" measures only those.
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd); cd "$ROOT"
 BIN=${CARGO_TARGET_DIR:-$ROOT/target}/release
@@ -32,11 +33,13 @@ OUT=bench/network-results.md
 echo "| chunk | local p50/p99 (us) | replica p50/p99 (us) | serve CPU | mirror CPU | wire / raw | abs clock offset p50/p99 (us) |"
 echo "|---:|---:|---:|---:|---:|---:|---:|"
 } > "$WORK/table"
-for NFPC in ${BENCH_NET_CHUNKS:-64 256 2205}; do
+for ROW in ${BENCH_NET_CHUNKS:-64:1 64:4 256:1 2205:1}; do
+  NFPC=${ROW%:*}; PER_MSG=${ROW#*:}
   NCOP=$(( (48000 / 2 + NFPC - 1) / NFPC ))   # half a second on the port
   "${IN_A[@]}" "$BIN/bassd" --name src --rt-priority 0 --acquire sim:pattern --rate 48000 --frames $NFPC \
     --chunks $NCOP --channels 2 >"$WORK/bassd.log" 2>&1 & BASSD=$!; PIDS+=($BASSD)
-  "${IN_A[@]}" "$BIN/bass-bridge" serve --name src --listen "$EP" --no-scouting >"$WORK/serve.log" 2>&1 & SERVE=$!; PIDS+=($SERVE)
+  "${IN_A[@]}" "$BIN/bass-bridge" serve --name src --listen "$EP" --no-scouting \
+    --chunks-per-message "$PER_MSG" >"$WORK/serve.log" 2>&1 & SERVE=$!; PIDS+=($SERVE)
   sleep 0.5
   "${IN_B[@]}" "$BIN/bass-bridge" mirror --source src --name rep --connect "$EP" --no-scouting \
     --status-file "$WORK/status.json" >"$WORK/mirror.log" 2>&1 & MIRROR=$!; PIDS+=($MIRROR)
@@ -50,14 +53,15 @@ for NFPC in ${BENCH_NET_CHUNKS:-64 256 2205}; do
   "${IN_B[@]}" "$BIN/examples/delay_reader" rep "$SECS" >"$WORK/remote.json"
   wait $L $O || true
   S1=$(ticks $SERVE); M1=$(ticks $MIRROR); B1=$(ip netns exec "$NS_B" cat /sys/class/net/vB/statistics/rx_bytes)
-  python3 - "$WORK" "$NFPC" "$SECS" "$HZ" "$S0" "$S1" "$M0" "$M1" "$B0" "$B1" >>"$WORK/table" <<'PY'
+  python3 - "$WORK" "$NFPC" "$PER_MSG" "$SECS" "$HZ" "$S0" "$S1" "$M0" "$M1" "$B0" "$B1" >>"$WORK/table" <<'PY'
 import json, sys
-w, nfpc, secs, hz, s0, s1, m0, m1, b0, b1 = sys.argv[1], *map(float, sys.argv[2:])
+w, nfpc, per_msg, secs, hz, s0, s1, m0, m1, b0, b1 = sys.argv[1], *map(float, sys.argv[2:])
 loc, rem = json.load(open(f"{w}/local.json")), json.load(open(f"{w}/remote.json"))
 offs = sorted(float(x) / 1e3 for x in open(f"{w}/offsets").read().split())
 q = lambda v, p: v[round((len(v) - 1) * p)] if v else float("nan")
 raw = 48000 * 2 * 4 * secs
-print(f"| {int(nfpc)} | {loc['p50_us']:.0f} / {loc['p99_us']:.0f} | {rem['p50_us']:.0f} / {rem['p99_us']:.0f} "
+row = f"{int(nfpc)}" if per_msg == 1 else f"{int(nfpc)}, {int(per_msg)} per message"
+print(f"| {row} | {loc['p50_us']:.0f} / {loc['p99_us']:.0f} | {rem['p50_us']:.0f} / {rem['p99_us']:.0f} "
       f"| {100 * (s1 - s0) / hz / secs:.1f} % | {100 * (m1 - m0) / hz / secs:.1f} % | {(b1 - b0) / raw:.3f} "
       f"| {q(offs, 0.5):.1f} / {q(offs, 0.99):.1f} |")
 PY
