@@ -12,7 +12,8 @@
 //!   port in error or gone: the replica shows a device error; data brings it back.
 
 use std::sync::atomic::Ordering;
-use std::sync::mpsc::{channel, RecvTimeoutError, Sender};
+use std::sync::mpsc::{channel, RecvTimeoutError};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context, Result};
@@ -48,10 +49,55 @@ pub struct MirrorOpts {
     pub net: NetOpts,
 }
 
+/// What the subscribers other than the chunks' report to the main loop.
 enum Event {
-    Chunk(Vec<u8>),
     State(Vec<u8>),
     Alive(bool),
+}
+
+/// The replica and its counters, shared by the chunk subscriber (which writes chunks on
+/// Zenoh's receiving thread: no hand-over to another thread per chunk) and the main loop
+/// (state, liveliness, timeouts, status).
+struct Core {
+    name: String,
+    replica: Option<Replica>,
+    st: MirrorStatus,
+    in_error: bool,
+    last_heard: Instant,
+    /// An error that ends the mirror (the replica port could not be made or written).
+    fatal: Option<anyhow::Error>,
+}
+
+impl Core {
+    /// One Zenoh message of chunks.
+    fn on_message(&mut self, bytes: &[u8], offset: Option<i64>) {
+        self.last_heard = Instant::now();
+        match wire::decode_batch(bytes) {
+            Ok(chunks) => {
+                for c in chunks {
+                    if let Err(e) = on_chunk(&self.name, &mut self.replica, &mut self.st, c, offset) {
+                        self.fatal.get_or_insert(e);
+                        return;
+                    }
+                }
+                if self.in_error {
+                    if let Some(r) = &self.replica {
+                        r.writer.set_state(State::Capturing, error_code::NONE, "");
+                    }
+                    self.in_error = false;
+                    tracing::info!("source back: replica capturing again");
+                }
+            }
+            Err(e) => {
+                self.st.invalid_messages += 1;
+                tracing::warn!("refused a message: {e}");
+            }
+        }
+    }
+}
+
+fn lock(core: &Mutex<Core>) -> MutexGuard<'_, Core> {
+    core.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// The mirror's counters (status file and log).
@@ -101,92 +147,81 @@ pub fn run(o: MirrorOpts) -> Result<()> {
     let term = net::termination_flag()?;
     let name = o.name.clone().unwrap_or_else(|| format!("{}-{}", hostname(), o.source));
     let session = o.net.open()?;
+    let clock = Arc::new(ClockEstimator::spawn(
+        &session,
+        o.net.key(&o.source, "clock"),
+        Duration::from_secs_f64(o.probe_interval.max(0.01)),
+    )?);
+    let core = Arc::new(Mutex::new(Core {
+        name: name.clone(),
+        replica: None,
+        st: MirrorStatus { replica: name.clone(), state: "idle".into(), ..Default::default() },
+        in_error: false,
+        last_heard: Instant::now(),
+        fatal: None,
+    }));
+    let (chunk_core, chunk_clock) = (core.clone(), clock.clone());
+    let chunks = session
+        .declare_subscriber(o.net.key(&o.source, "chunks"))
+        .callback(move |s| {
+            let (offset, _) = chunk_clock.estimate();
+            lock(&chunk_core).on_message(&s.payload().to_bytes(), offset);
+        })
+        .wait()
+        .map_err(|e| anyhow!("subscribe to chunks: {e}"))?;
     let (tx, rx) = channel::<Event>();
-    let sub = |leaf: &str, wrap: fn(Vec<u8>) -> Event, tx: Sender<Event>| {
-        session
-            .declare_subscriber(o.net.key(&o.source, leaf))
-            .callback(move |s| {
-                let _ = tx.send(wrap(s.payload().to_bytes().into_owned()));
-            })
-            .wait()
-            .map_err(|e| anyhow!("subscribe to {leaf}: {e}"))
-    };
-    let _chunks = sub("chunks", Event::Chunk, tx.clone())?;
-    let _state = sub("state", Event::State, tx.clone())?;
-    let alive_tx = tx.clone();
+    let state_tx = tx.clone();
+    let _state = session
+        .declare_subscriber(o.net.key(&o.source, "state"))
+        .callback(move |s| {
+            let _ = state_tx.send(Event::State(s.payload().to_bytes().into_owned()));
+        })
+        .wait()
+        .map_err(|e| anyhow!("subscribe to state: {e}"))?;
     let _alive = session
         .liveliness()
         .declare_subscriber(o.net.key(&o.source, "alive"))
         .history(true)
         .callback(move |s| {
-            let _ = alive_tx.send(Event::Alive(s.kind() == SampleKind::Put));
+            let _ = tx.send(Event::Alive(s.kind() == SampleKind::Put));
         })
         .wait()
         .map_err(|e| anyhow!("liveliness subscriber: {e}"))?;
-    let clock = ClockEstimator::spawn(
-        &session,
-        o.net.key(&o.source, "clock"),
-        Duration::from_secs_f64(o.probe_interval.max(0.01)),
-    )?;
 
     let socket = bassclient::paths::socket_path(&name)?;
     crate::control::spawn_forwarder(&session, o.net.key(&o.source, "control"), &socket, term.clone())?;
     let timeout = Duration::from_secs_f64(o.timeout.max(0.1));
-    let mut st = MirrorStatus { replica: name.clone(), state: "idle".into(), ..Default::default() };
-    let mut replica: Option<Replica> = None;
     let mut alive = false;
-    let mut last_heard = Instant::now();
     let mut last_status = Instant::now() - Duration::from_secs(10);
-    let mut in_error = false;
     tracing::info!(replica = %name, source = %o.source, "mirroring");
     while !term.load(Ordering::Relaxed) {
         let ev = rx.recv_timeout(Duration::from_millis(100));
-        let (offset, _) = clock.estimate();
+        let mut guard = lock(&core);
+        let c = &mut *guard;
+        if let Some(e) = c.fatal.take() {
+            return Err(e);
+        }
         match ev {
-            Ok(Event::Chunk(bytes)) => {
-                last_heard = Instant::now();
-                match wire::decode_batch(&bytes) {
-                    Ok(chunks) => {
-                        for c in chunks {
-                            on_chunk(&name, &mut replica, &mut st, c, offset)?;
-                        }
-                        if in_error {
-                            if let Some(r) = &replica {
-                                r.writer.set_state(State::Capturing, error_code::NONE, "");
-                            }
-                            in_error = false;
-                            tracing::info!("source back: replica capturing again");
-                        }
-                    }
-                    Err(e) => {
-                        st.invalid_messages += 1;
-                        tracing::warn!("refused a message: {e}");
-                    }
-                }
-            }
             Ok(Event::State(bytes)) => {
-                last_heard = Instant::now();
+                c.last_heard = Instant::now();
                 if let Ok(s) = serde_json::from_slice::<SourceState>(&bytes) {
-                    on_source_state(&replica, &s, &mut in_error, &mut st);
+                    on_source_state(&c.replica, &s, &mut c.in_error, &mut c.st);
                 }
             }
             Ok(Event::Alive(a)) => {
                 alive = a;
                 if a {
-                    last_heard = Instant::now();
+                    c.last_heard = Instant::now();
                 }
                 tracing::info!(alive = a, "source liveliness");
             }
             Err(RecvTimeoutError::Timeout) => {}
             Err(RecvTimeoutError::Disconnected) => break,
         }
-        if let Some(r) = &replica {
+        if let Some(r) = &c.replica {
             r.writer.heartbeat();
-            let silent = last_heard.elapsed() > timeout;
-            if (silent || !alive && last_heard.elapsed() > timeout)
-                && !in_error
-                && r.writer.state() == State::Capturing
-            {
+            let silent = c.last_heard.elapsed() > timeout;
+            if silent && !c.in_error && r.writer.state() == State::Capturing {
                 let why =
                     if alive { "no data from the source" } else { "source unreachable (liveliness lost)" };
                 r.writer.set_state(
@@ -194,21 +229,24 @@ pub fn run(o: MirrorOpts) -> Result<()> {
                     error_code::DEVICE_LOST,
                     &format!("{why} for more than {:.1} s", timeout.as_secs_f64()),
                 );
-                in_error = true;
-                st.outages += 1;
+                c.in_error = true;
+                c.st.outages += 1;
                 tracing::warn!("{why}: replica in error");
             }
         }
         if last_status.elapsed() >= Duration::from_secs(1) {
             last_status = Instant::now();
             let (off, unc) = clock.estimate();
-            st.clock_offset_ns = off;
-            st.clock_uncertainty_ns = unc;
-            st.clock_drift_ppm = clock.drift_ppm();
-            if let Some(r) = &replica {
-                st.last_frame_index = r.writer.last_frame_index();
-                st.state = format!("{:?}", r.writer.state()).to_lowercase();
+            c.st.clock_offset_ns = off;
+            c.st.clock_uncertainty_ns = unc;
+            c.st.clock_drift_ppm = clock.drift_ppm();
+            if let Some(r) = &c.replica {
+                c.st.last_frame_index = r.writer.last_frame_index();
+                c.st.state = format!("{:?}", r.writer.state()).to_lowercase();
             }
+            let st = c.st.clone();
+            drop(guard);
+            // Written without the lock: the chunk subscriber never waits for the disk.
             if let Some(p) = &o.status_file {
                 let tmp = p.with_extension("tmp");
                 std::fs::write(&tmp, serde_json::to_vec_pretty(&st)?).context("write the status file")?;
@@ -216,7 +254,8 @@ pub fn run(o: MirrorOpts) -> Result<()> {
             }
         }
     }
-    if let Some(r) = replica {
+    drop(chunks);
+    if let Some(r) = lock(&core).replica.take() {
         r.writer.set_state(State::Stopped, error_code::NONE, "mirror stopped");
         let _ = r.writer.remove();
     }
