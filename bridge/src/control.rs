@@ -10,7 +10,7 @@
 
 use std::os::fd::{AsFd, OwnedFd};
 use std::path::Path;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -21,6 +21,9 @@ use zenoh::Wait;
 
 /// How long a forwarded request may take end to end (an Acquire opens a device).
 const REQUEST_TIMEOUT: Duration = Duration::from_secs(10);
+/// Control requests from mirrors answered at the same time; more are refused as busy (a
+/// flood of queries must not become a flood of threads).
+const MAX_CONCURRENT_QUERIES: usize = 8;
 
 fn seqpacket() -> std::io::Result<OwnedFd> {
     Ok(rustix::net::socket_with(AddressFamily::UNIX, SocketType::SEQPACKET, SocketFlags::CLOEXEC, None)?)
@@ -80,12 +83,24 @@ pub fn declare_queryable(
     broker: &str,
 ) -> Result<zenoh::query::Queryable<()>> {
     let broker = broker.to_owned();
+    let in_flight = Arc::new(AtomicUsize::new(0));
     session
         .declare_queryable(key)
         .callback(move |q| {
+            if in_flight.fetch_add(1, Ordering::AcqRel) >= MAX_CONCURRENT_QUERIES {
+                in_flight.fetch_sub(1, Ordering::AcqRel);
+                let text = format!(
+                    "bass-bridge serve: busy ({MAX_CONCURRENT_QUERIES} control requests in progress); try again"
+                );
+                if let Err(e) = q.reply(q.key_expr().clone(), error_reply(ErrorKind::Internal, &text)).wait() {
+                    tracing::debug!("control reply: {e}");
+                }
+                return;
+            }
             // The broker may take a while (an Acquire opens a device): answer from a thread of
             // its own, never from Zenoh's runtime, which also carries the chunks.
             let broker = broker.clone();
+            let done = in_flight.clone();
             let spawned = std::thread::Builder::new().name("control-query".into()).spawn(move || {
                 let request = q.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
                 let reply = ask_local_broker(&broker, &request).unwrap_or_else(|e| {
@@ -95,8 +110,10 @@ pub fn declare_queryable(
                 if let Err(e) = q.reply(q.key_expr().clone(), reply).wait() {
                     tracing::debug!("control reply: {e}");
                 }
+                done.fetch_sub(1, Ordering::AcqRel);
             });
             if let Err(e) = spawned {
+                in_flight.fetch_sub(1, Ordering::AcqRel);
                 tracing::warn!("remote control: cannot start a thread for a request: {e}");
             }
         })

@@ -96,15 +96,7 @@ impl Writer {
     pub fn prepare_at(path: &Path, params: &PortParams) -> Result<PendingPort> {
         let geometry = params.geometry.clone();
         let layout = geometry.layout()?;
-        let dir_path = match path.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d.to_owned(),
-            _ => PathBuf::from("."),
-        };
-        let name = path
-            .file_name()
-            .and_then(|f| f.to_str())
-            .ok_or_else(|| Error::InvalidArgument(format!("port path {} has no file name", path.display())))?
-            .to_owned();
+        let (dir_path, name) = split_port_path(path)?;
         let dir = portfile::open_dir(&dir_path)?;
         let previous = Previous::inspect(&dir, &name, path)?;
         portfile::remove_stale_temps(&dir, &dir_path, &name);
@@ -138,16 +130,16 @@ impl Writer {
         let path = paths::port_path(name)?;
         let geometry = params.geometry.clone();
         let layout = geometry.layout()?;
-        let dir_path = path.parent().map(Path::to_owned).unwrap_or_else(|| PathBuf::from("."));
+        let (dir_path, file_name) = split_port_path(&path)?;
         // A left-over port file (of a file-backed run): only looked at, replaced at commit.
         let dir = portfile::open_dir(&dir_path).ok();
         let previous = match &dir {
-            Some(d) => Previous::inspect(d, &format!("bass-{name}.port"), &path)?,
+            Some(d) => Previous::inspect(d, &file_name, &path)?,
             None => None,
         };
         let file = memfd::create(name, layout.total_size)?;
         let mut pending = PendingPort {
-            place: Place::Memfd { dir, name: format!("bass-{name}.port"), previous_epoch },
+            place: Place::Memfd { dir, name: file_name, previous_epoch },
             path,
             file,
             mapping: None,
@@ -448,6 +440,20 @@ impl Drop for Writer {
     fn drop(&mut self) {
         self.stop();
     }
+}
+
+/// The directory of a port path and the port's file name in it.
+fn split_port_path(path: &Path) -> Result<(PathBuf, String)> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_owned(),
+        _ => PathBuf::from("."),
+    };
+    let name = path
+        .file_name()
+        .and_then(|f| f.to_str())
+        .ok_or_else(|| Error::InvalidArgument(format!("port path {} has no file name", path.display())))?
+        .to_owned();
+    Ok((dir, name))
 }
 
 fn wake(h: &Header) {
