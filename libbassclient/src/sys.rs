@@ -63,6 +63,14 @@ pub fn futex_wake_bits(word: &AtomicU32, bits: u32) -> u32 {
     woken.map_or(0, |n| u32::try_from(n).unwrap_or(u32::MAX))
 }
 
+/// Wakes at most `n` of the processes waiting on `word` for any of `bits`; returns how many
+/// it woke.
+pub fn futex_wake_bits_n(word: &AtomicU32, bits: u32, n: u32) -> u32 {
+    let Some(bits) = NonZeroU32::new(bits) else { return 0 };
+    let woken = futex::wake_bitset(word, futex::Flags::empty(), n.min(i32::MAX as u32), bits);
+    woken.map_or(0, |n| u32::try_from(n).unwrap_or(u32::MAX))
+}
+
 /// Wakes every process waiting on `word`.
 pub fn futex_wake_all(word: &AtomicU32) {
     let _ = futex::wake(word, futex::Flags::empty(), i32::MAX as u32);

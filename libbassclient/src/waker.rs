@@ -1,13 +1,19 @@
 //! Waking a port's readers at a cost to the writer that does not grow with their number.
 //!
 //! `FUTEX_WAKE` costs its caller about 1 µs per process it wakes, and the caller is the
-//! capture thread. So the writer wakes readers itself only while the last wake woke at most
-//! [`DIRECT_MAX`] of them (the common case of one or two readers keeps the lowest latency:
-//! no hop through another thread). When a wake woke more, the writer hands the following
-//! wakes to a helper thread: it ORs the chunk's futex bits into a pending word and, only when
-//! that word was empty, wakes the helper (one process-local futex wake of one thread). The
-//! helper issues the `FUTEX_WAKE_BITSET` on the port's futex word for all pending bits, and
-//! hands the wakes back to the writer as soon as one of them woke few readers again.
+//! capture thread. So the writer wakes every reader itself only while the last wake woke at
+//! most [`DIRECT_MAX`] of them (the common case of one or two readers: no hop through another
+//! thread). When a wake woke more, the writer switches to split wakes: it wakes at most
+//! [`DIRECT_MAX`] readers itself, straight away, and if that many were waiting hands the rest
+//! to a helper thread: it ORs the chunk's futex bits into a pending word and, only when that
+//! word was empty, wakes the helper (one process-local futex wake of one thread). The helper
+//! issues the `FUTEX_WAKE_BITSET` on the port's futex word for all pending bits. The writer
+//! goes back to waking everyone itself as soon as its own wake found fewer than
+//! [`DIRECT_MAX`] waiting, or the helper's found none. So the capture thread pays at most
+//! [`DIRECT_MAX`] wakes and one hand-over per chunk however many readers wait, and the first
+//! readers are woken without the hop (measured in docs/performance.md, part 3: with 8
+//! readers the median reader's wake went from 1.5–2.3× to 1.1–1.35× a raw futex waking 8
+//! processes, against a full hand-over to the helper).
 //!
 //! The helper is spawned the first time it is needed, from the writer's thread, so it
 //! inherits that thread's scheduling class (the capture thread's SCHED_FIFO priority); it is
@@ -21,7 +27,8 @@ use std::time::Duration;
 use crate::shm::Mapping;
 use crate::sys;
 
-/// The writer wakes directly while the last wake woke at most this many readers.
+/// The writer wakes everyone itself while the last wake woke at most this many readers, and
+/// at most this many itself otherwise.
 pub(crate) const DIRECT_MAX: u32 = 2;
 
 /// Wakes the readers of one port (owned by its writer).
@@ -40,8 +47,8 @@ struct Helper {
 struct Shared {
     /// Futex bits published but not yet woken by the helper; also the helper's futex word.
     pending: AtomicU32,
-    /// Set when the last wake by the helper woke at most [`DIRECT_MAX`] readers.
-    few: AtomicBool,
+    /// Set when the last wake by the helper woke nobody.
+    woke_none: AtomicBool,
     /// Tells the helper to exit.
     stop: AtomicBool,
 }
@@ -71,11 +78,17 @@ impl Waker {
             self.direct = true;
             return self.wake(bits);
         };
+        // The first readers straight away; the helper wakes the rest, if there may be more.
+        if sys::futex_wake_bits_n(&self.mapping.header().futex, bits, DIRECT_MAX) < DIRECT_MAX {
+            // Nobody else waited: the writer alone is enough again.
+            self.direct = true;
+            return;
+        }
         let shared = &helper.shared;
         if shared.pending.fetch_or(bits, Ordering::Release) == 0 {
             sys::futex_wake_bits(&shared.pending, u32::MAX);
         }
-        if shared.few.swap(false, Ordering::Relaxed) {
+        if shared.woke_none.swap(false, Ordering::Relaxed) {
             self.direct = true;
         }
     }
@@ -88,7 +101,7 @@ impl Waker {
         }
         let shared = Arc::new(Shared {
             pending: AtomicU32::new(0),
-            few: AtomicBool::new(false),
+            woke_none: AtomicBool::new(false),
             stop: AtomicBool::new(false),
         });
         let (s, m) = (shared.clone(), self.mapping.clone());
@@ -111,8 +124,8 @@ fn run_helper(shared: &Shared, mapping: &Mapping) {
         }
         let bits = shared.pending.swap(0, Ordering::Acquire);
         if bits != 0 {
-            if sys::futex_wake_bits(futex, bits) <= DIRECT_MAX {
-                shared.few.store(true, Ordering::Relaxed);
+            if sys::futex_wake_bits(futex, bits) == 0 {
+                shared.woke_none.store(true, Ordering::Relaxed);
             }
             continue;
         }

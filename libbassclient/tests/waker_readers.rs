@@ -1,5 +1,6 @@
-//! Many readers waiting on one port: the writer hands its wakes to the wake thread while more
-//! than `DIRECT_MAX` (2) readers are woken per publish, and takes them back when they are gone.
+//! Many readers waiting on one port: while more than `DIRECT_MAX` (2) readers are woken per
+//! publish, the writer wakes two itself and hands the rest to the wake thread, and it wakes
+//! everyone itself again when they are gone.
 //! Every reader still gets every frame with its exact samples and exact accounting; no reader
 //! is left sleeping (the waits have a 20 s guard, far above the run's length).
 
@@ -77,8 +78,8 @@ fn many_waiting_readers_get_every_frame_through_the_wake_thread_and_few_get_dire
         saw_helper.load(Ordering::Relaxed),
         "{READERS} waiting readers never moved the wakes to the wake thread"
     );
-    // The readers are gone: a publish wakes nobody (<= DIRECT_MAX), the helper reports it and
-    // the writer takes the wakes back within a few publishes.
+    // The readers are gone: the writer's own wake finds fewer than DIRECT_MAX waiting, so it
+    // takes the wakes back within a few publishes.
     let mut back = false;
     for k in CHUNKS..CHUNKS + 200 {
         fill_pattern_interleaved(&mut chunk, 2, k * u64::from(NFPC) + 1);
