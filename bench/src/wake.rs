@@ -84,6 +84,14 @@ pub struct WakeResults {
     pub ratio_n: BTreeMap<usize, Vec<f64>>,
     /// Per waiter count, per repetition: the same for the last reader of each publish.
     pub ratio_n_last: BTreeMap<usize, Vec<f64>>,
+    /// bass on a sealed memfd port, per reader count (> 1): every reader's wake latency.
+    pub bass_memfd_n: BTreeMap<usize, Dist>,
+    /// The same, per publish, the latency of the last reader to run.
+    pub bass_memfd_n_last: BTreeMap<usize, Dist>,
+    /// Per reader count, per repetition: bass memfd median / raw futex median (each reader).
+    pub ratio_n_memfd: BTreeMap<usize, Vec<f64>>,
+    /// The same for the last reader of each publish.
+    pub ratio_n_memfd_last: BTreeMap<usize, Vec<f64>>,
     /// Diagnostic: bass writer, a reader doing a bare FUTEX_WAIT on the port's futex word
     /// instead of `Port::wait` (separates writer-side from reader-side overhead).
     pub bass_raw_waiter: Dist,
@@ -266,9 +274,10 @@ impl WakePort {
         WakePort { w, kids, data }
     }
 
-    /// Like [`WakePort::start`] with one `wake-reader`, but the port is a sealed memfd and
-    /// the reader gets a read-only descriptor of it (inherited, as bassd would hand it over).
-    fn start_memfd(name: &str) -> WakePort {
+    /// Like [`WakePort::start`] with `readers` `wake-reader`s, but the port is a sealed memfd
+    /// and each reader gets a read-only descriptor of it (inherited, as bassd would hand it
+    /// over).
+    fn start_memfd(name: &str, readers: usize) -> WakePort {
         let geometry =
             Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: WAKE_NFPC, chunks_on_port: 64 };
         let params = PortParams { geometry, device: "bench:wake-memfd".into(), group: None };
@@ -278,13 +287,17 @@ impl WakePort {
         for _ in 0..64 {
             w.publish(Source::Interleaved(&data), ChunkMeta::default()).expect("publish");
         }
-        let fd = w.reader_fd().expect("reader fd").expect("a memfd port");
-        rustix::io::fcntl_setfd(&fd, rustix::io::FdFlags::empty()).expect("inheritable");
-        let fd_arg = std::os::fd::AsRawFd::as_raw_fd(&fd).to_string();
-        let mut kid = Child::spawn("wake-reader", &[name.to_owned(), "fd".into(), fd_arg]);
-        drop(fd);
-        kid.ready();
-        WakePort { w, kids: vec![kid], data }
+        let mut kids = Vec::new();
+        for _ in 0..readers {
+            let fd = w.reader_fd().expect("reader fd").expect("a memfd port");
+            rustix::io::fcntl_setfd(&fd, rustix::io::FdFlags::empty()).expect("inheritable");
+            let fd_arg = std::os::fd::AsRawFd::as_raw_fd(&fd).to_string();
+            kids.push(Child::spawn("wake-reader", &[name.to_owned(), "fd".into(), fd_arg]));
+        }
+        for k in &mut kids {
+            k.ready();
+        }
+        WakePort { w, kids, data }
     }
 
     /// Publishes one chunk stamped with the current time.
@@ -319,9 +332,13 @@ impl WakePort {
     }
 }
 
-/// Many readers on one port, `n` publishes.
-fn bass_wake(readers: usize, n: usize) -> Samples {
-    let mut p = WakePort::start("bench-wake-n", readers, "wake-reader");
+/// Many readers on one port (a file port, or a sealed memfd port), `n` publishes.
+fn bass_wake(readers: usize, n: usize, memfd: bool) -> Samples {
+    let mut p = if memfd {
+        WakePort::start_memfd("bench-wake-nm", readers)
+    } else {
+        WakePort::start("bench-wake-n", readers, "wake-reader")
+    };
     std::thread::sleep(Duration::from_millis(50));
     for _ in 0..n {
         std::thread::sleep(random_gap());
@@ -337,7 +354,7 @@ fn one_reader_side_by_side(n: usize) -> OneReader {
     let pinger = Pinger::start();
     let mut a = WakePort::start("bench-wake-a", 1, "wake-reader");
     let mut b = WakePort::start("bench-wake-b", 1, "wake-raw-waiter");
-    let mut m = WakePort::start_memfd("bench-wake-m");
+    let mut m = WakePort::start_memfd("bench-wake-m", 1);
     // Experiment hook: a fourth reader from another build, interleaved with the rest.
     let mut alt = std::env::var_os("BASS_BENCH_ALT_EXE").map(|exe| {
         let mut p = WakePort::start("bench-wake-c", 0, "wake-reader");
@@ -578,7 +595,7 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
         res.bass_last.entry(1).or_default().add_rep(one);
         res.bass_data.entry(1).or_default().add_rep(data);
         for &k in READERS.iter().filter(|&&k| k > 1) {
-            let Samples { each, last, data, cpu } = bass_wake(k, n);
+            let Samples { each, last, data, cpu } = bass_wake(k, n, false);
             res.reader_cpu.entry(k).or_default().push(cpu);
             println!(
                 "  rep {} bass {k:>2} readers: median {} p99 {} max {}; last reader median {}; data in hand median {}; reader CPU/chunk {}",
@@ -602,6 +619,20 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
             );
             res.ratio_n.entry(k).or_default().push(median(&each) / median(&raw_k.each));
             res.ratio_n_last.entry(k).or_default().push(median(&last) / median(&raw_k.last));
+            let m = bass_wake(k, n, true);
+            println!(
+                "  rep {} bass {k:>2} readers, sealed memfd port: median {}; last reader median {}; reader CPU/chunk {} | memfd / raw: each {}, last {}",
+                rep + 1,
+                fmt_ns(median(&m.each)),
+                fmt_ns(median(&m.last)),
+                fmt_ns(m.cpu),
+                fmt_ratio(median(&m.each) / median(&raw_k.each)),
+                fmt_ratio(median(&m.last) / median(&raw_k.last))
+            );
+            res.ratio_n_memfd.entry(k).or_default().push(median(&m.each) / median(&raw_k.each));
+            res.ratio_n_memfd_last.entry(k).or_default().push(median(&m.last) / median(&raw_k.last));
+            res.bass_memfd_n.entry(k).or_default().add_rep(m.each);
+            res.bass_memfd_n_last.entry(k).or_default().add_rep(m.last);
             res.raw_n.entry(k).or_default().add_rep(raw_k.each);
             res.raw_n_last.entry(k).or_default().add_rep(raw_k.last);
             res.bass.entry(k).or_default().add_rep(each);
