@@ -7,7 +7,8 @@
 # true offset is 0). Prints a markdown table (also to bench/network-results.md).
 # Usage: scripts/bench-network.sh [SECONDS per chunk size, default 20]
 # Rows are CHUNK:N (N chunks per Zenoh message, `serve --chunks-per-message N`);
-# BENCH_NET_CHUNKS="64:1 64:4" measures only those.
+# BENCH_NET_CHUNKS="64:1 64:4" measures only those; a last row measures bare Zenoh at the
+# 64-frame message rate (BENCH_NET_FLOOR=0 skips it).
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd); cd "$ROOT"
 BIN=${CARGO_TARGET_DIR:-$ROOT/target}/release
@@ -67,4 +68,25 @@ print(f"| {row} | {loc['p50_us']:.0f} / {loc['p99_us']:.0f} | {rem['p50_us']:.0f
 PY
   kill $MIRROR $SERVE $BASSD 2>/dev/null || true; wait $MIRROR $SERVE $BASSD 2>/dev/null || true
 done
+# The floor: bare Zenoh (bridge/examples/zenoh_floor.rs, no bass) sending one message of a
+# 64-frame chunk's size (96-byte header + 512 bytes of samples) 750 times a second over the
+# same veth, with the same scouting and congestion control: what one message per chunk costs
+# before bass-bridge does anything.
+if [ "${BENCH_NET_FLOOR:-1}" = 1 ]; then
+  "${IN_A[@]}" "$BIN/examples/zenoh_floor" pub "$EP" 750 608 $((SECS + 5)) >"$WORK/floor-pub.json" 2>&1 & FP=$!; PIDS+=($FP)
+  sleep 0.5
+  "${IN_B[@]}" "$BIN/examples/zenoh_floor" sub "$EP" $((SECS + 3)) >"$WORK/floor-sub.json" 2>&1 & FS=$!; PIDS+=($FS)
+  sleep 2
+  P0=$(ticks $FP); Q0=$(ticks $FS); B0=$(ip netns exec "$NS_B" cat /sys/class/net/vB/statistics/rx_bytes)
+  sleep "$SECS"
+  P1=$(ticks $FP); Q1=$(ticks $FS); B1=$(ip netns exec "$NS_B" cat /sys/class/net/vB/statistics/rx_bytes)
+  wait $FP $FS || true
+  python3 - "$SECS" "$HZ" "$P0" "$P1" "$Q0" "$Q1" "$B0" "$B1" >>"$WORK/table" <<'PY'
+import sys
+secs, hz, p0, p1, q0, q1, b0, b1 = map(float, sys.argv[1:])
+raw = 48000 * 2 * 4 * secs
+print(f"| 64: bare Zenoh, no bass (publisher / subscriber) | – | – | {100 * (p1 - p0) / hz / secs:.1f} % "
+      f"| {100 * (q1 - q0) / hz / secs:.1f} % | {(b1 - b0) / raw:.3f} | – |")
+PY
+fi
 cat "$WORK/table" | tee "$OUT"

@@ -475,6 +475,12 @@ fn wake_section(r: &Results, md: &mut String) {
     for (k, v) in &w.reader_cpu {
         let _ = write!(md, " {k} reader{}: {};", if *k == 1 { "" } else { "s" }, spread(v, fmt_ns));
     }
+    for (k, v) in &w.reader_cpu_memfd {
+        let _ = write!(md, " {k} readers of a sealed memfd port: {};", spread(v, fmt_ns));
+    }
+    for (k, v) in &w.raw_waiter_cpu {
+        let _ = write!(md, " {k} raw futex waiters (wake, record, wait again): {};", spread(v, fmt_ns));
+    }
     let _ = writeln!(md, " the bare-futex reader: {}.\n", spread(&w.bare_reader_cpu, fmt_ns));
     let _ = writeln!(md, "![wake latency](perf-wake.png)\n");
 }

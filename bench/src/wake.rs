@@ -97,6 +97,10 @@ pub struct WakeResults {
     pub bass_raw_waiter: Dist,
     /// Per reader count, per repetition: a reader's CPU time per chunk (wake, read, wait).
     pub reader_cpu: BTreeMap<usize, Vec<f64>>,
+    /// Per reader count (> 1), per repetition: a memfd-port reader's CPU time per chunk.
+    pub reader_cpu_memfd: BTreeMap<usize, Vec<f64>>,
+    /// Per waiter count (> 1), per repetition: a raw futex waiter's CPU time per wake.
+    pub raw_waiter_cpu: BTreeMap<usize, Vec<f64>>,
     /// Per repetition: CPU per chunk of the bare-futex reader.
     pub bare_reader_cpu: Vec<f64>,
     /// The 250 ms polling client.
@@ -199,6 +203,10 @@ fn raw_broadcast(readers: usize, n: usize) -> Samples {
     let _ = std::fs::remove_file(&path);
     let mut each = Vec::new();
     let mut last: BTreeMap<u64, f64> = BTreeMap::new();
+    let cpu: Vec<f64> = lines
+        .iter()
+        .filter_map(|l| Some(crate::procs::field(l, "cpu_ns")? / crate::procs::field(l, "chunks")?.max(1.0)))
+        .collect();
     for l in &lines {
         let v: Vec<u64> = l.split_whitespace().filter_map(|x| x.parse().ok()).collect();
         if let [seq, lat] = v[..] {
@@ -207,7 +215,7 @@ fn raw_broadcast(readers: usize, n: usize) -> Samples {
             *e = e.max(lat as f64);
         }
     }
-    Samples { each, last: last.into_values().collect(), data: Vec::new(), cpu: f64::NAN }
+    Samples { each, last: last.into_values().collect(), data: Vec::new(), cpu: median(&cpu) }
 }
 
 /// Child: one waiter of the raw-futex broadcast baseline; prints `seq latency_ns` per wake.
@@ -216,6 +224,7 @@ pub fn child_futex_waiter(args: &[String]) {
     let mut seq = r.u32_at(PING).load(Acquire);
     let mut out = String::new();
     crate::procs::say_ready();
+    let cpu0 = crate::procs::process_cpu_ns();
     loop {
         while r.u32_at(PING).load(Acquire) == seq {
             futex_wait(r.u32_at(PING), seq, Duration::MAX);
@@ -227,6 +236,11 @@ pub fn child_futex_waiter(args: &[String]) {
         }
         out.push_str(&format!("{seq} {}\n", t.saturating_sub(r.u64_at(PING_T).load(Relaxed))));
     }
+    out.push_str(&format!(
+        "cpu_ns={} chunks={}\n",
+        crate::procs::process_cpu_ns() - cpu0,
+        out.lines().count()
+    ));
     print!("{out}");
 }
 
@@ -609,11 +623,12 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
             );
             let raw_k = raw_broadcast(k, n);
             println!(
-                "  rep {} raw futex, {k:>2} waiters: median {} p99 {}; last waiter median {} | bass / raw: each {}, last {}",
+                "  rep {} raw futex, {k:>2} waiters: median {} p99 {}; last waiter median {}; waiter CPU/wake {} | bass / raw: each {}, last {}",
                 rep + 1,
                 fmt_ns(median(&raw_k.each)),
                 fmt_ns(quantile(&raw_k.each, 0.99)),
                 fmt_ns(median(&raw_k.last)),
+                fmt_ns(raw_k.cpu),
                 fmt_ratio(median(&each) / median(&raw_k.each)),
                 fmt_ratio(median(&last) / median(&raw_k.last))
             );
@@ -629,6 +644,8 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
                 fmt_ratio(median(&m.each) / median(&raw_k.each)),
                 fmt_ratio(median(&m.last) / median(&raw_k.last))
             );
+            res.reader_cpu_memfd.entry(k).or_default().push(m.cpu);
+            res.raw_waiter_cpu.entry(k).or_default().push(raw_k.cpu);
             res.ratio_n_memfd.entry(k).or_default().push(median(&m.each) / median(&raw_k.each));
             res.ratio_n_memfd_last.entry(k).or_default().push(median(&m.last) / median(&raw_k.last));
             res.bass_memfd_n.entry(k).or_default().add_rep(m.each);
