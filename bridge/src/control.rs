@@ -77,10 +77,13 @@ fn error_reply(kind: ErrorKind, text: &str) -> Vec<u8> {
 }
 
 /// `serve --allow-control`: answers control requests from mirrors with the local broker's reply.
+/// `hold` delays every request before it goes to the broker (fault injection for the tests;
+/// zero otherwise).
 pub fn declare_queryable(
     session: &zenoh::Session,
     key: &str,
     broker: &str,
+    hold: Duration,
 ) -> Result<zenoh::query::Queryable<()>> {
     let broker = broker.to_owned();
     let in_flight = Arc::new(AtomicUsize::new(0));
@@ -103,6 +106,9 @@ pub fn declare_queryable(
             let done = in_flight.clone();
             let spawned = std::thread::Builder::new().name("control-query".into()).spawn(move || {
                 let request = q.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
+                if !hold.is_zero() {
+                    std::thread::sleep(hold);
+                }
                 let reply = ask_local_broker(&broker, &request).unwrap_or_else(|e| {
                     tracing::warn!("remote control: {e:#}");
                     error_reply(ErrorKind::Internal, &format!("bass-bridge serve: {e:#}"))

@@ -1,7 +1,10 @@
 //! Deterministic fault injection for the network tests (cargo feature `fault-injection`):
 //! `serve --fault drop=S,dup=S,reorder=S,delay=S` drops, duplicates, swaps with the next
-//! message, or holds back by four messages the message of sequence number S. Without the
-//! feature any `--fault` is refused.
+//! message, or holds back by four messages the message of sequence number S;
+//! `control-delay=MS` holds every forwarded control request MS milliseconds before it goes to
+//! the broker (to have many in progress at once). Without the feature any `--fault` is refused.
+
+use std::time::Duration;
 
 use anyhow::{bail, Result};
 
@@ -19,6 +22,7 @@ enum Action {
 pub struct Faults {
     plan: Vec<(u64, Action)>,
     held: Vec<(u64, Vec<u8>)>,
+    control_delay: Duration,
 }
 
 impl Faults {
@@ -29,20 +33,30 @@ impl Faults {
             bail!("--fault needs a bass-bridge built with the fault-injection feature");
         }
         let mut plan = Vec::new();
+        let mut control_delay = Duration::ZERO;
         for item in spec.split(',').filter(|s| !s.is_empty()) {
             let Some((what, seq)) = item.split_once('=') else {
                 bail!("--fault item {item:?}: use what=SEQ")
             };
+            if what == "control-delay" {
+                control_delay = Duration::from_millis(seq.parse()?);
+                continue;
+            }
             let a = match what {
                 "drop" => Action::Drop,
                 "dup" => Action::Dup,
                 "reorder" => Action::Reorder,
                 "delay" => Action::Delay,
-                _ => bail!("--fault: unknown fault {what:?} (drop, dup, reorder, delay)"),
+                _ => bail!("--fault: unknown fault {what:?} (drop, dup, reorder, delay, control-delay)"),
             };
             plan.push((seq.parse()?, a));
         }
-        Ok(Faults { plan, held: Vec::new() })
+        Ok(Faults { plan, held: Vec::new(), control_delay })
+    }
+
+    /// How long each forwarded control request is held (`control-delay=MS`; zero without).
+    pub fn control_delay(&self) -> Duration {
+        self.control_delay
     }
 
     /// The messages to put now for message `seq`, in order.

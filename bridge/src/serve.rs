@@ -41,7 +41,8 @@ pub struct ServeOpts {
     /// Also offer each chunk on the iceoryx2 service `bass/<name>/chunks` (feature `iceoryx2`).
     #[arg(long)]
     pub iceoryx2: bool,
-    /// Deterministic faults by sequence number (tests): e.g. `drop=5,dup=7,reorder=9,delay=11`.
+    /// Deterministic faults by sequence number (tests): e.g. `drop=5,dup=7,reorder=9,delay=11`;
+    /// `control-delay=MS` holds each forwarded control request.
     #[arg(long)]
     pub fault: Option<String>,
     #[command(flatten)]
@@ -98,8 +99,10 @@ pub fn run(o: ServeOpts) -> Result<()> {
         .wait()
         .map_err(|e| anyhow!("declare clock queryable: {e}"))?;
 
+    let faults = crate::fault::Faults::parse(o.fault.as_deref())?;
     let _control = if o.allow_control {
-        Some(crate::control::declare_queryable(&session, &o.net.key(&o.name, "control"), &o.name)?)
+        let key = o.net.key(&o.name, "control");
+        Some(crate::control::declare_queryable(&session, &key, &o.name, faults.control_delay())?)
     } else {
         None
     };
@@ -110,7 +113,6 @@ pub fn run(o: ServeOpts) -> Result<()> {
         anyhow::bail!("this bass-bridge was built without the iceoryx2 feature");
     }
     let (tx, rx) = sync_channel::<Outgoing>(o.queue as usize);
-    let faults = crate::fault::Faults::parse(o.fault.as_deref())?;
     let sender = std::thread::Builder::new().name("bridge-send".into()).spawn(move || {
         let mut faults = faults;
         for out in rx {

@@ -204,6 +204,22 @@ grep -q "960 frames x 20 chunks" <<<"$OUT" && ok "Acquire from the workstation r
 J=$(reader $((RATE * 2)) 20) || true
 check_exact "$J" "after the remote Acquire"
 
+echo "== 10b. a flood of remote control requests: 8 answered at once, the rest refused as busy"
+# Each forwarded request is held 2 s in serve (test-only fault), so 12 requests sent at once
+# are all in progress together: 8 are answered, 4 get serve's busy error, none is lost.
+kill $SERVE 2>/dev/null || true; wait $SERVE 2>/dev/null || true
+start_serve --allow-control --fault control-delay=2000; sleep 1.5
+FLOOD=()
+for k in $(seq 12); do
+  inB timeout 20 "$BIN/bass" --name rep status >"$WORK/flood.$k" 2>&1 & FLOOD+=($!)
+done
+for p in "${FLOOD[@]}"; do wait "$p" || true; done
+ANSWERED=$(grep -l "capturing" "$WORK"/flood.* | wc -l); BUSY=$(grep -l "busy (8 control requests in progress)" "$WORK"/flood.* | wc -l)
+if [[ $ANSWERED == 8 && $BUSY == 4 ]]; then ok "12 requests at once: 8 answered, 4 refused as busy"
+else bad "12 requests at once: $ANSWERED answered, $BUSY busy (want 8 and 4): $(cat "$WORK"/flood.* | tr '\n' ' ' | cut -c1-600)"; fi
+OUT=$(inB timeout 20 "$BIN/bass" --name rep status 2>&1) && grep -q "capturing" <<<"$OUT" \
+  && ok "after the flood the next request is answered" || bad "status after the flood: $OUT"
+
 echo "== 11. iceoryx2 export: a PyPI iceoryx2 subscriber checks frame indices and samples"
 # Node and service files; iceoryx2's one 16-byte `*.global_mgmt` segment is meant to stay.
 iox_files() { { ls /dev/shm; ls /tmp/iceoryx2/nodes /tmp/iceoryx2/services 2>/dev/null; } | grep iox2 | grep -vc 'global_mgmt$' || true; }
