@@ -361,13 +361,7 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
                         "closing a control connection idle for {:?}",
                         cfg.idle_timeout
                     );
-                    // A request may have arrived since poll returned. Shut reading first: a
-                    // request sent from now on fails at the client (EPIPE; the library then
-                    // reconnects), one that arrived before is still queued and is answered.
-                    let _ = rustix::net::shutdown(&c.fd, rustix::net::Shutdown::Read);
-                    if request_pending(&c.fd) {
-                        serve_one(&mut broker, &c.fd);
-                    }
+                    close_idle(&mut broker, &c.fd);
                     closed.push(i);
                 }
                 continue;
@@ -551,6 +545,18 @@ fn admit(c: OwnedFd, clients: &mut Vec<Conn>, own_uid: u32, group: Option<u32>) 
 ///
 /// A request in the version-1 text form is answered in that form (`code=version`), the one
 /// reply a version-1 client can read; any other version gets a version-2 `error` naming both.
+/// The last step on a connection closed for idleness (the caller drops it afterwards).
+///
+/// A request may have arrived since poll returned. Reading is shut first: a request sent from
+/// then on fails at the client (EPIPE; the library then reconnects), and one that arrived
+/// before is still queued and is answered.
+fn close_idle(broker: &mut Broker, c: &OwnedFd) {
+    let _ = rustix::net::shutdown(c, rustix::net::Shutdown::Read);
+    if request_pending(c) {
+        serve_one(broker, c);
+    }
+}
+
 /// Whether a datagram waits on connection `c` (without taking it).
 fn request_pending(c: &OwnedFd) -> bool {
     let mut probe = [0u8; 1];
@@ -591,6 +597,25 @@ fn serve_one(broker: &mut Broker, c: &OwnedFd) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The race behind "the broker closed the connection without a reply": a request that
+    /// arrived after poll reported the connection idle is answered, not dropped with it.
+    #[test]
+    fn a_request_queued_when_an_idle_connection_closes_is_answered() {
+        use rustix::net::{socketpair, AddressFamily, SocketFlags, SocketType};
+        let (server, client) =
+            socketpair(AddressFamily::UNIX, SocketType::SEQPACKET, SocketFlags::CLOEXEC, None).unwrap();
+        control::send_request(client.as_fd(), &Request::Status).unwrap();
+        let mut broker = Broker::new(Config::default());
+        close_idle(&mut broker, &server);
+        drop(server);
+        match control::recv_reply(client.as_fd()) {
+            Ok(Some(Reply::Status(s))) => assert_eq!(s.epoch, 0, "a broker with no acquisition"),
+            other => panic!("the queued request got {other:?}, not its status reply"),
+        }
+        // And nothing else: the connection is closed after that reply.
+        assert!(matches!(control::recv_reply(client.as_fd()), Ok(None)), "the connection stays closed");
+    }
 
     #[test]
     fn peers_are_allowed_by_user_root_or_group() {
