@@ -146,8 +146,9 @@ fn goals(r: &Results) -> Vec<Goal> {
             let ratio = median(&w.ratio_memfd);
             g.push(Goal {
                 part: "3 wake",
-                goal: "the same on a sealed memfd port (`bassd --port-backing memfd`: no per-call `fstat`)"
-                    .into(),
+                goal:
+                    "the same on a sealed memfd port (`bassd --port-backing memfd`: no per-call size check)"
+                        .into(),
                 measured: format!(
                     "{} (median of per-repetition ratios {}; {} vs {})",
                     fmt_ratio(ratio),
@@ -424,7 +425,7 @@ fn wake_section(r: &Results, md: &mut String) {
          `Writer::publish`; raw futex: right before the store + `FUTEX_WAKE`) to the woken process running \
          (bass: `Port::wait` returned). Publishes are spaced by a random 3–6 ms so waiters are really asleep. \
          The raw futex ping-pong, the bass 1-reader case, the diagnostic bare-futex reader and the 1-reader case \
-         on a sealed memfd port (`bassd --port-backing memfd`: no per-call `fstat`) are interleaved \
+         on a sealed memfd port (`bassd --port-backing memfd`: no per-call size check) are interleaved \
          publish by publish in the same run; the 8- and 64-reader cases run one after the other (file port, \
          sealed memfd port, raw futex) in each repetition; {} publishes per configuration and repetition, {} repetitions, \
          samples pooled. *Last reader* = per publish, the latest of all readers. The polling client is the seed's \
@@ -455,7 +456,7 @@ fn wake_section(r: &Results, md: &mut String) {
         dist_row(md, "bass, 1 reader, data in hand (after `get_audio_data`)", d, raw);
     }
     if !w.bass_memfd.all.is_empty() {
-        dist_row(md, "bass, 1 reader of a sealed memfd port (no per-call `fstat`)", &w.bass_memfd, raw);
+        dist_row(md, "bass, 1 reader of a sealed memfd port (no per-call size check)", &w.bass_memfd, raw);
     }
     for (k, d) in &w.bass_memfd_n {
         dist_row(md, &format!("bass, {k} readers of a sealed memfd port, each reader"), d, raw);

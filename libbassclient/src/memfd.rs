@@ -1,7 +1,7 @@
 //! Ports backed by a sealed memfd instead of a file in the runtime directory.
 //!
 //! A regular file can be truncated under a reader's mapping (SIGBUS on the next access), so
-//! a reader of a file port checks the size with `fstat` before every access. A memfd created
+//! a reader of a file port checks the size (`lseek`) before every access. A memfd created
 //! with `MFD_ALLOW_SEALING` and sealed `F_SEAL_SHRINK | F_SEAL_GROW` cannot change size at
 //! all, for anybody: a reader that sees those seals never needs the check. The port is
 //! sealed once it is wholly allocated:

@@ -291,7 +291,11 @@ impl Port {
         if self.sealed {
             return Ok(());
         }
-        let len = self.file.metadata().map_err(|e| Error::io("fstat of the port file", e))?.len();
+        // lseek(SEEK_END) returns the file's size like fstat, with less work per call than
+        // std's statx (measured: the 1-reader wake latency 5–10 % lower, interleaved in one
+        // run). The offset it moves is never used: the port is only accessed through the map.
+        let len = rustix::fs::seek(&self.file, rustix::fs::SeekFrom::End(0))
+            .map_err(|e| Error::io("lseek of the port file", e.into()))?;
         if len < self.layout.total_size {
             return Err(Error::Corrupt(format!(
                 "port file shrank to {len} bytes under the reader (needs {})",
