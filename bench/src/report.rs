@@ -426,8 +426,8 @@ fn wake_section(r: &Results, md: &mut String) {
          (bass: `Port::wait` returned). Publishes are spaced by a random 3–6 ms so waiters are really asleep. \
          The raw futex ping-pong, the bass 1-reader case, the diagnostic bare-futex reader and the 1-reader case \
          on a sealed memfd port (`bassd --port-backing memfd`: no per-call size check) are interleaved \
-         publish by publish in the same run; the 8- and 64-reader cases run one after the other (file port, \
-         sealed memfd port, raw futex) in each repetition; {} publishes per configuration and repetition, {} repetitions, \
+         publish by publish in the same run; so are, for 8 and then 64 readers, the readers of a file port, \
+         the readers of a sealed memfd port and the raw futex waiters (all running at once); {} publishes per configuration and repetition, {} repetitions, \
          samples pooled. *Last reader* = per publish, the latest of all readers. The polling client is the seed's \
          BASC `GetBlocks`, a periodic 250 ms task calling getAudioData (4 processes, 2205-frame chunks every 50 ms).\n",
         w.publishes,

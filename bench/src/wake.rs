@@ -185,37 +185,52 @@ pub fn child_futex_pong(args: &[String]) {
 /// Raw-futex baseline for many waiters: `readers` processes blocked in FUTEX_WAIT on one
 /// shared word; per wake the parent stamps CLOCK_MONOTONIC, bumps the word and issues one
 /// FUTEX_WAKE of all of them, exactly the system calls a bass publish makes, without bass.
-fn raw_broadcast(readers: usize, n: usize) -> Samples {
-    let path = bassclient::paths::runtime_dir().join("bench-futex-n");
-    let region = Region::create(&path, 4096);
-    let kids = spawn_ready(readers, "futex-waiter", &[path.display().to_string()]);
-    std::thread::sleep(Duration::from_millis(50));
-    for _ in 0..n {
-        std::thread::sleep(random_gap());
-        region.u64_at(PING_T).store(monotonic_ns(), Relaxed);
-        region.u32_at(PING).fetch_add(1, Release);
-        futex_wake_all(region.u32_at(PING));
+struct RawBroadcast {
+    path: std::path::PathBuf,
+    region: Region,
+    kids: Vec<Child>,
+}
+
+impl RawBroadcast {
+    fn start(readers: usize) -> RawBroadcast {
+        let path = bassclient::paths::runtime_dir().join("bench-futex-n");
+        let region = Region::create(&path, 4096);
+        let kids = spawn_ready(readers, "futex-waiter", &[path.display().to_string()]);
+        RawBroadcast { path, region, kids }
     }
-    region.u32_at(STOP).store(1, Release);
-    region.u32_at(PING).fetch_add(1, Release);
-    futex_wake_all(region.u32_at(PING));
-    let lines = finish_all(kids);
-    let _ = std::fs::remove_file(&path);
-    let mut each = Vec::new();
-    let mut last: BTreeMap<u64, f64> = BTreeMap::new();
-    let cpu: Vec<f64> = lines
-        .iter()
-        .filter_map(|l| Some(crate::procs::field(l, "cpu_ns")? / crate::procs::field(l, "chunks")?.max(1.0)))
-        .collect();
-    for l in &lines {
-        let v: Vec<u64> = l.split_whitespace().filter_map(|x| x.parse().ok()).collect();
-        if let [seq, lat] = v[..] {
-            each.push(lat as f64);
-            let e = last.entry(seq).or_insert(0.0);
-            *e = e.max(lat as f64);
+
+    /// One wake of every waiter, stamped with the current time.
+    fn wake(&self) {
+        self.region.u64_at(PING_T).store(monotonic_ns(), Relaxed);
+        self.region.u32_at(PING).fetch_add(1, Release);
+        futex_wake_all(self.region.u32_at(PING));
+    }
+
+    /// Stops the waiters; returns their latencies and their median CPU time per wake.
+    fn finish(self) -> Samples {
+        self.region.u32_at(STOP).store(1, Release);
+        self.region.u32_at(PING).fetch_add(1, Release);
+        futex_wake_all(self.region.u32_at(PING));
+        let lines = finish_all(self.kids);
+        let _ = std::fs::remove_file(&self.path);
+        let mut each = Vec::new();
+        let mut last: BTreeMap<u64, f64> = BTreeMap::new();
+        let cpu: Vec<f64> = lines
+            .iter()
+            .filter_map(|l| {
+                Some(crate::procs::field(l, "cpu_ns")? / crate::procs::field(l, "chunks")?.max(1.0))
+            })
+            .collect();
+        for l in &lines {
+            let v: Vec<u64> = l.split_whitespace().filter_map(|x| x.parse().ok()).collect();
+            if let [seq, lat] = v[..] {
+                each.push(lat as f64);
+                let e = last.entry(seq).or_insert(0.0);
+                *e = e.max(lat as f64);
+            }
         }
+        Samples { each, last: last.into_values().collect(), data: Vec::new(), cpu: median(&cpu) }
     }
-    Samples { each, last: last.into_values().collect(), data: Vec::new(), cpu: median(&cpu) }
 }
 
 /// Child: one waiter of the raw-futex broadcast baseline; prints `seq latency_ns` per wake.
@@ -346,19 +361,23 @@ impl WakePort {
     }
 }
 
-/// Many readers on one port (a file port, or a sealed memfd port), `n` publishes.
-fn bass_wake(readers: usize, n: usize, memfd: bool) -> Samples {
-    let mut p = if memfd {
-        WakePort::start_memfd("bench-wake-nm", readers)
-    } else {
-        WakePort::start("bench-wake-n", readers, "wake-reader")
-    };
+/// `readers` readers of a file port, `readers` of a sealed memfd port and `readers` raw
+/// futex waiters, all running at once; `n` wakes of each, interleaved wake by wake (random
+/// 3–6 ms apart) so that the three see the same machine. Returns (file, memfd, raw).
+fn many_side_by_side(readers: usize, n: usize) -> (Samples, Samples, Samples) {
+    let mut file = WakePort::start("bench-wake-n", readers, "wake-reader");
+    let mut memfd = WakePort::start_memfd("bench-wake-nm", readers);
+    let raw = RawBroadcast::start(readers);
     std::thread::sleep(Duration::from_millis(50));
-    for _ in 0..n {
+    for k in 0..3 * n {
         std::thread::sleep(random_gap());
-        p.publish();
+        match k % 3 {
+            0 => file.publish(),
+            1 => memfd.publish(),
+            _ => raw.wake(),
+        }
     }
-    p.finish()
+    (file.finish(), memfd.finish(), raw.finish())
 }
 
 /// The one-reader comparison, interleaved publish by publish so that all three see the
@@ -609,7 +628,8 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
         res.bass_last.entry(1).or_default().add_rep(one);
         res.bass_data.entry(1).or_default().add_rep(data);
         for &k in READERS.iter().filter(|&&k| k > 1) {
-            let Samples { each, last, data, cpu } = bass_wake(k, n, false);
+            let (bass_k, m, raw_k) = many_side_by_side(k, n);
+            let Samples { each, last, data, cpu } = bass_k;
             res.reader_cpu.entry(k).or_default().push(cpu);
             println!(
                 "  rep {} bass {k:>2} readers: median {} p99 {} max {}; last reader median {}; data in hand median {}; reader CPU/chunk {}",
@@ -621,7 +641,6 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
                 fmt_ns(median(&data)),
                 fmt_ns(cpu)
             );
-            let raw_k = raw_broadcast(k, n);
             println!(
                 "  rep {} raw futex, {k:>2} waiters: median {} p99 {}; last waiter median {}; waiter CPU/wake {} | bass / raw: each {}, last {}",
                 rep + 1,
@@ -634,7 +653,6 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
             );
             res.ratio_n.entry(k).or_default().push(median(&each) / median(&raw_k.each));
             res.ratio_n_last.entry(k).or_default().push(median(&last) / median(&raw_k.last));
-            let m = bass_wake(k, n, true);
             println!(
                 "  rep {} bass {k:>2} readers, sealed memfd port: median {}; last reader median {}; reader CPU/chunk {} | memfd / raw: each {}, last {}",
                 rep + 1,

@@ -2,18 +2,19 @@
 //!
 //! `FUTEX_WAKE` costs its caller about 1 µs per process it wakes, and the caller is the
 //! capture thread. So the writer wakes every reader itself only while the last wake woke at
-//! most [`DIRECT_MAX`] of them (the common case of one or two readers: no hop through another
-//! thread). When a wake woke more, the writer switches to split wakes: it wakes at most
-//! [`DIRECT_MAX`] readers itself, straight away, and if that many were waiting hands the rest
-//! to a helper thread: it ORs the chunk's futex bits into a pending word and, only when that
-//! word was empty, wakes the helper (one process-local futex wake of one thread). The helper
-//! issues the `FUTEX_WAKE_BITSET` on the port's futex word for all pending bits. The writer
-//! goes back to waking everyone itself as soon as its own wake found fewer than
-//! [`DIRECT_MAX`] waiting, or the helper's found none. So the capture thread pays at most
-//! [`DIRECT_MAX`] wakes and one hand-over per chunk however many readers wait, and the first
-//! readers are woken without the hop (measured in docs/performance.md, part 3: with 8
-//! readers the median reader's wake went from 1.5–2.3× to 1.1–1.35× a raw futex waking 8
-//! processes, against a full hand-over to the helper).
+//! most [`DIRECT_ALL_MAX`] of them (up to ~8 µs per chunk, 0.6 % of a 64-frame chunk's
+//! period; the usual one to a handful of readers get no hop through another thread). When a
+//! wake woke more, the writer switches to split wakes: it wakes [`SPLIT_DIRECT`] readers
+//! itself, straight away, and if that many were waiting hands the rest to a helper thread: it
+//! ORs the chunk's futex bits into a pending word and, only when that word was empty, wakes
+//! the helper (one process-local futex wake of one thread). The helper issues the
+//! `FUTEX_WAKE_BITSET` on the port's futex word for all pending bits. The writer goes back to
+//! waking everyone itself as soon as its own wake found fewer than [`SPLIT_DIRECT`] waiting,
+//! or the helper's last wake found so few that all of them together are at most
+//! [`DIRECT_ALL_MAX`]. So with many readers the capture thread pays [`SPLIT_DIRECT`] wakes and
+//! one hand-over per chunk however many wait, and the first readers still get no hop.
+//! docs/performance.md (part 2, part 3, and the analysis) has the measurements behind both
+//! numbers.
 //!
 //! The helper is spawned the first time it is needed, from the writer's thread, so it
 //! inherits that thread's scheduling class (the capture thread's SCHED_FIFO priority); it is
@@ -27,9 +28,11 @@ use std::time::Duration;
 use crate::shm::Mapping;
 use crate::sys;
 
-/// The writer wakes everyone itself while the last wake woke at most this many readers, and
-/// at most this many itself otherwise.
-pub(crate) const DIRECT_MAX: u32 = 2;
+/// The writer wakes everyone itself while the last wake woke at most this many readers.
+pub(crate) const DIRECT_ALL_MAX: u32 = 8;
+
+/// With more readers, the writer wakes this many itself and hands the rest to the helper.
+pub(crate) const SPLIT_DIRECT: u32 = 2;
 
 /// Wakes the readers of one port (owned by its writer).
 pub struct Waker {
@@ -47,8 +50,9 @@ struct Helper {
 struct Shared {
     /// Futex bits published but not yet woken by the helper; also the helper's futex word.
     pending: AtomicU32,
-    /// Set when the last wake by the helper woke nobody.
-    woke_none: AtomicBool,
+    /// Set when the last wake by the helper woke so few readers that the writer can wake
+    /// them all itself again.
+    woke_few: AtomicBool,
     /// Tells the helper to exit.
     stop: AtomicBool,
 }
@@ -69,7 +73,7 @@ impl Waker {
     pub fn wake(&mut self, bits: u32) {
         if self.direct {
             let woken = sys::futex_wake_bits(&self.mapping.header().futex, bits);
-            if woken > DIRECT_MAX && self.ensure_helper() {
+            if woken > DIRECT_ALL_MAX && self.ensure_helper() {
                 self.direct = false;
             }
             return;
@@ -79,7 +83,7 @@ impl Waker {
             return self.wake(bits);
         };
         // The first readers straight away; the helper wakes the rest, if there may be more.
-        if sys::futex_wake_bits_n(&self.mapping.header().futex, bits, DIRECT_MAX) < DIRECT_MAX {
+        if sys::futex_wake_bits_n(&self.mapping.header().futex, bits, SPLIT_DIRECT) < SPLIT_DIRECT {
             // Nobody else waited: the writer alone is enough again.
             self.direct = true;
             return;
@@ -88,7 +92,7 @@ impl Waker {
         if shared.pending.fetch_or(bits, Ordering::Release) == 0 {
             sys::futex_wake_bits(&shared.pending, u32::MAX);
         }
-        if shared.woke_none.swap(false, Ordering::Relaxed) {
+        if shared.woke_few.swap(false, Ordering::Relaxed) {
             self.direct = true;
         }
     }
@@ -101,7 +105,7 @@ impl Waker {
         }
         let shared = Arc::new(Shared {
             pending: AtomicU32::new(0),
-            woke_none: AtomicBool::new(false),
+            woke_few: AtomicBool::new(false),
             stop: AtomicBool::new(false),
         });
         let (s, m) = (shared.clone(), self.mapping.clone());
@@ -124,8 +128,8 @@ fn run_helper(shared: &Shared, mapping: &Mapping) {
         }
         let bits = shared.pending.swap(0, Ordering::Acquire);
         if bits != 0 {
-            if sys::futex_wake_bits(futex, bits) == 0 {
-                shared.woke_none.store(true, Ordering::Relaxed);
+            if sys::futex_wake_bits(futex, bits) <= DIRECT_ALL_MAX - SPLIT_DIRECT {
+                shared.woke_few.store(true, Ordering::Relaxed);
             }
             continue;
         }
