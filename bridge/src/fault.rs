@@ -38,8 +38,13 @@ impl Faults {
             let Some((what, seq)) = item.split_once('=') else {
                 bail!("--fault item {item:?}: use what=SEQ")
             };
+            let number = || -> Result<u64> {
+                seq.parse().map_err(|e| {
+                    anyhow::anyhow!("--fault item {item:?}: {seq:?} is not a whole number ({e})")
+                })
+            };
             if what == "control-delay" {
-                control_delay = Duration::from_millis(seq.parse()?);
+                control_delay = Duration::from_millis(number()?);
                 continue;
             }
             let a = match what {
@@ -49,7 +54,7 @@ impl Faults {
                 "delay" => Action::Delay,
                 _ => bail!("--fault: unknown fault {what:?} (drop, dup, reorder, delay, control-delay)"),
             };
-            plan.push((seq.parse()?, a));
+            plan.push((number()?, a));
         }
         Ok(Faults { plan, held: Vec::new(), control_delay })
     }
@@ -96,5 +101,15 @@ mod tests {
             }
         }
         assert_eq!(seen, vec![0, 2, 2, 4, 3, 6, 7, 8, 9, 5, 10, 11]);
+    }
+
+    #[test]
+    fn the_control_delay_is_parsed_and_bad_numbers_are_named() {
+        let f = Faults::parse(Some("control-delay=2000,drop=3")).unwrap();
+        assert_eq!(f.control_delay(), Duration::from_millis(2000));
+        let e = Faults::parse(Some("control-delay=2s")).err().expect("2s is refused").to_string();
+        assert!(e.contains("\"control-delay=2s\"") && e.contains("\"2s\""), "{e}");
+        let e = Faults::parse(Some("drop=-1")).err().expect("-1 is refused").to_string();
+        assert!(e.contains("\"-1\" is not a whole number"), "{e}");
     }
 }

@@ -541,10 +541,6 @@ fn admit(c: OwnedFd, clients: &mut Vec<Conn>, own_uid: u32, group: Option<u32>) 
     clients.push(Conn { fd: c, pid: peer.pid, last_ns: monotonic_ns() });
 }
 
-/// Reads one request from `c` and answers it; false when the connection is finished.
-///
-/// A request in the version-1 text form is answered in that form (`code=version`), the one
-/// reply a version-1 client can read; any other version gets a version-2 `error` naming both.
 /// The last step on a connection closed for idleness (the caller drops it afterwards).
 ///
 /// A request may have arrived since poll returned. Reading is shut first: a request sent from
@@ -564,6 +560,10 @@ fn request_pending(c: &OwnedFd) -> bool {
     matches!(rustix::net::recv(c, &mut probe[..], flags), Ok((_, n)) if n > 0)
 }
 
+/// Reads one request from `c` and answers it; false when the connection is finished.
+///
+/// A request in the version-1 text form is answered in that form (`code=version`), the one
+/// reply a version-1 client can read; any other version gets a version-2 `error` naming both.
 fn serve_one(broker: &mut Broker, c: &OwnedFd) -> bool {
     let bytes = match control::recv_datagram(c.as_fd()) {
         Ok(None) => return false,

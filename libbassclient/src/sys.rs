@@ -57,10 +57,7 @@ pub fn futex_wait_bits(word: &AtomicU32, expected: u32, timeout: Duration, bits:
 
 /// Wakes the processes waiting on `word` whose bits intersect `bits`.
 pub fn futex_wake_bits(word: &AtomicU32, bits: u32) -> u32 {
-    let Some(bits) = NonZeroU32::new(bits) else { return 0 };
-    let woken = futex::wake_bitset(word, futex::Flags::empty(), i32::MAX as u32, bits);
-    // The number of processes woken (an error, impossible with these arguments, counts as 0).
-    woken.map_or(0, |n| u32::try_from(n).unwrap_or(u32::MAX))
+    futex_wake_bits_n(word, bits, u32::MAX)
 }
 
 /// Wakes at most `n` of the processes waiting on `word` for any of `bits`; returns how many
@@ -68,6 +65,7 @@ pub fn futex_wake_bits(word: &AtomicU32, bits: u32) -> u32 {
 pub fn futex_wake_bits_n(word: &AtomicU32, bits: u32, n: u32) -> u32 {
     let Some(bits) = NonZeroU32::new(bits) else { return 0 };
     let woken = futex::wake_bitset(word, futex::Flags::empty(), n.min(i32::MAX as u32), bits);
+    // The number of processes woken (an error, impossible with these arguments, counts as 0).
     woken.map_or(0, |n| u32::try_from(n).unwrap_or(u32::MAX))
 }
 
