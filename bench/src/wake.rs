@@ -76,7 +76,8 @@ pub struct WakeResults {
     pub bass_memfd: Dist,
     /// Per repetition: bass memfd (1 reader) median / raw futex median.
     pub ratio_memfd: Vec<f64>,
-    /// Raw futex, per waiter count (> 1): every waiter's wake latency.
+    /// Raw futex, per waiter count (> 1): every waiter's wake latency; the waiters copy the
+    /// block out after waking, as the bass readers do.
     pub raw_n: BTreeMap<usize, Dist>,
     /// Raw futex, per waiter count: per wake, the latency of the last waiter to run.
     pub raw_n_last: BTreeMap<usize, Dist>,
@@ -99,7 +100,8 @@ pub struct WakeResults {
     pub reader_cpu: BTreeMap<usize, Vec<f64>>,
     /// Per reader count (> 1), per repetition: a memfd-port reader's CPU time per chunk.
     pub reader_cpu_memfd: BTreeMap<usize, Vec<f64>>,
-    /// Per waiter count (> 1), per repetition: a raw futex waiter's CPU time per wake.
+    /// Per waiter count (> 1), per repetition: a raw futex waiter's CPU time per wake
+    /// (copying the block).
     pub raw_waiter_cpu: BTreeMap<usize, Vec<f64>>,
     /// Per repetition: CPU per chunk of the bare-futex reader.
     pub bare_reader_cpu: Vec<f64>,
@@ -182,25 +184,58 @@ pub fn child_futex_pong(args: &[String]) {
     print!("{out}");
 }
 
+/// Slots of the raw baseline's sample rings (as many as the wake port's chunks).
+const RAW_SLOTS: usize = 64;
+/// Bytes of one channel's ring in the raw baseline's region.
+const RAW_RING_BYTES: usize = RAW_SLOTS * WAKE_NFPC as usize * 4;
+/// The raw baseline's region: a page of control words, then one ring per channel (2).
+const RAW_REGION_BYTES: usize = 4096 + 2 * RAW_RING_BYTES;
+
+/// Byte offset of channel `c`'s block for wake number `seq` in the raw baseline's region.
+fn raw_block(c: usize, seq: u32) -> usize {
+    4096 + c * RAW_RING_BYTES + (seq as usize % RAW_SLOTS) * WAKE_NFPC as usize * 4
+}
+
 /// Raw-futex baseline for many waiters: `readers` processes blocked in FUTEX_WAIT on one
 /// shared word; per wake the parent stamps CLOCK_MONOTONIC, bumps the word and issues one
 /// FUTEX_WAKE of all of them, exactly the system calls a bass publish makes, without bass.
+///
+/// Like a bass publish, the parent first writes a block of the wake port's size (64 frames
+/// × 2 channels, one ring per channel, as in a port), and like a bass reader every waiter
+/// copies it out (plain `memcpy`s) and takes the time again when it has the data: so the
+/// bass readers, which read their chunk and stamp both times, are compared like with like.
+/// The ring has [`RAW_SLOTS`] slots, so the parent never writes a block a waiter may still
+/// be copying.
 struct RawBroadcast {
     path: std::path::PathBuf,
     region: Region,
     kids: Vec<Child>,
+    block: Vec<i32>,
 }
 
 impl RawBroadcast {
     fn start(readers: usize) -> RawBroadcast {
         let path = bassclient::paths::runtime_dir().join("bench-futex-n");
-        let region = Region::create(&path, 4096);
+        let region = Region::create(&path, RAW_REGION_BYTES);
         let kids = spawn_ready(readers, "futex-waiter", &[path.display().to_string()]);
-        RawBroadcast { path, region, kids }
+        RawBroadcast { path, region, kids, block: vec![7; WAKE_NFPC as usize] }
     }
 
-    /// One wake of every waiter, stamped with the current time.
+    /// Writes the next block, then wakes every waiter, stamped with the current time.
     fn wake(&self) {
+        let next = self.region.u32_at(PING).load(Relaxed).wrapping_add(1);
+        for c in 0..2 {
+            // SAFETY: `raw_block` is inside the region (RAW_REGION_BYTES) and holds WAKE_NFPC
+            // samples; no waiter reads this slot now (it was last published RAW_SLOTS wakes
+            // ago, and every waiter copies its block right after waking).
+            unsafe {
+                std::ptr::copy_nonoverlapping(
+                    self.block.as_ptr(),
+                    self.region.ptr().add(raw_block(c, next)) as *mut i32,
+                    self.block.len(),
+                )
+            };
+        }
         self.region.u64_at(PING_T).store(monotonic_ns(), Relaxed);
         self.region.u32_at(PING).fetch_add(1, Release);
         futex_wake_all(self.region.u32_at(PING));
@@ -213,30 +248,16 @@ impl RawBroadcast {
         futex_wake_all(self.region.u32_at(PING));
         let lines = finish_all(self.kids);
         let _ = std::fs::remove_file(&self.path);
-        let mut each = Vec::new();
-        let mut last: BTreeMap<u64, f64> = BTreeMap::new();
-        let cpu: Vec<f64> = lines
-            .iter()
-            .filter_map(|l| {
-                Some(crate::procs::field(l, "cpu_ns")? / crate::procs::field(l, "chunks")?.max(1.0))
-            })
-            .collect();
-        for l in &lines {
-            let v: Vec<u64> = l.split_whitespace().filter_map(|x| x.parse().ok()).collect();
-            if let [seq, lat] = v[..] {
-                each.push(lat as f64);
-                let e = last.entry(seq).or_insert(0.0);
-                *e = e.max(lat as f64);
-            }
-        }
-        Samples { each, last: last.into_values().collect(), data: Vec::new(), cpu: median(&cpu) }
+        samples_of(&lines)
     }
 }
 
-/// Child: one waiter of the raw-futex broadcast baseline; prints `seq latency_ns` per wake.
+/// Child: one waiter of the raw-futex broadcast baseline; prints `seq latency_ns data_ns`
+/// per wake (woken; block copied out).
 pub fn child_futex_waiter(args: &[String]) {
-    let r = Region::open(std::path::Path::new(&args[0]), 4096);
+    let r = Region::open(std::path::Path::new(&args[0]), RAW_REGION_BYTES);
     let mut seq = r.u32_at(PING).load(Acquire);
+    let (mut left, mut right) = (vec![0i32; WAKE_NFPC as usize], vec![0i32; WAKE_NFPC as usize]);
     let mut out = String::new();
     crate::procs::say_ready();
     let cpu0 = crate::procs::process_cpu_ns();
@@ -249,7 +270,22 @@ pub fn child_futex_waiter(args: &[String]) {
         if r.u32_at(STOP).load(Acquire) != 0 {
             break;
         }
-        out.push_str(&format!("{seq} {}\n", t.saturating_sub(r.u64_at(PING_T).load(Relaxed))));
+        for (c, buf) in [&mut left, &mut right].into_iter().enumerate() {
+            // SAFETY: the block is inside the region and holds WAKE_NFPC samples; the parent
+            // wrote it before the Release increment of PING that this process loaded with
+            // Acquire, and does not write that slot again for RAW_SLOTS wakes.
+            unsafe {
+                std::ptr::copy_nonoverlapping(
+                    r.ptr().add(raw_block(c, seq)) as *const i32,
+                    buf.as_mut_ptr(),
+                    buf.len(),
+                )
+            };
+            std::hint::black_box(&buf);
+        }
+        let data = monotonic_ns();
+        let published = r.u64_at(PING_T).load(Relaxed);
+        out.push_str(&format!("{seq} {} {}\n", t.saturating_sub(published), data.saturating_sub(published)));
     }
     out.push_str(&format!(
         "cpu_ns={} chunks={}\n",
@@ -340,25 +376,29 @@ impl WakePort {
         self.w.stop();
         let lines = finish_all(self.kids);
         let _ = self.w.remove();
-        let (mut each, mut data_in_hand) = (Vec::new(), Vec::new());
-        let mut last: BTreeMap<u64, f64> = BTreeMap::new();
-        let cpu: Vec<f64> = lines
-            .iter()
-            .filter_map(|l| {
-                Some(crate::procs::field(l, "cpu_ns")? / crate::procs::field(l, "chunks")?.max(1.0))
-            })
-            .collect();
-        for l in &lines {
-            let v: Vec<u64> = l.split_whitespace().filter_map(|x| x.parse().ok()).collect();
-            if let [lfi, lat, dat] = v[..] {
-                each.push(lat as f64);
-                data_in_hand.push(dat as f64);
-                let e = last.entry(lfi).or_insert(0.0);
-                *e = e.max(lat as f64);
-            }
-        }
-        Samples { each, last: last.into_values().collect(), data: data_in_hand, cpu: median(&cpu) }
+        samples_of(&lines)
     }
+}
+
+/// Parses the output of wake readers or raw waiters: `ID WAKE_NS DATA_NS` per wake (ID: the
+/// publish it answers) and a `cpu_ns=… chunks=…` line per process.
+fn samples_of(lines: &[String]) -> Samples {
+    let (mut each, mut data_in_hand) = (Vec::new(), Vec::new());
+    let mut last: BTreeMap<u64, f64> = BTreeMap::new();
+    let cpu: Vec<f64> = lines
+        .iter()
+        .filter_map(|l| Some(crate::procs::field(l, "cpu_ns")? / crate::procs::field(l, "chunks")?.max(1.0)))
+        .collect();
+    for l in lines {
+        let v: Vec<u64> = l.split_whitespace().filter_map(|x| x.parse().ok()).collect();
+        if let [id, lat, dat] = v[..] {
+            each.push(lat as f64);
+            data_in_hand.push(dat as f64);
+            let e = last.entry(id).or_insert(0.0);
+            *e = e.max(lat as f64);
+        }
+    }
+    Samples { each, last: last.into_values().collect(), data: data_in_hand, cpu: median(&cpu) }
 }
 
 /// `readers` readers of a file port, `readers` of a sealed memfd port and `readers` raw
@@ -642,7 +682,7 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
                 fmt_ns(cpu)
             );
             println!(
-                "  rep {} raw futex, {k:>2} waiters: median {} p99 {}; last waiter median {}; waiter CPU/wake {} | bass / raw: each {}, last {}",
+                "  rep {} raw futex, {k:>2} waiters copying the block: median {} p99 {}; last waiter median {}; waiter CPU/wake {} | bass / raw: each {}, last {}",
                 rep + 1,
                 fmt_ns(median(&raw_k.each)),
                 fmt_ns(quantile(&raw_k.each, 0.99)),

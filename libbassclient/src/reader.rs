@@ -9,7 +9,7 @@ use std::os::fd::{AsFd, OwnedFd};
 use std::os::unix::fs::{MetadataExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{fence, Ordering::Acquire, Ordering::Relaxed};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use crate::error::{Error, Result};
 use crate::format::{self, Geometry, Header, Layout, State};
@@ -21,6 +21,7 @@ use crate::sys::{self, FutexWait};
 
 /// Longest futex wait between two checks that the writer process still exists.
 pub const LIVENESS_SLICE: Duration = Duration::from_millis(100);
+const LIVENESS_SLICE_NS: u64 = LIVENESS_SLICE.as_nanos() as u64;
 
 /// How long a port file may stay unwritten (format version 0) after it last changed before
 /// an opener stops reporting `NotReady` (retry) and reports `NeverReady` (give up). A writer
@@ -375,7 +376,12 @@ impl Port {
     /// every [`LIVENESS_SLICE`] while nothing is published: by its heartbeat while that is
     /// younger than the slice, else in /proc (a file read, so not on every call).
     pub fn wait(&self, frame: u64, timeout: Duration) -> Result<u64> {
-        let deadline = Instant::now().checked_add(timeout);
+        let timeout_ns = u64::try_from(timeout.as_nanos()).unwrap_or(u64::MAX);
+        // CLOCK_MONOTONIC deadline (None: never), set on the first pass that would sleep. One
+        // clock read per sleep serves the heartbeat, the deadline and the futex timeout; a
+        // woken reader returns without reading the clock (every cold page counts here: with
+        // many readers on few cores each one's CPU per wake delays all that run after it).
+        let mut deadline: Option<Option<u64>> = None;
         let h = self.header();
         let mut check_writer = true;
         loop {
@@ -385,6 +391,7 @@ impl Port {
             if lfi >= frame {
                 return Ok(lfi);
             }
+            let now = sys::monotonic_ns();
             // While the writer's heartbeat proves it alive: how long the heartbeat stays fresh.
             let fresh_for = match State::from_u32(h.state.load(Acquire)) {
                 Some(State::Stopped) => return Err(Error::Stopped { last: lfi }),
@@ -396,10 +403,9 @@ impl Port {
                     // A heartbeat (stored at every publish) younger than the liveness slice
                     // shows the writer alive without reading /proc/PID/stat (~15 µs per wait).
                     let beat = h.heartbeat_mono_ns.load(Relaxed);
-                    let now = sys::monotonic_ns();
                     let fresh = (beat <= now)
-                        .then(|| LIVENESS_SLICE.saturating_sub(Duration::from_nanos(now - beat)))
-                        .filter(|d| !d.is_zero());
+                        .then(|| LIVENESS_SLICE_NS.saturating_sub(now - beat))
+                        .filter(|&ns| ns > 0);
                     if check_writer && fresh.is_none() {
                         self.check_writer_alive()?;
                     }
@@ -407,11 +413,9 @@ impl Port {
                 }
                 None => return Err(Error::Corrupt(format!("state {}", h.state.load(Relaxed)))),
             };
-            let remaining = match deadline {
-                Some(d) => d.saturating_duration_since(Instant::now()),
-                None => Duration::MAX,
-            };
-            if remaining.is_zero() {
+            let deadline = *deadline.get_or_insert_with(|| now.checked_add(timeout_ns));
+            let remaining = deadline.map_or(u64::MAX, |d| d.saturating_sub(now));
+            if remaining == 0 {
                 if check_writer && fresh_for.is_some() {
                     // The heartbeat spared the check: a writer that died since is still reported.
                     self.check_writer_alive()?;
@@ -420,12 +424,8 @@ impl Port {
             }
             let nfpc = u64::from(self.geometry.frames_per_chunk.max(1));
             let bits = sys::chunk_bit(frame.saturating_sub(1) / nfpc);
-            match sys::futex_wait_bits(
-                &h.futex,
-                seq,
-                remaining.min(fresh_for.unwrap_or(LIVENESS_SLICE)),
-                bits,
-            ) {
+            let slice = remaining.min(fresh_for.unwrap_or(LIVENESS_SLICE_NS));
+            match sys::futex_wait_bits_until(&h.futex, seq, now.saturating_add(slice), bits) {
                 FutexWait::Woken => check_writer = false,
                 FutexWait::TimedOut => check_writer = true,
                 FutexWait::Interrupted => return Err(Error::Interrupted),

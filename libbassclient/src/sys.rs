@@ -37,9 +37,14 @@ pub fn chunk_bit(chunk: u64) -> u32 {
 /// Like [`futex_wait`], but only woken by wakes whose bits intersect `bits` (0 waits for
 /// nothing and returns at once).
 pub fn futex_wait_bits(word: &AtomicU32, expected: u32, timeout: Duration, bits: u32) -> FutexWait {
-    let Some(bits) = NonZeroU32::new(bits) else { return FutexWait::Woken };
-    // FUTEX_WAIT_BITSET takes an absolute CLOCK_MONOTONIC deadline.
     let deadline = monotonic_ns().saturating_add(u64::try_from(timeout.as_nanos()).unwrap_or(u64::MAX));
+    futex_wait_bits_until(word, expected, deadline, bits)
+}
+
+/// Like [`futex_wait_bits`], with an absolute CLOCK_MONOTONIC deadline in nanoseconds (what
+/// FUTEX_WAIT_BITSET takes: no clock read here).
+pub fn futex_wait_bits_until(word: &AtomicU32, expected: u32, deadline: u64, bits: u32) -> FutexWait {
+    let Some(bits) = NonZeroU32::new(bits) else { return FutexWait::Woken };
     let ts = Timespec {
         tv_sec: (deadline / 1_000_000_000).min(i64::MAX as u64) as i64,
         tv_nsec: (deadline % 1_000_000_000) as _,
