@@ -85,6 +85,9 @@
 // last frame was due. The rate estimate does not use its arrival time.
 #define LATE 8
 
+// How many port mappings one process can have guarded at once.
+#define SLOTS 256
+
 // Result codes. `BASS_OK` is 0; the codes are stable and never renumbered.
 typedef enum {
   // Success.
@@ -331,11 +334,17 @@ bass_result bass_list_devices(const char *broker, char *buf, size_t buf_len, siz
 // `BASS_ERR_WRONG_OWNER`. A file whose header stays unwritten is `BASS_ERR_NOT_READY` for
 // 2 s after its last change, then `BASS_ERR_NEVER_READY`.
 //
+// The first port file a process maps installs a SIGBUS handler that turns a port file
+// shrunk under the mapping into `BASS_ERR_CORRUPT` of the calls that touch it (other SIGBUS
+// go to the handler installed before, or kill the process as usual). A host that installs
+// its own SIGBUS handler afterwards must chain to the previous one, or set
+// `BASS_SIGBUS_GUARD=0` (then every call checks the file's size instead).
+//
 // # Safety
 // `name` must be NULL or a NUL-terminated string; `out_port` NULL or valid for a write.
 bass_result bass_port_open(const char *name, bass_port **out_port);
 
-// Opens the port file at `path` read-only.
+// Opens the port file at `path` read-only (guarded against SIGBUS like `bass_port_open`).
 //
 // # Safety
 // `path` must be NULL or a NUL-terminated string; `out_port` NULL or valid for a write.

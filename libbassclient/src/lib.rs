@@ -17,6 +17,7 @@ pub mod portfile;
 pub mod reader;
 pub mod ring;
 mod shm;
+pub mod sigbus;
 pub mod sys;
 pub mod testsignal;
 pub mod waker;

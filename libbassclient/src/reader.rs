@@ -17,6 +17,7 @@ use crate::memfd;
 use crate::paths;
 use crate::ring::{ChannelRing, Plan, Ring};
 use crate::shm::Mapping;
+use crate::sigbus;
 use crate::sys::{self, FutexWait};
 
 /// Longest futex wait between two checks that the writer process still exists.
@@ -28,6 +29,15 @@ const LIVENESS_SLICE_NS: u64 = LIVENESS_SLICE.as_nanos() as u64;
 /// of this library never shows version 0 under the port's name at all (it renames a
 /// complete file into place), so this only bounds the wait on stale or foreign files.
 pub const NOT_READY_GRACE: Duration = Duration::from_secs(2);
+
+/// The error of a port whose file shrank under the reader's mapping.
+fn shrank(mapping: &Mapping) -> Error {
+    Error::Corrupt(format!(
+        "the port file shrank under the reader (its {} mapped bytes are no longer all there); \
+         the port cannot be read any more through this handle: open it again",
+        mapping.len()
+    ))
+}
 
 /// `NotReady` while the file changed within [`NOT_READY_GRACE`], else `NeverReady`.
 fn not_ready(path: &Path, meta: &std::fs::Metadata) -> Error {
@@ -44,6 +54,8 @@ fn not_ready(path: &Path, meta: &std::fs::Metadata) -> Error {
 
 /// An open port (read-only mapping).
 pub struct Port {
+    /// Declared before `mapping`: unregistered before the mapping is unmapped.
+    guard: Option<sigbus::Guard>,
     mapping: Mapping,
     file: File,
     path: PathBuf,
@@ -219,12 +231,19 @@ impl Port {
             return Err(Error::Corrupt(format!("{} is empty", path.display())));
         }
         let mapping = Mapping::new(&file, len, false)?;
-        let v = match format::validate(mapping.header(), len) {
+        // A port file can shrink under the mapping, from before the header is read on.
+        let guard = if sealed { None } else { sigbus::Guard::register(mapping.as_ptr(), mapping.len()) };
+        let v = format::validate(mapping.header(), len);
+        if guard.as_ref().is_some_and(sigbus::Guard::broken) {
+            return Err(shrank(&mapping));
+        }
+        let v = match v {
             Err(Error::NotReady) => return Err(not_ready(path, meta)),
             other => other?,
         };
         let epoch = mapping.header().epoch.load(Relaxed);
-        Ok(Port {
+        let port = Port {
+            guard,
             mapping,
             file,
             path: path.to_owned(),
@@ -233,7 +252,8 @@ impl Port {
             epoch,
             version_minor: v.version_minor,
             sealed,
-        })
+        };
+        Ok(port)
     }
 
     /// Whether the port's size is sealed (a memfd port): reads skip the size check.
@@ -285,11 +305,14 @@ impl Port {
         }
     }
 
-    /// Guards every size-dependent access: a port file shrunk under our mapping would
-    /// raise SIGBUS on access, so refuse before touching it. A sealed port cannot shrink
-    /// (its size was checked against the header when it was mapped): nothing to do.
+    /// For a port file without the SIGBUS guard ([`sigbus`]: off, or no slot): refuses a
+    /// call on a file that has shrunk below its layout, before touching it (a shrink between
+    /// this check and the access still raises SIGBUS). Nothing to do for a sealed port (it
+    /// cannot shrink; its size was checked against the header when it was mapped) or a
+    /// guarded one (a shrink shows as [`Port::check_intact`]'s broken mark, with no system
+    /// call per call).
     fn check_size(&self) -> Result<()> {
-        if self.sealed {
+        if self.sealed || self.guard.is_some() {
             return Ok(());
         }
         // lseek(SEEK_END) returns the file's size like fstat, with less work per call than
@@ -304,6 +327,16 @@ impl Port {
             )));
         }
         Ok(())
+    }
+
+    /// After the accesses of a call: `Corrupt` if the port file shrank under them (the SIGBUS
+    /// guard then replaced the mapping with zero pages, so what was read is not the port's).
+    /// No system call: an atomic load.
+    fn check_intact(&self) -> Result<()> {
+        match &self.guard {
+            Some(g) if g.broken() => Err(shrank(&self.mapping)),
+            _ => Ok(()),
+        }
     }
 
     /// Loads the last frame index (Acquire) and checks it is plausible.
@@ -337,6 +370,7 @@ impl Port {
         self.check_size()?;
         let lfi = self.last_frame_index()?;
         let r = self.ring().read(lfi, max, *nfr, out);
+        self.check_intact()?;
         *nfr = r.next_frame;
         Ok(Read { frames: r.frames, loss: r.loss })
     }
@@ -348,6 +382,7 @@ impl Port {
         let lfi = self.last_frame_index()?;
         let ring = self.ring();
         let Plan { first, frames, loss } = ring.plan(lfi, max, *nfr);
+        self.check_intact()?;
         let nfop = self.layout.frames_on_port;
         let start = format::slot(first, nfop) as usize;
         let len0 = frames.min(nfop as usize - start);
@@ -361,6 +396,10 @@ impl Port {
     pub fn view_overwritten(&self, view: &View) -> u64 {
         fence(Acquire);
         let intact = self.ring().first_intact(self.header().write_intent.load(Relaxed));
+        if self.check_intact().is_err() {
+            // The file shrank: what the view showed may have been zero pages.
+            return view.frames as u64;
+        }
         intact.saturating_sub(view.first_frame).min(view.frames as u64)
     }
 
@@ -387,13 +426,17 @@ impl Port {
         loop {
             self.check_size()?;
             let seq = h.futex.load(Acquire);
-            let lfi = self.last_frame_index()?;
+            let lfi = self.last_frame_index();
+            self.check_intact()?;
+            let lfi = lfi?;
             if lfi >= frame {
                 return Ok(lfi);
             }
             let now = sys::monotonic_ns();
+            let (state, beat) = (h.state.load(Acquire), h.heartbeat_mono_ns.load(Relaxed));
+            self.check_intact()?;
             // While the writer's heartbeat proves it alive: how long the heartbeat stays fresh.
-            let fresh_for = match State::from_u32(h.state.load(Acquire)) {
+            let fresh_for = match State::from_u32(state) {
                 Some(State::Stopped) => return Err(Error::Stopped { last: lfi }),
                 Some(State::Error) => {
                     return Err(Error::Device { code: h.error_code.load(Relaxed), message: self.message() })
@@ -402,7 +445,6 @@ impl Port {
                 Some(State::Idle | State::Starting | State::Capturing) => {
                     // A heartbeat (stored at every publish) younger than the liveness slice
                     // shows the writer alive without reading /proc/PID/stat (~15 µs per wait).
-                    let beat = h.heartbeat_mono_ns.load(Relaxed);
                     let fresh = (beat <= now)
                         .then(|| LIVENESS_SLICE_NS.saturating_sub(now - beat))
                         .filter(|&ns| ns > 0);
@@ -411,7 +453,7 @@ impl Port {
                     }
                     fresh
                 }
-                None => return Err(Error::Corrupt(format!("state {}", h.state.load(Relaxed)))),
+                None => return Err(Error::Corrupt(format!("state {state}"))),
             };
             let deadline = *deadline.get_or_insert_with(|| now.checked_add(timeout_ns));
             let remaining = deadline.map_or(u64::MAX, |d| d.saturating_sub(now));
@@ -451,7 +493,9 @@ impl Port {
     /// Timestamps and flags of the chunk that holds `frame`.
     pub fn chunk_info(&self, frame: u64) -> Result<ChunkInfo> {
         self.check_size()?;
-        let lfi = self.last_frame_index()?;
+        let lfi = self.last_frame_index();
+        self.check_intact()?;
+        let lfi = lfi?;
         let ring = self.ring();
         let oldest = (lfi + 1).saturating_sub(self.layout.frames_on_port).max(1);
         if frame > lfi {
@@ -473,6 +517,7 @@ impl Port {
         };
         fence(Acquire);
         let intact = ring.first_intact(self.header().write_intent.load(Relaxed));
+        self.check_intact()?;
         if frame < intact {
             return Err(Error::FrameLost { frame, oldest: intact });
         }
@@ -490,7 +535,7 @@ impl Port {
         self.check_size()?;
         let h = self.header();
         let pid = h.writer_pid.load(Relaxed);
-        Ok(PortInfo {
+        let info = PortInfo {
             geometry: self.geometry.clone(),
             frames_on_port: self.layout.frames_on_port,
             last_frame_index: h.last_frame_index.load(Acquire),
@@ -509,6 +554,8 @@ impl Port {
             started_mono_ns: h.started_mono_ns.load(Relaxed),
             heartbeat_mono_ns: h.heartbeat_mono_ns.load(Relaxed),
             version_minor: self.version_minor,
-        })
+        };
+        self.check_intact()?;
+        Ok(info)
     }
 }

@@ -34,6 +34,16 @@ impl Mapping {
         Ok(Mapping { raw, len })
     }
 
+    /// Start of the mapping.
+    pub fn as_ptr(&self) -> *const u8 {
+        self.raw.as_ptr()
+    }
+
+    /// Length of the mapping in bytes.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
     /// The header.
     pub fn header(&self) -> &Header {
         // SAFETY: the mapping is at least HEADER_SIZE bytes (checked in `new`), page aligned,

@@ -13,7 +13,7 @@
 # Every test prints its measured figures as `FIGURE item N: ...`; they are collected in
 # $CARGO_TARGET_DIR/faults/figures.txt and printed at the end.
 # Knobs: BASS_FAULTS_TORN_SECS (60), BASS_FAULTS_SOAK_FRAMES (4.5e9), BASS_FAULTS_KILLS (100),
-# BASS_FAULTS_SEED, BASS_FAULTS_MIRI=0 to skip Miri, BASS_FAULTS_STRICT_SHRINK=1.
+# BASS_FAULTS_SEED, BASS_FAULTS_MIRI=0 to skip Miri.
 set -euo pipefail
 top=$(cd "$(dirname "$0")/../.." && pwd)
 cd "$top"

@@ -129,6 +129,12 @@ fn check_disjoint(ptrs: &[*mut i32], len: usize) -> Result<(), Failure> {
 /// `BASS_ERR_WRONG_OWNER`. A file whose header stays unwritten is `BASS_ERR_NOT_READY` for
 /// 2 s after its last change, then `BASS_ERR_NEVER_READY`.
 ///
+/// The first port file a process maps installs a SIGBUS handler that turns a port file
+/// shrunk under the mapping into `BASS_ERR_CORRUPT` of the calls that touch it (other SIGBUS
+/// go to the handler installed before, or kill the process as usual). A host that installs
+/// its own SIGBUS handler afterwards must chain to the previous one, or set
+/// `BASS_SIGBUS_GUARD=0` (then every call checks the file's size instead).
+///
 /// # Safety
 /// `name` must be NULL or a NUL-terminated string; `out_port` NULL or valid for a write.
 #[no_mangle]
@@ -144,7 +150,7 @@ pub unsafe extern "C" fn bass_port_open(name: *const c_char, out_port: *mut *mut
     })
 }
 
-/// Opens the port file at `path` read-only.
+/// Opens the port file at `path` read-only (guarded against SIGBUS like `bass_port_open`).
 ///
 /// # Safety
 /// `path` must be NULL or a NUL-terminated string; `out_port` NULL or valid for a write.
