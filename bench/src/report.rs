@@ -146,9 +146,7 @@ fn goals(r: &Results) -> Vec<Goal> {
             let ratio = median(&w.ratio_memfd);
             g.push(Goal {
                 part: "3 wake",
-                goal:
-                    "the same on a sealed memfd port (`bassd --port-backing memfd`: no per-call size check)"
-                        .into(),
+                goal: "the same on a sealed memfd port (`bassd --port-backing memfd`)".into(),
                 measured: format!(
                     "{} (median of per-repetition ratios {}; {} vs {})",
                     fmt_ratio(ratio),
@@ -425,9 +423,10 @@ fn wake_section(r: &Results, md: &mut String) {
          `Writer::publish`; raw futex: right before the store + `FUTEX_WAKE`) to the woken process running \
          (bass: `Port::wait` returned). Publishes are spaced by a random 3–6 ms so waiters are really asleep. \
          The raw futex ping-pong, the bass 1-reader case, the diagnostic bare-futex reader and the 1-reader case \
-         on a sealed memfd port (`bassd --port-backing memfd`: no per-call size check) are interleaved \
+         on a sealed memfd port (`bassd --port-backing memfd`) are interleaved \
          publish by publish in the same run; so are, for 8 and then 64 readers, the readers of a file port, \
-         the readers of a sealed memfd port and the raw futex waiters (all running at once); {} publishes per configuration and repetition, {} repetitions, \
+         the readers of a sealed memfd port and the raw futex waiters (all running at once; like a bass reader, \
+         each raw waiter copies the block of its wake out of shared memory and takes the time again when it has it); {} publishes per configuration and repetition, {} repetitions, \
          samples pooled. *Last reader* = per publish, the latest of all readers. The polling client is the seed's \
          BASC `GetBlocks`, a periodic 250 ms task calling getAudioData (4 processes, 2205-frame chunks every 50 ms).\n",
         w.publishes,
@@ -456,7 +455,7 @@ fn wake_section(r: &Results, md: &mut String) {
         dist_row(md, "bass, 1 reader, data in hand (after `get_audio_data`)", d, raw);
     }
     if !w.bass_memfd.all.is_empty() {
-        dist_row(md, "bass, 1 reader of a sealed memfd port (no per-call size check)", &w.bass_memfd, raw);
+        dist_row(md, "bass, 1 reader of a sealed memfd port", &w.bass_memfd, raw);
     }
     for (k, d) in &w.bass_memfd_n {
         dist_row(md, &format!("bass, {k} readers of a sealed memfd port, each reader"), d, raw);
@@ -480,7 +479,11 @@ fn wake_section(r: &Results, md: &mut String) {
         let _ = write!(md, " {k} readers of a sealed memfd port: {};", spread(v, fmt_ns));
     }
     for (k, v) in &w.raw_waiter_cpu {
-        let _ = write!(md, " {k} raw futex waiters (wake, record, wait again): {};", spread(v, fmt_ns));
+        let _ = write!(
+            md,
+            " {k} raw futex waiters (wake, copy the block, record, wait again): {};",
+            spread(v, fmt_ns)
+        );
     }
     let _ = writeln!(md, " the bare-futex reader: {}.\n", spread(&w.bare_reader_cpu, fmt_ns));
     let _ = writeln!(md, "![wake latency](perf-wake.png)\n");

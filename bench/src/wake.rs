@@ -8,7 +8,8 @@
 //!   `Port::wait` take the time when `wait` returns, then read the chunk.
 //! - bass on a sealed memfd port (`bassd --port-backing memfd`): the same 1-reader case, the
 //!   reader holding an inherited read-only descriptor of the memfd, so its calls skip the
-//!   per-call size check a port file needs; interleaved with the raw futex and the file reader.
+//!   file port's SIGBUS guard (neither makes a system call per call); interleaved with the raw
+//!   futex and the file reader.
 //! - the seed's BASC client: `GetBlocks` runs every 250 ms and calls getAudioData; the
 //!   latency of a chunk is from its publication to the poll that obtains it.
 //!
@@ -72,7 +73,7 @@ pub struct WakeResults {
     pub bass_data: BTreeMap<usize, Dist>,
     /// Per repetition: bass (1 reader) median / raw futex median.
     pub ratio_1: Vec<f64>,
-    /// bass, 1 reader of a sealed memfd port (no per-call size check), interleaved with `raw`.
+    /// bass, 1 reader of a sealed memfd port, interleaved with `raw`.
     pub bass_memfd: Dist,
     /// Per repetition: bass memfd (1 reader) median / raw futex median.
     pub ratio_memfd: Vec<f64>,

@@ -22,15 +22,18 @@ use bassclient::{memfd, Backing, PendingPort, PortParams, Writer};
 use crate::capture::Acquisition;
 use crate::server::Config;
 
-/// Builds the next port in the configured backing; a memfd port's epoch follows the
-/// current acquisition's.
+/// Builds the next port in the configured backing; its epoch follows the current
+/// acquisition's (whatever is left at the port's path: a cut or removed file says nothing).
 pub fn prepare(
     cfg: &Config,
     params: &PortParams,
     current: Option<&Acquisition>,
 ) -> bassclient::Result<PendingPort> {
     match cfg.port_backing {
-        Backing::File => Writer::prepare(&cfg.name, params),
+        Backing::File => Writer::prepare(&cfg.name, params).map(|mut p| {
+            p.after_epoch(current.map(|a| a.port.epoch()));
+            p
+        }),
         Backing::Memfd => Writer::prepare_memfd(&cfg.name, params, current.map(|a| a.port.epoch())),
     }
 }

@@ -17,7 +17,6 @@ use crate::memfd;
 use crate::paths;
 use crate::ring::{ChannelRing, Plan, Ring};
 use crate::shm::Mapping;
-use crate::sigbus;
 use crate::sys::{self, FutexWait};
 
 /// Longest futex wait between two checks that the writer process still exists.
@@ -54,8 +53,6 @@ fn not_ready(path: &Path, meta: &std::fs::Metadata) -> Error {
 
 /// An open port (read-only mapping).
 pub struct Port {
-    /// Declared before `mapping`: unregistered before the mapping is unmapped.
-    guard: Option<sigbus::Guard>,
     mapping: Mapping,
     file: File,
     path: PathBuf,
@@ -230,11 +227,13 @@ impl Port {
         if len == 0 {
             return Err(Error::Corrupt(format!("{} is empty", path.display())));
         }
-        let mapping = Mapping::new(&file, len, false)?;
+        let mut mapping = Mapping::new(&file, len, false)?;
         // A port file can shrink under the mapping, from before the header is read on.
-        let guard = if sealed { None } else { sigbus::Guard::register(mapping.as_ptr(), mapping.len()) };
+        if !sealed {
+            mapping.guard();
+        }
         let v = format::validate(mapping.header(), len);
-        if guard.as_ref().is_some_and(sigbus::Guard::broken) {
+        if mapping.broken() {
             return Err(shrank(&mapping));
         }
         let v = match v {
@@ -243,7 +242,6 @@ impl Port {
         };
         let epoch = mapping.header().epoch.load(Relaxed);
         let port = Port {
-            guard,
             mapping,
             file,
             path: path.to_owned(),
@@ -305,14 +303,14 @@ impl Port {
         }
     }
 
-    /// For a port file without the SIGBUS guard ([`sigbus`]: off, or no slot): refuses a
+    /// For a port file without the SIGBUS guard ([`crate::sigbus`]: off, or no slot): refuses a
     /// call on a file that has shrunk below its layout, before touching it (a shrink between
     /// this check and the access still raises SIGBUS). Nothing to do for a sealed port (it
     /// cannot shrink; its size was checked against the header when it was mapped) or a
     /// guarded one (a shrink shows as [`Port::check_intact`]'s broken mark, with no system
     /// call per call).
     fn check_size(&self) -> Result<()> {
-        if self.sealed || self.guard.is_some() {
+        if self.sealed || self.mapping.guarded() {
             return Ok(());
         }
         // lseek(SEEK_END) returns the file's size like fstat, with less work per call than
@@ -333,9 +331,10 @@ impl Port {
     /// guard then replaced the mapping with zero pages, so what was read is not the port's).
     /// No system call: an atomic load.
     fn check_intact(&self) -> Result<()> {
-        match &self.guard {
-            Some(g) if g.broken() => Err(shrank(&self.mapping)),
-            _ => Ok(()),
+        if self.mapping.broken() {
+            Err(shrank(&self.mapping))
+        } else {
+            Ok(())
         }
     }
 

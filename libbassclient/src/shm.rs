@@ -10,11 +10,15 @@ use memmap2::{MmapOptions, MmapRaw};
 
 use crate::error::{Error, Result};
 use crate::format::{ChunkEntry, Header, Layout, CHUNK_ENTRY_SIZE, HEADER_SIZE};
+use crate::sigbus;
 
 /// A shared mapping of a whole port file.
 pub struct Mapping {
+    /// Declared before `raw`: unregistered before the memory is unmapped.
+    guard: Option<sigbus::Guard>,
     raw: MmapRaw,
     len: usize,
+    writable: bool,
 }
 
 impl Mapping {
@@ -31,12 +35,28 @@ impl Mapping {
         opts.len(len);
         let raw = if writable { opts.map_raw(file) } else { opts.map_raw_read_only(file) }
             .map_err(|e| Error::io("mmap of the port file", e))?;
-        Ok(Mapping { raw, len })
+        Ok(Mapping { guard: None, raw, len, writable })
     }
 
-    /// Start of the mapping.
-    pub fn as_ptr(&self) -> *const u8 {
-        self.raw.as_ptr()
+    /// Puts the mapping under the SIGBUS guard ([`sigbus`]): for a port *file*, which its
+    /// owner or root can shrink under it. Whether it is guarded (see [`sigbus::Guard::register`]
+    /// for when it cannot be).
+    pub fn guard(&mut self) -> bool {
+        if self.guard.is_none() {
+            self.guard = sigbus::Guard::register(self.raw.as_ptr(), self.len, self.writable);
+        }
+        self.guard.is_some()
+    }
+
+    /// Whether the mapping is guarded.
+    pub fn guarded(&self) -> bool {
+        self.guard.is_some()
+    }
+
+    /// Whether the file shrank under a guarded mapping, which the guard then replaced with
+    /// zero pages: nothing read from it since is the port's, nothing written reaches anyone.
+    pub fn broken(&self) -> bool {
+        self.guard.as_ref().is_some_and(sigbus::Guard::broken)
     }
 
     /// Length of the mapping in bytes.

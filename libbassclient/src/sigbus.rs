@@ -32,6 +32,8 @@ struct Slot {
     used: AtomicBool,
     start: AtomicUsize,
     len: AtomicUsize,
+    /// Mapped writable (the writer's mapping): the zero pages are writable too.
+    writable: AtomicBool,
     /// Set by the handler when it replaced the mapping with zero pages.
     broken: AtomicBool,
 }
@@ -41,6 +43,7 @@ const EMPTY: Slot = Slot {
     used: AtomicBool::new(false),
     start: AtomicUsize::new(0),
     len: AtomicUsize::new(0),
+    writable: AtomicBool::new(false),
     broken: AtomicBool::new(false),
 };
 
@@ -64,11 +67,13 @@ pub struct Guard {
 }
 
 impl Guard {
-    /// Guards the mapping at `ptr` (`len` bytes, mapped `PROT_READ`). None when the guard is
+    /// Guards the mapping at `ptr` (`len` bytes, mapped `PROT_READ`, and `PROT_WRITE` if
+    /// `writable`: the writer keeps writing, into zero pages nobody else sees, until it
+    /// checks [`Guard::broken`]). None when the guard is
     /// off (`BASS_SIGBUS_GUARD=0`), the handler could not be installed or has since been
     /// replaced by another (a host that installs its own SIGBUS handler after bass), or all
     /// slots are used: the caller then checks the file's size itself.
-    pub fn register(ptr: *const u8, len: usize) -> Option<Guard> {
+    pub fn register(ptr: *const u8, len: usize, writable: bool) -> Option<Guard> {
         if len == 0 || !installed() || !still_ours() {
             return None;
         }
@@ -77,6 +82,7 @@ impl Guard {
         })?;
         let s = &TABLE[slot];
         s.broken.store(false, Ordering::Relaxed);
+        s.writable.store(writable, Ordering::Relaxed);
         s.start.store(ptr as usize, Ordering::Relaxed);
         s.len.store(len, Ordering::Release);
         Some(Guard { slot })
@@ -145,15 +151,21 @@ extern "C" fn on_sigbus(sig: libc::c_int, info: *mut libc::siginfo_t, ctx: *mut 
                 continue;
             }
             s.broken.store(true, Ordering::SeqCst);
+            let prot = if s.writable.load(Ordering::Relaxed) {
+                libc::PROT_READ | libc::PROT_WRITE
+            } else {
+                libc::PROT_READ
+            };
             // SAFETY: [start, start + len) is a live mapping of a port registered by this
             // process (a Guard is dropped before its mapping is unmapped); replacing it with
-            // private anonymous zero pages, read-only like the reader's mapping, keeps every
-            // reference into it valid, and the faulting load then reads zero.
+            // private anonymous zero pages, with the protection the mapping had, keeps every
+            // reference into it valid, and the faulting access then reads (or writes) zero
+            // pages.
             let p = unsafe {
                 libc::mmap(
                     start as *mut c_void,
                     len,
-                    libc::PROT_READ,
+                    prot,
                     libc::MAP_PRIVATE | libc::MAP_ANONYMOUS | libc::MAP_FIXED,
                     -1,
                     0,

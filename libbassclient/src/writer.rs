@@ -110,6 +110,7 @@ impl Writer {
             geometry,
             layout,
             previous,
+            after: None,
         };
         pending.build(params)?;
         Ok(pending)
@@ -146,6 +147,7 @@ impl Writer {
             geometry,
             layout,
             previous,
+            after: None,
         };
         pending.build(params)?;
         Ok(pending)
@@ -255,7 +257,21 @@ impl Writer {
         };
         h.futex.fetch_add(1, Release);
         self.waker.wake(bits);
+        self.check_intact()?;
         Ok(new_lfi)
+    }
+
+    /// `Corrupt` if the port file shrank under the writer's (guarded) mapping: the SIGBUS
+    /// guard replaced it with zero pages, so what was published since reaches no reader.
+    pub(crate) fn check_intact(&self) -> Result<()> {
+        if !self.mapping.broken() {
+            return Ok(());
+        }
+        Err(Error::Corrupt(format!(
+            "the port file {} shrank under the writer: its mapping was replaced by zero pages \
+             that no reader sees; this port cannot be published any more",
+            self.path.display()
+        )))
     }
 
     /// Whether the last wake of the readers was handed to the wake thread (many readers
@@ -348,6 +364,9 @@ pub struct PendingPort {
     geometry: Geometry,
     layout: Layout,
     previous: Option<Previous>,
+    /// An epoch the new port must pass whatever the file at its path says (the writer's
+    /// memory of the port it replaces: that file may have been cut or removed).
+    after: Option<u64>,
 }
 
 impl PendingPort {
@@ -356,7 +375,12 @@ impl PendingPort {
             portfile::set_mode_group(&self.file, params.group)?;
             portfile::allocate(&self.file, dir_path, self.layout.total_size)?;
         }
-        let mapping = Mapping::new(&self.file, self.layout.total_size, true)?;
+        let mut mapping = Mapping::new(&self.file, self.layout.total_size, true)?;
+        if matches!(self.place, Place::File { .. }) {
+            // Its owner or root can shrink a port file under the writer too: guarded, a
+            // publish then fails (Corrupt) instead of the broker dying of SIGBUS.
+            mapping.guard();
+        }
         init_header(mapping.header(), &self.geometry, &self.layout, &params.device);
         if matches!(self.place, Place::Memfd { .. }) {
             // Allocated (memfd::create) and mapped writable: from here on its size is final
@@ -375,10 +399,17 @@ impl PendingPort {
     /// The epoch of the port this one replaces, if any.
     pub fn previous_epoch(&self) -> Option<u64> {
         let from_file = self.previous.as_ref().map(|p| p.epoch);
-        match &self.place {
-            Place::Memfd { previous_epoch: Some(e), .. } => Some(from_file.map_or(*e, |f| f.max(*e))),
-            _ => from_file,
-        }
+        let known = match &self.place {
+            Place::Memfd { previous_epoch, .. } => previous_epoch.max(&self.after),
+            Place::File { .. } => &self.after,
+        };
+        from_file.max(*known)
+    }
+
+    /// Makes the new port's epoch pass `epoch` (the port it replaces, as its writer knows it)
+    /// even if the file at the path no longer says so.
+    pub fn after_epoch(&mut self, epoch: Option<u64>) {
+        self.after = self.after.max(epoch);
     }
 
     /// Publishes the port: epoch (the previous port's + 1), writer, version last, then the

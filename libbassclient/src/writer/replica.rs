@@ -107,6 +107,7 @@ impl Writer {
             h.state.store(State::Capturing as u32, Release);
         }
         wake(h);
+        self.check_intact()?;
         Ok(last)
     }
 

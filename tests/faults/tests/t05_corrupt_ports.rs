@@ -620,3 +620,65 @@ fn a_sealed_memfd_port_cannot_shrink_under_a_reader_process() {
     );
     drop(w);
 }
+
+#[test]
+#[ignore = "fault suite: run by tests/faults/run.sh"]
+fn a_port_file_cut_under_the_broker_ends_the_acquisition_not_the_broker() {
+    // The port file's owner (or root) cuts it to 0 bytes while bassd captures into it and a
+    // reader waits on it. bassd's mapping is guarded like a reader's: its next publish fails,
+    // the acquisition ends in error, and bassd stays up, says why in Status, and serves a new
+    // Acquire whose port a reader reads intact. The reader of the cut port gets Corrupt.
+    use bass_test_support::{acquire_req, wait_until, Bassd};
+    use bassclient::testsignal::pattern_expected;
+    let dir = TempDir::shm("corrupt-cut-broker");
+    let mut b = Bassd::start_stock(dir.path(), "cut", &[], &[]);
+    let req = acquire_req("sim:pattern", 48000, 256, 64, 2);
+    let first = b.client().acquire(&req).expect("acquire");
+    let port = Port::open_path(&b.port_path()).unwrap();
+    port.wait(4096, Duration::from_secs(10)).expect("frames before the cut");
+    let reader = std::thread::spawn(move || {
+        let mut nfr = port.info().unwrap().last_frame_index + 1;
+        loop {
+            match port.wait(nfr, Duration::from_secs(10)) {
+                Ok(lfi) => nfr = lfi + 1,
+                other => return other,
+            }
+        }
+    });
+    std::thread::sleep(Duration::from_millis(50));
+    OpenOptions::new().write(true).open(b.port_path()).unwrap().set_len(0).unwrap();
+    let ended = reader.join().unwrap();
+    assert!(matches!(ended, Err(Error::Corrupt(_))), "the reader of the cut port got {ended:?}");
+    let mut status = b.client().status().expect("status");
+    assert!(
+        wait_until(Duration::from_secs(5), || {
+            status = b.client().status().expect("status");
+            status.state == bassclient::State::Error as u32
+        }),
+        "status after the cut: {status:?}"
+    );
+    assert!(b.is_running(), "bassd died when its port file was cut");
+    assert!(status.message.contains("shrank"), "status message: {}", status.message);
+    // A new acquisition: a new port, read intact.
+    let second = b.client().acquire(&req).expect("acquire after the cut");
+    assert!(second.epoch > first.epoch);
+    let port = Port::open_path(&b.port_path()).unwrap();
+    let from = port.info().unwrap().last_frame_index + 1;
+    port.wait(from + 4095, Duration::from_secs(10)).expect("frames of the new port");
+    let (mut l, mut r) = (vec![0; 4096], vec![0; 4096]);
+    let mut nfr = from;
+    let got = port.get_audio_data(4096, &mut nfr, &mut [&mut l, &mut r]).unwrap();
+    let bad = (0..got.frames)
+        .filter(|&i| {
+            l[i] != pattern_expected(from + i as u64, 0) || r[i] != pattern_expected(from + i as u64, 1)
+        })
+        .count();
+    assert_eq!((got.frames, bad), (4096, 0), "the new port's frames {from}..");
+    figure!(
+        5,
+        "port file cut to 0 under bassd: its reader got Corrupt, bassd stayed up (Status: {}), a new Acquire (epoch {} -> {}) read 4096 frames, 0 wrong",
+        status.message,
+        first.epoch,
+        second.epoch
+    );
+}
