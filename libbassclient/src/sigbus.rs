@@ -1,7 +1,9 @@
-//! A guard against SIGBUS from port files that shrink under a reader's mapping.
+//! A guard against SIGBUS from port files that shrink under a reader's (or the writer's)
+//! mapping.
 //!
 //! A port *file* can be shrunk by its owner or root while readers have it mapped; touching a
-//! mapped page that now lies past the end of the file raises SIGBUS, which kills the reader.
+//! mapped page that now lies past the end of the file raises SIGBUS, which kills the reader
+//! (or the broker, for its own writable mapping).
 //! A per-call size check narrows that window but cannot close it (the file can shrink between
 //! the check and the access), and it costs a system call on every call — the first after a
 //! wake-up is the dearest (several µs in a virtual machine).
@@ -11,14 +13,15 @@
 //! faulting address up in a fixed table of registered port mappings. If it lies in one, the
 //! handler marks that mapping *broken* and maps anonymous zero pages over the whole of it
 //! (`MAP_FIXED`), so the faulting load re-executes and reads zero; the library checks the
-//! broken mark after its accesses and reports [`crate::Error::Corrupt`] instead of the data.
+//! broken mark after its accesses and reports [`crate::Error::Corrupt`] instead of the data
+//! (a writer's mapping gets writable zero pages, and its next publish fails the same way).
 //! Any other SIGBUS goes to the handler that was installed before (or, if that was the
 //! default action, kills the process as it would have).
 //!
 //! The handler only does async-signal-safe work: atomic loads and stores on a static table
 //! and one `mmap` system call. The table has [`SLOTS`] entries; a mapping that finds none
 //! free, or a process that sets `BASS_SIGBUS_GUARD=0` (a host that must own SIGBUS itself),
-//! is not guarded, and the reader falls back to checking the size after every wake-up.
+//! is not guarded, and its reader falls back to checking the size before every access.
 
 use std::ffi::c_void;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};

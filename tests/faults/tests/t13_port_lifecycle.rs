@@ -9,7 +9,9 @@
 //! it happened (sim:unplug) leaves the old window readable in the old file, and Stop clears
 //! the error; a brand-new acquisition reads `starting`; a zero-filled port stops being
 //! "not ready" after a bounded time; a symlink or a foreign file planted as the port is
-//! refused and its target untouched; a root reader refuses a port squatted by another user.
+//! refused and its target untouched; a root reader refuses a port squatted by another user;
+//! a port file cut to 0 bytes under a capturing bassd ends that acquisition in error (its
+//! reader gets Corrupt), bassd lives, and a new Acquire gets a higher epoch and exact data.
 
 use std::io::{BufRead, BufReader};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
@@ -458,4 +460,66 @@ fn a_temporary_port_left_by_a_dead_writer_is_removed_by_the_next_one() {
     .unwrap();
     assert!(!dead.exists(), "the dead writer's temporary file is still there");
     assert!(live.exists(), "a live process's temporary file was removed");
+}
+
+#[test]
+#[ignore = "fault suite: run by tests/faults/run.sh"]
+fn a_port_file_cut_under_the_broker_ends_the_acquisition_not_the_broker() {
+    // The port file's owner (or root) cuts it to 0 bytes while bassd captures into it and a
+    // reader waits on it. bassd's mapping is guarded like a reader's: its next publish fails,
+    // the acquisition ends in error, and bassd stays up, says why in Status, and serves a new
+    // Acquire whose port a reader reads intact. The reader of the cut port gets Corrupt.
+    use bassclient::testsignal::pattern_expected;
+    use std::fs::OpenOptions;
+    let dir = TempDir::shm("corrupt-cut-broker");
+    let mut b = Bassd::start_stock(dir.path(), "cut", &[], &[]);
+    let req = acquire_req("sim:pattern", 48000, 256, 64, 2);
+    let first = b.client().acquire(&req).expect("acquire");
+    let port = Port::open_path(&b.port_path()).unwrap();
+    port.wait(4096, Duration::from_secs(10)).expect("frames before the cut");
+    let reader = std::thread::spawn(move || {
+        let mut nfr = port.info().unwrap().last_frame_index + 1;
+        loop {
+            match port.wait(nfr, Duration::from_secs(10)) {
+                Ok(lfi) => nfr = lfi + 1,
+                other => return other,
+            }
+        }
+    });
+    std::thread::sleep(Duration::from_millis(50));
+    OpenOptions::new().write(true).open(b.port_path()).unwrap().set_len(0).unwrap();
+    let ended = reader.join().unwrap();
+    assert!(matches!(ended, Err(Error::Corrupt(_))), "the reader of the cut port got {ended:?}");
+    let mut status = b.client().status().expect("status");
+    assert!(
+        wait_until(Duration::from_secs(5), || {
+            status = b.client().status().expect("status");
+            status.state == bassclient::State::Error as u32
+        }),
+        "status after the cut: {status:?}"
+    );
+    assert!(b.is_running(), "bassd died when its port file was cut");
+    assert!(status.message.contains("shrank"), "status message: {}", status.message);
+    // A new acquisition: a new port, read intact.
+    let second = b.client().acquire(&req).expect("acquire after the cut");
+    assert!(second.epoch > first.epoch);
+    let port = Port::open_path(&b.port_path()).unwrap();
+    let from = port.info().unwrap().last_frame_index + 1;
+    port.wait(from + 4095, Duration::from_secs(10)).expect("frames of the new port");
+    let (mut l, mut r) = (vec![0; 4096], vec![0; 4096]);
+    let mut nfr = from;
+    let got = port.get_audio_data(4096, &mut nfr, &mut [&mut l, &mut r]).unwrap();
+    let bad = (0..got.frames)
+        .filter(|&i| {
+            l[i] != pattern_expected(from + i as u64, 0) || r[i] != pattern_expected(from + i as u64, 1)
+        })
+        .count();
+    assert_eq!((got.frames, bad), (4096, 0), "the new port's frames {from}..");
+    figure!(
+        9,
+        "port file cut to 0 under bassd: its reader got Corrupt, bassd stayed up (Status: {}), a new Acquire (epoch {} -> {}) read 4096 frames, 0 wrong",
+        status.message,
+        first.epoch,
+        second.epoch
+    );
 }
