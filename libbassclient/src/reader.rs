@@ -241,7 +241,7 @@ impl Port {
             other => other?,
         };
         let epoch = mapping.header().epoch.load(Relaxed);
-        let port = Port {
+        Ok(Port {
             mapping,
             file,
             path: path.to_owned(),
@@ -250,8 +250,7 @@ impl Port {
             epoch,
             version_minor: v.version_minor,
             sealed,
-        };
-        Ok(port)
+        })
     }
 
     /// Whether the port's size is sealed (a memfd port): reads skip the size check.
