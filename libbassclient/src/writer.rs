@@ -140,14 +140,14 @@ impl Writer {
         };
         let file = memfd::create(name, layout.total_size)?;
         let mut pending = PendingPort {
-            place: Place::Memfd { dir, name: file_name, previous_epoch },
+            place: Place::Memfd { dir, name: file_name },
             path,
             file,
             mapping: None,
             geometry,
             layout,
             previous,
-            after: None,
+            after: previous_epoch,
         };
         pending.build(params)?;
         Ok(pending)
@@ -351,7 +351,7 @@ enum Place {
     /// A file built under a temporary name in `dir`, renamed to `name` by the commit.
     File { dir: OwnedFd, dir_path: PathBuf, name: String, tmp_name: Option<String> },
     /// A sealed memfd; a left-over port file `name` in `dir` (if any) is removed by the commit.
-    Memfd { dir: Option<OwnedFd>, name: String, previous_epoch: Option<u64> },
+    Memfd { dir: Option<OwnedFd>, name: String },
 }
 
 /// A port built by [`Writer::prepare_at`] but not yet in place: its file exists only under a
@@ -398,12 +398,7 @@ impl PendingPort {
 
     /// The epoch of the port this one replaces, if any.
     pub fn previous_epoch(&self) -> Option<u64> {
-        let from_file = self.previous.as_ref().map(|p| p.epoch);
-        let known = match &self.place {
-            Place::Memfd { previous_epoch, .. } => previous_epoch.max(&self.after),
-            Place::File { .. } => &self.after,
-        };
-        from_file.max(*known)
+        self.previous.as_ref().map(|p| p.epoch).max(self.after)
     }
 
     /// Makes the new port's epoch pass `epoch` (the port it replaces, as its writer knows it)
