@@ -9,12 +9,31 @@
 # Rows are CHUNK:N (N chunks per Zenoh message, `serve --chunks-per-message N`);
 # BENCH_NET_CHUNKS="64:1 64:4" measures only those; a last row measures bare Zenoh at the
 # 64-frame message rate (BENCH_NET_FLOOR=0 skips it).
+# Rates (CPU, wire bytes) are divided by the measured interval (timestamps taken with the
+# counters at both of its ends), not by SECONDS: the readers' start-up and the clock sampler
+# make the interval 1.1-1.2 x SECONDS.
+# Then two more tables:
+# - recovery after link outages of BENCH_NET_OUTAGES seconds (default "15 60"; "" skips),
+#   in the same namespaces (scripts/bench-net-recovery.py measures);
+# - one robot serving BENCH_NET_FANOUT workstations (default 8; 0 skips) against one, peer to
+#   peer and through a Zenoh router (BENCH_NET_ROUTER=0 skips the router rows), in namespaces
+#   of its own: scripts/bench-net-fanout.sh.
+# BENCH_NET_BIN=DIR runs the binaries in DIR without building.
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd); cd "$ROOT"
 BIN=${CARGO_TARGET_DIR:-$ROOT/target}/release
 SECS=${1:-20}
 # Exactly make test-rust's build (same feature unification), so nothing is rebuilt after it.
-cargo build --release --workspace --all-targets --features "$(cat scripts/bridge-features)"
+# BENCH_NET_BIN=DIR: use the binaries in DIR (bass-bridge, bassd, examples/...) as they are.
+if [ -n "${BENCH_NET_BIN:-}" ]; then BIN=$BENCH_NET_BIN; else
+  cargo build --release --workspace --all-targets --features "$(cat scripts/bridge-features)"; fi
+export BENCH_NET_BIN=$BIN
+[ -e "$BIN/libbassclient.so" ] && export BASS_LIB="$BIN/libbassclient.so"   # the recovery helper's library
+# After issue 20 serve and mirror refuse a non-loopback endpoint without credentials: the
+# bench runs them open (`--insecure`) when the binary has the option.
+SERVE_X=(); MIRROR_X=()
+[[ $("$BIN/bass-bridge" serve --help 2>&1) == *--insecure* ]] && SERVE_X=(--insecure)
+[[ $("$BIN/bass-bridge" mirror --help 2>&1) == *--insecure* ]] && MIRROR_X=(--insecure)
 NS_A=bnchA$$; NS_B=bnchB$$; WORK=$(mktemp -d /tmp/bass-bench-net.XXXXXX); PIDS=()
 cleanup() { set +e; for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null; done; sleep 0.3
   ip netns del "$NS_A" 2>/dev/null; ip netns del "$NS_B" 2>/dev/null; rm -rf "$WORK"; }
@@ -22,12 +41,21 @@ trap cleanup EXIT; trap 'exit 1' TERM INT
 ip netns add "$NS_A"; ip netns add "$NS_B"
 ip link add vA netns "$NS_A" type veth peer name vB netns "$NS_B"
 for n in "$NS_A" "$NS_B"; do ip -n "$n" link set lo up; done
+# Keep the addresses while a link is down (the outage rows): without this a veth taken down
+# loses its IPv6 addresses, and they do not come back with the link.
+for n in "$NS_A" "$NS_B"; do ip netns exec "$n" sysctl -qw net.ipv6.conf.all.keep_addr_on_down=1; done
 ip -n "$NS_A" addr add fd00:ba55::1/64 dev vA nodad; ip -n "$NS_B" addr add fd00:ba55::2/64 dev vB nodad
 ip -n "$NS_A" link set vA up; ip -n "$NS_B" link set vB up
 IN_A=(ip netns exec "$NS_A" env BASS_RUNTIME_DIR="$WORK/a"); IN_B=(ip netns exec "$NS_B" env BASS_RUNTIME_DIR="$WORK/b")
 mkdir -p "$WORK/a" "$WORK/b"
 EP="tcp/[fd00:ba55::1]:7447"
 ticks() { awk '{print $14 + $15}' "/proc/$1/stat"; }
+now() { date +%s.%N; }
+# SIGTERM, then SIGKILL after 3 s: a bench never waits for a process without a bound.
+stop() { local p; kill "$@" 2>/dev/null || true
+  for p in "$@"; do for _ in $(seq 30); do kill -0 "$p" 2>/dev/null || break; sleep 0.1; done
+    kill -0 "$p" 2>/dev/null && { echo "bench: pid $p ignored SIGTERM for 3 s: SIGKILL" >&2; kill -9 "$p" 2>/dev/null; }; done
+  wait "$@" 2>/dev/null || true; }
 HZ=$(getconf CLK_TCK)
 OUT=bench/network-results.md
 {
@@ -39,13 +67,13 @@ for ROW in ${BENCH_NET_CHUNKS:-64:1 64:4 256:1 2205:1}; do
   NCOP=$(( (48000 / 2 + NFPC - 1) / NFPC ))   # half a second on the port
   "${IN_A[@]}" "$BIN/bassd" --name src --rt-priority 0 --acquire sim:pattern --rate 48000 --frames $NFPC \
     --chunks $NCOP --channels 2 >"$WORK/bassd.log" 2>&1 & BASSD=$!; PIDS+=($BASSD)
-  "${IN_A[@]}" "$BIN/bass-bridge" serve --name src --listen "$EP" --no-scouting \
+  "${IN_A[@]}" "$BIN/bass-bridge" serve "${SERVE_X[@]}" --name src --listen "$EP" --no-scouting \
     --chunks-per-message "$PER_MSG" >"$WORK/serve.log" 2>&1 & SERVE=$!; PIDS+=($SERVE)
   sleep 0.5
-  "${IN_B[@]}" "$BIN/bass-bridge" mirror --source src --name rep --connect "$EP" --no-scouting \
+  "${IN_B[@]}" "$BIN/bass-bridge" mirror "${MIRROR_X[@]}" --source src --name rep --connect "$EP" --no-scouting \
     --status-file "$WORK/status.json" >"$WORK/mirror.log" 2>&1 & MIRROR=$!; PIDS+=($MIRROR)
   sleep 3
-  S0=$(ticks $SERVE); M0=$(ticks $MIRROR); B0=$(ip netns exec "$NS_B" cat /sys/class/net/vB/statistics/rx_bytes)
+  T0=$(now); S0=$(ticks $SERVE); M0=$(ticks $MIRROR); B0=$(ip netns exec "$NS_B" cat /sys/class/net/vB/statistics/rx_bytes)
   "${IN_A[@]}" "$BIN/examples/delay_reader" src "$SECS" >"$WORK/local.json" &
   L=$!
   OFFS=()
@@ -53,10 +81,11 @@ for ROW in ${BENCH_NET_CHUNKS:-64:1 64:4 256:1 2205:1}; do
   O=$!
   "${IN_B[@]}" "$BIN/examples/delay_reader" rep "$SECS" >"$WORK/remote.json"
   wait $L $O || true
-  S1=$(ticks $SERVE); M1=$(ticks $MIRROR); B1=$(ip netns exec "$NS_B" cat /sys/class/net/vB/statistics/rx_bytes)
-  python3 - "$WORK" "$NFPC" "$PER_MSG" "$SECS" "$HZ" "$S0" "$S1" "$M0" "$M1" "$B0" "$B1" >>"$WORK/table" <<'PY'
+  S1=$(ticks $SERVE); M1=$(ticks $MIRROR); B1=$(ip netns exec "$NS_B" cat /sys/class/net/vB/statistics/rx_bytes); T1=$(now)
+  python3 - "$WORK" "$NFPC" "$PER_MSG" "$T0" "$T1" "$HZ" "$S0" "$S1" "$M0" "$M1" "$B0" "$B1" >>"$WORK/table" <<'PY'
 import json, sys
-w, nfpc, per_msg, secs, hz, s0, s1, m0, m1, b0, b1 = sys.argv[1], *map(float, sys.argv[2:])
+w, nfpc, per_msg, t0, t1, hz, s0, s1, m0, m1, b0, b1 = sys.argv[1], *map(float, sys.argv[2:])
+secs = t1 - t0   # the measured interval (~1.1 x SECONDS), not SECONDS
 loc, rem = json.load(open(f"{w}/local.json")), json.load(open(f"{w}/remote.json"))
 offs = sorted(float(x) / 1e3 for x in open(f"{w}/offsets").read().split())
 q = lambda v, p: v[round((len(v) - 1) * p)] if v else float("nan")
@@ -65,8 +94,9 @@ row = f"{int(nfpc)}" if per_msg == 1 else f"{int(nfpc)}, {int(per_msg)} per mess
 print(f"| {row} | {loc['p50_us']:.0f} / {loc['p99_us']:.0f} | {rem['p50_us']:.0f} / {rem['p99_us']:.0f} "
       f"| {100 * (s1 - s0) / hz / secs:.1f} % | {100 * (m1 - m0) / hz / secs:.1f} % | {(b1 - b0) / raw:.3f} "
       f"| {q(offs, 0.5):.1f} / {q(offs, 0.99):.1f} |")
+print(f"row {row}: measured over {secs:.2f} s", file=sys.stderr)
 PY
-  kill $MIRROR $SERVE $BASSD 2>/dev/null || true; wait $MIRROR $SERVE $BASSD 2>/dev/null || true
+  stop $MIRROR $SERVE $BASSD
 done
 # The floor: bare Zenoh (bridge/examples/zenoh_floor.rs, no bass) sending one message of a
 # 64-frame chunk's size (96-byte header + 512 bytes of samples) 750 times a second over the
@@ -77,16 +107,66 @@ if [ "${BENCH_NET_FLOOR:-1}" = 1 ]; then
   sleep 0.5
   "${IN_B[@]}" "$BIN/examples/zenoh_floor" sub "$EP" $((SECS + 3)) >"$WORK/floor-sub.json" 2>&1 & FS=$!; PIDS+=($FS)
   sleep 2
-  P0=$(ticks $FP); Q0=$(ticks $FS); B0=$(ip netns exec "$NS_B" cat /sys/class/net/vB/statistics/rx_bytes)
+  T0=$(now); P0=$(ticks $FP); Q0=$(ticks $FS); B0=$(ip netns exec "$NS_B" cat /sys/class/net/vB/statistics/rx_bytes)
   sleep "$SECS"
-  P1=$(ticks $FP); Q1=$(ticks $FS); B1=$(ip netns exec "$NS_B" cat /sys/class/net/vB/statistics/rx_bytes)
+  P1=$(ticks $FP); Q1=$(ticks $FS); B1=$(ip netns exec "$NS_B" cat /sys/class/net/vB/statistics/rx_bytes); T1=$(now)
   wait $FP $FS || true
-  python3 - "$SECS" "$HZ" "$P0" "$P1" "$Q0" "$Q1" "$B0" "$B1" >>"$WORK/table" <<'PY'
+  python3 - "$T0" "$T1" "$HZ" "$P0" "$P1" "$Q0" "$Q1" "$B0" "$B1" >>"$WORK/table" <<'PY'
 import sys
-secs, hz, p0, p1, q0, q1, b0, b1 = map(float, sys.argv[1:])
+t0, t1, hz, p0, p1, q0, q1, b0, b1 = map(float, sys.argv[1:])
+secs = t1 - t0
 raw = 48000 * 2 * 4 * secs
 print(f"| 64: bare Zenoh, no bass (publisher / subscriber) | – | – | {100 * (p1 - p0) / hz / secs:.1f} % "
       f"| {100 * (q1 - q0) / hz / secs:.1f} % | {(b1 - b0) / raw:.3f} | – |")
 PY
 fi
 cat "$WORK/table" | tee "$OUT"
+
+# Recovery after a link outage: 480-frame chunks, the link taken down on the robot's side
+# (`ip link set vA down`; the addresses stay, keep_addr_on_down above) for D seconds, then up;
+# scripts/bench-net-recovery.py brings it up and measures, through the ports, the time until
+# the replica's last_frame_index moves again and until it holds the frame that was the
+# source's newest at link-up. At most BENCH_NET_RECOVERY_WAIT (30) s after link-up.
+if [ -n "${BENCH_NET_OUTAGES-15 60}" ]; then
+  WAIT_UP=${BENCH_NET_RECOVERY_WAIT:-30}
+  {
+  echo
+  echo "| link outage | replica moving again after link-up | replica at the source's live edge | GAP frames counted | outages counted |"
+  echo "|---:|---:|---:|---:|---:|"
+  } >>"$OUT"
+  for D in ${BENCH_NET_OUTAGES-15 60}; do
+    rm -f "$WORK/status.json"
+    "${IN_A[@]}" "$BIN/bassd" --name src --rt-priority 0 --acquire sim:pattern --rate 48000 --frames 480 \
+      --chunks 50 --channels 2 >"$WORK/bassd-out$D.log" 2>&1 & BASSD=$!; PIDS+=($BASSD)
+    "${IN_A[@]}" "$BIN/bass-bridge" serve "${SERVE_X[@]}" --name src --listen "$EP" --no-scouting \
+      >"$WORK/serve-out$D.log" 2>&1 & SERVE=$!; PIDS+=($SERVE)
+    sleep 0.5
+    "${IN_B[@]}" "$BIN/bass-bridge" mirror "${MIRROR_X[@]}" --source src --name rep --connect "$EP" --no-scouting \
+      --status-file "$WORK/status.json" >"$WORK/mirror-out$D.log" 2>&1 & MIRROR=$!; PIDS+=($MIRROR)
+    sleep 4
+    ip -n "$NS_A" link set vA down
+    sleep "$D"
+    R=$(python3 scripts/bench-net-recovery.py "$WORK/a" src "$WORK/b" rep "$WAIT_UP" -- \
+      ip -n "$NS_A" link set vA up) || { R='{}'; ip -n "$NS_A" link set vA up || true; }
+    sleep 1.5   # one more status-file write
+    python3 - "$D" "$WAIT_UP" "$R" "$WORK/status.json" >>"$OUT" <<'PY'
+import json, sys
+d, wait, r, path = sys.argv[1], sys.argv[2], json.loads(sys.argv[3] or "{}"), sys.argv[4]
+try:
+    st = json.load(open(path))
+except (OSError, ValueError):
+    st = {}
+f = lambda v: f"{v:.2f} s" if isinstance(v, (int, float)) else f"not within {wait} s"
+print(f"| {d} s | {f(r.get('moved_s'))} | {f(r.get('live_s'))} | {st.get('gap_frames_lost', '–')} "
+      f"| {st.get('outages', '–')} |")
+PY
+    echo "outage $D s: $R" >&2
+    stop $MIRROR $SERVE $BASSD
+  done
+  tail -n $(( $(echo ${BENCH_NET_OUTAGES-15 60} | wc -w) + 3 )) "$OUT"
+fi
+
+# One robot, several workstations (own namespaces; appends to $OUT).
+if [ "${BENCH_NET_FANOUT:-8}" -gt 0 ]; then
+  scripts/bench-net-fanout.sh "$SECS" "${BENCH_NET_FANOUT:-8}" | tee -a "$OUT"
+fi

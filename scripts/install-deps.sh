@@ -33,3 +33,8 @@ fi
 if ! python3 -c 'import iceoryx2, flatbuffers' 2>/dev/null; then
   python3 -m pip install -q iceoryx2==0.10.0 2>/dev/null || python3 -m pip install -q --break-system-packages iceoryx2==0.10.0
 fi
+# Real Zenoh peers written by others for the network suite (a hostile peer, an authenticated
+# colleague): PyPI eclipse-zenoh, the version of the bridge's zenoh crate.
+if ! python3 -c 'import importlib.metadata as m, zenoh; assert m.version("eclipse-zenoh") == "1.10.2"' 2>/dev/null; then
+  python3 -m pip install -q eclipse-zenoh==1.10.2 2>/dev/null || python3 -m pip install -q --break-system-packages eclipse-zenoh==1.10.2
+fi

@@ -5,7 +5,12 @@
 //! errors (a replica whose source is unreachable). Prints one JSON line; exits 1 on any
 //! wrong sample or accounting error, 2 when the frames did not come within the timeout.
 //!
-//! usage: pattern_reader NAME FRAMES TIMEOUT_S [--from-first]
+//! With `--from N`, the first port is read from frame N (e.g. 1: what a program reading an
+//! acquisition from its start gets); `reported_loss` is the loss the library reported (the
+//! `lost` count also holds zero frames that could not be told GAP), `first_delivered` the
+//! first frame delivered.
+//!
+//! usage: pattern_reader NAME FRAMES TIMEOUT_S [--from-first | --from N]
 
 use std::time::{Duration, Instant};
 
@@ -15,6 +20,8 @@ use bassclient::{Error, Port};
 
 #[derive(Default, Debug)]
 struct Count {
+    reported_loss: u64,
+    first_delivered: u64,
     delivered: u64,
     lost: u64,
     gap: u64,
@@ -39,12 +46,16 @@ fn open(name: &str, deadline: Instant) -> Option<Port> {
 fn main() {
     let a: Vec<String> = std::env::args().collect();
     if a.len() < 4 {
-        eprintln!("usage: pattern_reader NAME FRAMES TIMEOUT_S [--from-first]");
+        eprintln!("usage: pattern_reader NAME FRAMES TIMEOUT_S [--from-first | --from N]");
         std::process::exit(64);
     }
     let (name, want): (&str, u64) = (&a[1], a[2].parse().expect("FRAMES"));
     let deadline = Instant::now() + Duration::from_secs_f64(a[3].parse().expect("TIMEOUT_S"));
     let from_first = a.iter().any(|x| x == "--from-first");
+    let mut from: Option<u64> = a
+        .iter()
+        .position(|x| x == "--from")
+        .map(|i| a.get(i + 1).and_then(|n| n.parse().ok()).expect("--from N"));
     let mut c = Count::default();
     let mut first_frame = 0;
     let mut epoch = 0;
@@ -65,6 +76,10 @@ fn main() {
             info.last_frame_index + 1
         };
         nfr = (nfr - 1) / nfpc * nfpc + 1;
+        // `--from N`: the first port only, from frame N as given (no alignment).
+        if let Some(n) = from.take() {
+            nfr = n;
+        }
         if first_frame == 0 {
             first_frame = nfr;
         }
@@ -107,6 +122,10 @@ fn main() {
             let r = port.get_audio_data(n_max, &mut nfr, &mut outs).expect("read");
             let lost = r.loss.min(left as u64);
             c.lost += lost;
+            c.reported_loss += lost;
+            if c.first_delivered == 0 && r.frames > 0 {
+                c.first_delivered = nfr - r.frames as u64;
+            }
             let first = nfr - r.frames as u64;
             assert_eq!(first, before + r.loss, "nfr accounting");
             let take = (r.frames as u64).min(want - c.delivered - c.lost - c.gap);
@@ -157,8 +176,8 @@ fn main() {
     c.requested = want;
     let total = c.delivered + c.lost + c.gap + c.bad;
     println!(
-        "{{\"delivered\":{},\"lost\":{},\"gap\":{},\"bad\":{},\"requested\":{},\"restarts\":{},\"errors\":{},\"first\":{},\"epoch\":{},\"error_messages\":{:?}}}",
-        c.delivered, c.lost, c.gap, c.bad, c.requested, c.restarts, c.errors, first_frame, epoch, error_msgs
+        "{{\"delivered\":{},\"lost\":{},\"gap\":{},\"bad\":{},\"requested\":{},\"restarts\":{},\"errors\":{},\"first\":{},\"epoch\":{},\"reported_loss\":{},\"first_delivered\":{},\"error_messages\":{:?}}}",
+        c.delivered, c.lost, c.gap, c.bad, c.requested, c.restarts, c.errors, first_frame, epoch, c.reported_loss, c.first_delivered, error_msgs
     );
     if c.bad > 0 {
         std::process::exit(1);

@@ -7,6 +7,20 @@
 //!
 //! offset = source_clock - local_clock at the same instant; a source timestamp `t_s` maps to
 //! the local clock as `t_s - offset`. Uncertainty: half the best round trip of the window.
+//!
+//! Answers are not trusted (any peer may answer the query, beside the real `serve`):
+//! - an answer that is not 8 bytes is ignored; answers to one probe that disagree (the
+//!   source and another peer both answer) are all ignored: none is known to be the source's;
+//! - a sample (one answer) says the offset lies within its round trip's half either side;
+//!   two samples agree when those intervals meet. A round is the best sample of the largest
+//!   group that agrees, and only if that group is a strict majority of the round's samples
+//!   and has at least two: one reply is never adopted;
+//! - a sample is refused if it contradicts the chunk stamps: a chunk queued at source time
+//!   `s` that arrived at local time `l` says offset >= `s - l` (and, for the least delayed
+//!   chunk, not much more);
+//! - no estimate before [`MIN_ROUNDS`] rounds agree; once there is one, a round that
+//!   contradicts it (beyond both uncertainties) is refused, unless [`RESET_ROUNDS`] rounds in
+//!   a row agree with each other on a new value (the source's clock did change).
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
@@ -21,6 +35,20 @@ const BURST: usize = 4;
 const WINDOW_NS: u64 = 60_000_000_000;
 /// Low-pass weight of a new drift value.
 const DRIFT_ALPHA: f64 = 0.2;
+/// Rounds that must agree before there is an estimate.
+pub const MIN_ROUNDS: usize = 3;
+/// Consecutive refused rounds, agreeing with each other, that replace the estimate.
+pub const RESET_ROUNDS: usize = 5;
+/// Slack of agreement tests beyond the round trips (scheduling, unknown drift).
+const TOLERANCE_NS: f64 = 1_000_000.0;
+/// Drift assumed at most while comparing with an older round (parts per unit).
+const MAX_DRIFT: f64 = 200e-6;
+/// Chunk stamps older than this leave the bound.
+const CHUNK_WINDOW_NS: u64 = 10_000_000_000;
+/// How much more than the least-delayed chunk's bound the offset may be (a chunk's delay
+/// from queueing at the source to arrival, in the best case of the window: batching with
+/// `serve --chunks-per-message` adds up to 63 chunk periods).
+const CHUNK_SLACK_NS: i64 = 10_000_000_000;
 
 /// One round: the local mid-point, the offset seen and the round trip.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -33,16 +61,117 @@ pub struct Round {
     pub rtt_ns: u64,
 }
 
+impl Round {
+    /// Whether two samples' intervals (offset ± rtt/2) meet, with `slack` ns more.
+    fn agrees(&self, o: &Round, slack: f64) -> bool {
+        let d = (self.offset_ns as f64 - o.offset_ns as f64).abs();
+        d <= (self.rtt_ns as f64 + o.rtt_ns as f64) / 2.0 + slack
+    }
+}
+
+/// The round made of one burst's samples (every answer of every probe): the smallest round
+/// trip among the largest group of samples that agree, if that group has two samples or more
+/// and is a strict majority; `None` otherwise (one answer, or answers that disagree).
+pub fn consensus(samples: &[Round]) -> Option<Round> {
+    let mut best: Option<(usize, Round)> = None;
+    for s in samples {
+        let n = samples.iter().filter(|o| s.agrees(o, TOLERANCE_NS)).count();
+        let better = match best {
+            None => true,
+            Some((bn, b)) => n > bn || (n == bn && s.rtt_ns < b.rtt_ns),
+        };
+        if better {
+            best = Some((n, *s));
+        }
+    }
+    let (n, r) = best?;
+    (n >= 2 && 2 * n > samples.len()).then_some(r)
+}
+
 /// The estimate's state; pure, so it is tested without a network.
 #[derive(Debug, Default)]
 pub struct Fit {
     rounds: VecDeque<Round>,
     drift: Option<f64>,
+    /// Refused rounds in a row (candidates for a new estimate).
+    refused_streak: Vec<Round>,
+    /// Chunk stamps: (local arrival ns, source stamp - local arrival ns).
+    chunks: VecDeque<(u64, i64)>,
+    /// Samples and rounds refused so far.
+    refused: u64,
 }
 
 impl Fit {
-    /// Adds a round and refits.
-    pub fn add(&mut self, r: Round) {
+    /// Records a chunk of the followed source stamped `source_ns` (source clock, when it was
+    /// queued) that arrived at local time `local_ns`: the offset is at least their difference.
+    pub fn observe_chunk(&mut self, source_ns: u64, local_ns: u64) {
+        if source_ns == 0 {
+            return;
+        }
+        let lo = (source_ns as i128 - local_ns as i128).clamp(i64::MIN as i128, i64::MAX as i128) as i64;
+        self.chunks.push_back((local_ns, lo));
+        while self.chunks.front().is_some_and(|&(t, _)| local_ns.saturating_sub(t) > CHUNK_WINDOW_NS) {
+            self.chunks.pop_front();
+        }
+        if self.chunks.len() > 4096 {
+            self.chunks.pop_front();
+        }
+    }
+
+    /// Whether an offset contradicts the chunk stamps of the window.
+    pub fn contradicts_chunks(&self, offset_ns: i64, rtt_ns: u64) -> bool {
+        let Some(lo) = self.chunks.iter().map(|&(_, lo)| lo).max() else { return false };
+        let half = (rtt_ns / 2).min(i64::MAX as u64) as i64;
+        offset_ns.saturating_add(half) < lo.saturating_sub(TOLERANCE_NS as i64)
+            || offset_ns.saturating_sub(half) > lo.saturating_add(CHUNK_SLACK_NS)
+    }
+
+    /// Counts a sample or round refused outside [`Fit::add`] (malformed answers).
+    pub fn count_refused(&mut self, n: u64) {
+        self.refused += n;
+    }
+
+    /// Samples and rounds refused so far.
+    pub fn refused(&self) -> u64 {
+        self.refused
+    }
+
+    /// Adds a round if it agrees with the estimate (or there is none yet) and refits;
+    /// returns whether it was taken.
+    pub fn add(&mut self, r: Round) -> bool {
+        if self.contradicts_chunks(r.offset_ns, r.rtt_ns) {
+            self.refused += 1;
+            return false;
+        }
+        if self.rounds.len() >= MIN_ROUNDS {
+            if let Some((predicted, unc)) = self.at(r.local_ns) {
+                let best_age = self.best().map_or(0, |b| r.local_ns.saturating_sub(b.local_ns));
+                let slack = unc as f64 + r.rtt_ns as f64 / 2.0 + TOLERANCE_NS + MAX_DRIFT * best_age as f64;
+                if (r.offset_ns as f64 - predicted as f64).abs() > slack {
+                    self.refused += 1;
+                    self.refused_streak.push(r);
+                    let n = self.refused_streak.len();
+                    let agree =
+                        self.refused_streak.iter().all(|o| o.agrees(&self.refused_streak[0], TOLERANCE_NS));
+                    if n >= RESET_ROUNDS && agree {
+                        // The source's clock changed (a rebooted source): the new value holds.
+                        self.rounds = std::mem::take(&mut self.refused_streak).into();
+                        self.drift = None;
+                    } else if !agree {
+                        self.refused_streak = vec![r];
+                    }
+                    return false;
+                }
+            }
+        } else if let Some(b) = self.best() {
+            if !r.agrees(&b, TOLERANCE_NS) {
+                // Before an estimate exists, disagreeing rounds start the count again.
+                self.refused += self.rounds.len() as u64;
+                self.rounds.clear();
+                self.drift = None;
+            }
+        }
+        self.refused_streak.clear();
         self.rounds.push_back(r);
         while self.rounds.front().is_some_and(|f| r.local_ns.saturating_sub(f.local_ns) > WINDOW_NS) {
             self.rounds.pop_front();
@@ -53,6 +182,11 @@ impl Fit {
                 None => slope,
             });
         }
+        true
+    }
+
+    fn best(&self) -> Option<Round> {
+        self.rounds.iter().min_by_key(|r| r.rtt_ns).copied()
     }
 
     /// Least-squares slope of offset over local time (ns/ns), once the window spans 5 s.
@@ -80,7 +214,10 @@ impl Fit {
     /// The offset at local time `now` and its uncertainty: the best round of the window,
     /// carried to `now` with the smoothed drift.
     pub fn at(&self, now: u64) -> Option<(i64, u64)> {
-        let best = self.rounds.iter().min_by_key(|r| r.rtt_ns)?;
+        if self.rounds.len() < MIN_ROUNDS {
+            return None;
+        }
+        let best = self.best()?;
         let drift = self.drift.unwrap_or(0.0);
         let dt = now as f64 - best.local_ns as f64;
         Some(((best.offset_ns as f64 + drift * dt).round() as i64, best.rtt_ns / 2))
@@ -106,19 +243,34 @@ impl ClockEstimator {
         std::thread::Builder::new()
             .name("clock-probe".into())
             .spawn(move || loop {
-                if let Some(r) = probe_round(&session, &key) {
-                    shared.lock().unwrap_or_else(|e| e.into_inner()).add(r);
+                let (samples, malformed) = probe_burst(&session, &key);
+                let mut f = shared.lock().unwrap_or_else(|e| e.into_inner());
+                f.count_refused(malformed);
+                let n = samples.len();
+                let sane: Vec<Round> =
+                    samples.into_iter().filter(|r| !f.contradicts_chunks(r.offset_ns, r.rtt_ns)).collect();
+                f.count_refused((n - sane.len()) as u64);
+                match consensus(&sane) {
+                    Some(r) => {
+                        f.add(r);
+                    }
+                    None if !sane.is_empty() => f.count_refused(1),
+                    None => {}
                 }
+                drop(f);
                 std::thread::sleep(interval);
             })
             .map_err(|e| anyhow!("spawn the clock prober: {e}"))?;
         Ok(ClockEstimator { fit })
     }
 
+    fn fit(&self) -> std::sync::MutexGuard<'_, Fit> {
+        self.fit.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
     /// Offset (source - local, ns) and uncertainty (ns) now.
     pub fn estimate(&self) -> (Option<i64>, Option<u64>) {
-        let f = self.fit.lock().unwrap_or_else(|e| e.into_inner());
-        match f.at(bassclient::sys::monotonic_ns()) {
+        match self.fit().at(bassclient::sys::monotonic_ns()) {
             Some((o, u)) => (Some(o), Some(u)),
             None => (None, None),
         }
@@ -126,28 +278,65 @@ impl ClockEstimator {
 
     /// Smoothed drift (ppm).
     pub fn drift_ppm(&self) -> Option<f64> {
-        self.fit.lock().unwrap_or_else(|e| e.into_inner()).drift_ppm()
+        self.fit().drift_ppm()
+    }
+
+    /// Answers and rounds refused so far.
+    pub fn refused(&self) -> u64 {
+        self.fit().refused()
+    }
+
+    /// A chunk of the followed source, queued at source time `source_ns`, arrived at
+    /// `local_ns` (see [`Fit::observe_chunk`]).
+    pub fn observe_chunk(&self, source_ns: u64, local_ns: u64) {
+        self.fit().observe_chunk(source_ns, local_ns);
     }
 }
 
-fn probe_round(session: &zenoh::Session, key: &str) -> Option<Round> {
-    let mut best: Option<Round> = None;
+/// One burst: every answer of every probe (all of them: another peer may answer beside
+/// the source) whose answers agree, and the number of answers refused (not 8 bytes, or
+/// disagreeing with another answer to the same probe).
+fn probe_burst(session: &zenoh::Session, key: &str) -> (Vec<Round>, u64) {
+    let mut samples = Vec::new();
+    let mut malformed = 0;
     for _ in 0..BURST {
         let t0 = bassclient::sys::monotonic_ns();
-        let replies = session.get(key).timeout(Duration::from_millis(500)).wait().ok()?;
-        let Ok(reply) = replies.recv() else { continue };
-        let t1 = bassclient::sys::monotonic_ns();
-        let Ok(sample) = reply.result() else { continue };
-        let bytes = sample.payload().to_bytes();
-        let Ok(b) = <[u8; 8]>::try_from(&bytes[..]) else { continue };
-        let remote = u64::from_le_bytes(b);
-        let mid = t0 + (t1 - t0) / 2;
-        let r = Round { local_ns: mid, offset_ns: remote as i64 - mid as i64, rtt_ns: t1 - t0 };
-        if best.map_or(true, |b| r.rtt_ns < b.rtt_ns) {
-            best = Some(r);
+        let Ok(replies) = session
+            .get(key)
+            .consolidation(zenoh::query::ConsolidationMode::None)
+            .timeout(Duration::from_millis(500))
+            .wait()
+        else {
+            continue;
+        };
+        // At most a few answers per probe are looked at: a flood of answers is not a sample.
+        let mut answers = Vec::new();
+        for _ in 0..8 {
+            let Ok(reply) = replies.recv() else { break };
+            let t1 = bassclient::sys::monotonic_ns();
+            let Ok(sample) = reply.result() else {
+                malformed += 1;
+                continue;
+            };
+            let bytes = sample.payload().to_bytes();
+            let Ok(b) = <[u8; 8]>::try_from(&bytes[..]) else {
+                malformed += 1;
+                continue;
+            };
+            let remote = u64::from_le_bytes(b) as i128;
+            let mid = t0 + (t1 - t0) / 2;
+            let offset = (remote - mid as i128).clamp(i64::MIN as i128, i64::MAX as i128) as i64;
+            answers.push(Round { local_ns: mid, offset_ns: offset, rtt_ns: t1 - t0 });
+        }
+        // Two answers to one probe that disagree (the source and another peer, or two
+        // sources): none of them is known to be the source's.
+        if answers.iter().all(|a| a.agrees(&answers[0], TOLERANCE_NS)) {
+            samples.extend(answers);
+        } else {
+            malformed += answers.len() as u64;
         }
     }
-    best
+    (samples, malformed)
 }
 
 #[cfg(test)]
@@ -177,5 +366,69 @@ mod tests {
     #[test]
     fn no_rounds_no_estimate() {
         assert_eq!(Fit::default().at(5), None);
+    }
+
+    fn steady(f: &mut Fit, from: u64, n: u64, offset: i64) {
+        for k in 0..n {
+            assert!(f.add(Round { local_ns: from + k * 500_000_000, offset_ns: offset, rtt_ns: 200_000 }));
+        }
+    }
+
+    #[test]
+    fn one_reply_is_never_adopted_and_a_split_burst_gives_no_round() {
+        let real = Round { local_ns: 10, offset_ns: 5_000, rtt_ns: 100_000 };
+        let forged = Round { offset_ns: 270_000_000_000_000_000, ..real };
+        assert_eq!(consensus(&[real]), None, "one answer");
+        assert_eq!(consensus(&[real, forged]), None);
+        assert_eq!(consensus(&[real, real, forged, forged]), None, "no majority");
+        assert_eq!(consensus(&[real, forged, real, real]), Some(real));
+        // And no estimate from fewer than MIN_ROUNDS rounds.
+        let mut f = Fit::default();
+        assert!(f.add(real));
+        assert_eq!(f.at(10), None);
+    }
+
+    #[test]
+    fn a_forged_offset_never_replaces_a_sane_estimate() {
+        let mut f = Fit::default();
+        steady(&mut f, 1_000_000_000, 10, 3_000);
+        let forged = Round { local_ns: 6_000_000_000, offset_ns: 270_000_000_000_000_000, rtt_ns: 50_000 };
+        for k in 0..(RESET_ROUNDS as u64 - 1) {
+            assert!(!f.add(Round { local_ns: forged.local_ns + k, ..forged }));
+        }
+        let (off, _) = f.at(7_000_000_000).unwrap();
+        assert!((off - 3_000).abs() < 1_000, "offset {off}");
+        assert_eq!(f.refused(), RESET_ROUNDS as u64 - 1);
+    }
+
+    #[test]
+    fn the_chunk_stamps_refuse_an_offset_they_contradict_even_a_persistent_one() {
+        let mut f = Fit::default();
+        // Same machine: chunks queued at source time t arrive 1 ms later here.
+        for k in 0..20u64 {
+            let t = 1_000_000_000 + k * 10_000_000;
+            f.observe_chunk(t, t + 1_000_000);
+        }
+        assert!(!f.contradicts_chunks(0, 100_000));
+        assert!(f.contradicts_chunks(270_000_000_000_000_000, 100_000));
+        assert!(f.contradicts_chunks(-5_000_000_000, 100_000));
+        for k in 0..(2 * RESET_ROUNDS as u64) {
+            let r = Round { local_ns: 2_000_000_000 + k, offset_ns: 270_000_000_000_000_000, rtt_ns: 50_000 };
+            assert!(!f.add(r), "a forged value agreeing with itself is still refused");
+        }
+        assert_eq!(f.at(3_000_000_000), None);
+        steady(&mut f, 2_000_000_000, 3, 0);
+        assert_eq!(f.at(3_000_000_000).map(|(o, _)| o), Some(0));
+    }
+
+    #[test]
+    fn a_real_change_of_the_source_clock_is_taken_after_several_agreeing_rounds() {
+        let mut f = Fit::default();
+        steady(&mut f, 1_000_000_000, 10, 3_000);
+        let moved = 50_000_000_000i64;
+        for k in 0..RESET_ROUNDS as u64 {
+            f.add(Round { local_ns: 7_000_000_000 + k * 500_000_000, offset_ns: moved, rtt_ns: 200_000 });
+        }
+        assert_eq!(f.at(10_000_000_000).map(|(o, _)| o), Some(moved));
     }
 }

@@ -6,7 +6,10 @@
 //! - `NS/<broker>/info`    queryable: the same JSON, on demand;
 //! - `NS/<broker>/clock`   queryable: the source's CLOCK_MONOTONIC (8 bytes LE) for probes;
 //! - `NS/<broker>/control` queryable (only with `serve --allow-control`): control messages;
-//! - `NS/<broker>/alive`   liveliness token of the `serve` process.
+//! - `NS/<broker>/alive/<instance>` liveliness token of the `serve` process (16 hex digits,
+//!   the instance id of its chunks); older `serve`s declared `NS/<broker>/alive`.
+
+use std::path::PathBuf;
 
 use anyhow::{anyhow, Context, Result};
 use serde::{Deserialize, Serialize};
@@ -17,9 +20,9 @@ use zenoh::Wait;
 pub struct NetOpts {
     /// Zenoh configuration file (JSON5); the options below are applied on top of it.
     #[arg(long)]
-    pub zenoh_config: Option<std::path::PathBuf>,
+    pub zenoh_config: Option<PathBuf>,
     /// Zenoh mode: peer or client.
-    #[arg(long)]
+    #[arg(long, value_parser = ["peer", "client", "router"])]
     pub mode: Option<String>,
     /// Endpoint to listen on, e.g. tcp/[fd00:ba55::1]:7447 (repeatable).
     #[arg(long)]
@@ -33,29 +36,66 @@ pub struct NetOpts {
     /// Key prefix separating labs or set-ups sharing one network.
     #[arg(long, default_value = "bass")]
     pub namespace: String,
+    /// Credentials file: this machine's `user:password` on its first line, then the identities
+    /// it accepts (docs/network.md, "Security"; made with `bass-bridge credentials`).
+    #[arg(long, value_name = "FILE")]
+    pub credentials: Option<PathBuf>,
+    /// Run without authentication on a network: anyone who reaches an endpoint can read the
+    /// audio, and feed or stop a replica. Shown in the log and the status.
+    #[arg(long)]
+    pub insecure: bool,
 }
 
+/// An error in what the user asked for (exit status 2, like a bad option).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct UsageError(pub String);
+
+/// Zenoh settings that hold a session through link outages of any length (docs/network.md,
+/// "Outages"); each applies only where the user's `--zenoh-config` leaves Zenoh's default.
+///
+/// The root cause of the session that never recovered from an outage longer than the lease:
+/// serve put its chunks with `CongestionControl::Block` and bass-bridge raised Zenoh's
+/// `wait_before_close` to an hour, so on a dead link a put sat in the transport's queue for
+/// an hour and the transport was never closed; with Zenoh's 5 s it is closed by that timer
+/// instead of the lease, and a mirror that reconnects while that close is still being
+/// processed gets a session on which nothing from serve arrives (Zenoh's routing face of the
+/// new transport is torn down with the old one: "Unknown wire expr"; reproduced by removing
+/// the robot's address for 6 s). Now serve puts its chunks with `CongestionControl::Drop`
+/// ([`CHUNK_CONGESTION`]) and:
+/// - `wait_before_drop` 50 ms (Zenoh: 1 ms): a put waits that long for room before Zenoh drops
+///   it, so on a slow link serve's own bounded queue fills and serve counts its drops (the
+///   SOURCE_LOSS mark); what Zenoh drops shows as a sequence gap at the mirror;
+/// - lease 2 s (keep-alives every 0.5 s; Zenoh: 10 s): a dead link's transport is closed on
+///   both sides 2 s after it died, so a link that returns later is a fresh connection, not a
+///   TCP connection waiting out its retransmission back-off;
+/// - connect retries every 0.25 s to 1 s (Zenoh: 1 s to 4 s): the link is back in use at
+///   most about a second after it returns, whatever the outage's length.
+const OUTAGE_SETTINGS: &[(&str, &str)] = &[
+    ("transport/link/tx/queue/congestion_control/drop/wait_before_drop", "50000"),
+    ("transport/link/tx/lease", "2000"),
+    ("connect/retry", "{period_init_ms: 250, period_max_ms: 1000, period_increase_factor: 2}"),
+];
+
+/// How serve's chunk publisher behaves when the link cannot take more: see [`OUTAGE_SETTINGS`].
+pub const CHUNK_CONGESTION: zenoh::qos::CongestionControl = zenoh::qos::CongestionControl::Drop;
+
 impl NetOpts {
-    /// Opens a Zenoh session with these options.
-    pub fn open(&self) -> Result<zenoh::Session> {
+    /// The Zenoh configuration these options make, checked against the security policy:
+    /// without authentication only loopback is allowed, unless `--insecure`.
+    pub fn config(&self) -> Result<zenoh::Config> {
         let mut c = match &self.zenoh_config {
-            Some(p) => {
-                zenoh::Config::from_file(p).map_err(|e| anyhow!("zenoh config {}: {e}", p.display()))?
-            }
+            Some(p) => zenoh::Config::from_file(p)
+                .map_err(|e| UsageError(format!("zenoh config {}: {e}", p.display())))?,
             None => zenoh::Config::default(),
         };
         let set = |c: &mut zenoh::Config, k: &str, v: String| {
             c.insert_json5(k, &v).map_err(|e| anyhow!("zenoh config {k} = {v}: {e}"))
         };
-        // A blocked put must not close the session (Zenoh's default after 5 s): during an
-        // outage serve's queue drops and counts, and the session resumes when the link does.
-        // Dead peers are still found by the lease (10 s by default).
-        if self.zenoh_config.is_none() {
-            set(
-                &mut c,
-                "transport/link/tx/queue/congestion_control/block/wait_before_close",
-                "3600000000".into(),
-            )?;
+        for (k, v) in OUTAGE_SETTINGS {
+            if self.zenoh_config.is_none() || c.get_json(k).is_ok_and(|j| j == default_json(k)) {
+                set(&mut c, k, (*v).into())?;
+            }
         }
         if let Some(m) = &self.mode {
             set(&mut c, "mode", format!("{m:?}"))?;
@@ -70,7 +110,65 @@ impl NetOpts {
             set(&mut c, "scouting/multicast/enabled", "false".into())?;
             set(&mut c, "scouting/gossip/enabled", "false".into())?;
         }
-        zenoh::open(c).wait().map_err(|e| anyhow!("{e}")).context("open the Zenoh session")
+        if let Some(path) = &self.credentials {
+            let cred = crate::credentials::Credentials::load(path)?;
+            set(&mut c, "transport/auth/usrpwd/user", serde_json::to_string(&cred.user)?)?;
+            set(&mut c, "transport/auth/usrpwd/password", serde_json::to_string(&cred.password)?)?;
+            let dict = path.canonicalize().with_context(|| format!("credentials {}", path.display()))?;
+            set(&mut c, "transport/auth/usrpwd/dictionary_file", serde_json::to_string(&dict)?)?;
+        }
+        let exposure = exposure(&c);
+        let auth = authentication(&c);
+        match (exposure.is_empty(), auth, self.insecure) {
+            (_, Some(how), _) => tracing::info!("authentication: {how}"),
+            (true, None, _) => tracing::info!("loopback only: no authentication needed"),
+            (false, None, true) => tracing::warn!(
+                "INSECURE: no authentication on {}: anyone who reaches it can read the audio, and \
+                 feed or stop a replica (--insecure)",
+                exposure.join(", ")
+            ),
+            (false, None, false) => {
+                return Err(UsageError(format!(
+                    "refusing to run without authentication on {}: anyone who reaches it could read \
+                     the audio, and feed or stop a replica. Give --credentials FILE (made with \
+                     `bass-bridge credentials`; docs/network.md, \"Security\"), a --zenoh-config \
+                     with TLS client certificates or user/password, or --insecure to run open anyway",
+                    exposure.join(", ")
+                ))
+                .into())
+            }
+        }
+        Ok(c)
+    }
+
+    /// Opens a Zenoh session with these options; says at the default log level which
+    /// endpoints it uses.
+    pub fn open(&self) -> Result<zenoh::Session> {
+        let c = self.config()?;
+        let eps = |k: &str| for_mode(&c, k).to_string();
+        let session = zenoh::open(c.clone()).wait().map_err(|e| anyhow!("{e}")).with_context(|| {
+            format!(
+                "open the Zenoh session (listen {}, connect {})",
+                eps("listen/endpoints"),
+                eps("connect/endpoints")
+            )
+        })?;
+        tracing::info!(
+            zid = %session.zid(),
+            listen = %eps("listen/endpoints"),
+            connect = %eps("connect/endpoints"),
+            "Zenoh session open"
+        );
+        let connect = connect_endpoints(&c);
+        if !connect.is_empty() {
+            watch_connections(&session, connect, "bass-bridge".into(), std::time::Duration::from_secs(3))?;
+        }
+        Ok(session)
+    }
+
+    /// `true` when this process runs open (`--insecure`) on a network.
+    pub fn is_insecure(&self) -> bool {
+        self.insecure
     }
 
     /// Key `NS/<broker>/<leaf>`.
@@ -104,6 +202,17 @@ pub struct SourceState {
     pub chunks_sent: u64,
     /// Chunks dropped by `serve` (queue full) so far.
     pub chunks_dropped: u64,
+    /// The publishing `serve` instance (16 hex digits, as in its liveliness token and its
+    /// chunks): tells apart two sources that serve one name. Empty from older `serve`s.
+    #[serde(default)]
+    pub instance: String,
+    /// The publishing `serve`'s Zenoh id. Empty from older `serve`s.
+    #[serde(default)]
+    pub zid: String,
+    /// Set while another `serve` instance serves the same name on this network (an error: one
+    /// name, one source); says which (instance, Zenoh id when known).
+    #[serde(default)]
+    pub conflict: Option<String>,
 }
 
 /// A random instance id (not cryptographic: it only tells two `serve` runs apart).
@@ -118,11 +227,199 @@ pub fn instance_id() -> u64 {
     x.max(1)
 }
 
-/// Termination flag set by SIGTERM/SIGINT.
+/// How long an orderly shutdown may take after SIGTERM/SIGINT before the process exits
+/// anyway (a Zenoh call blocked on a dead link must not hold it: docs/network.md, "Outages").
+pub const SHUTDOWN_DEADLINE: std::time::Duration = std::time::Duration::from_millis(800);
+
+/// Termination flag set by SIGTERM/SIGINT. The main loop sees it and cleans up; a watchdog
+/// thread ends the process [`SHUTDOWN_DEADLINE`] after the signal whatever the main loop is
+/// doing, so SIGTERM ends bass-bridge within a second in every state.
 pub fn termination_flag() -> Result<std::sync::Arc<std::sync::atomic::AtomicBool>> {
+    use std::sync::atomic::Ordering;
     let flag = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
         signal_hook::flag::register(sig, flag.clone()).context("install a signal handler")?;
     }
+    let seen = flag.clone();
+    std::thread::Builder::new()
+        .name("shutdown-deadline".into())
+        .spawn(move || {
+            while !seen.load(Ordering::Relaxed) {
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
+            std::thread::sleep(SHUTDOWN_DEADLINE);
+            tracing::warn!(
+                "terminated: the orderly shutdown took longer than {} ms (a Zenoh call blocked)",
+                SHUTDOWN_DEADLINE.as_millis()
+            );
+            std::process::exit(0);
+        })
+        .context("start the shutdown watchdog")?;
     Ok(flag)
+}
+
+/// Zenoh's own default of configuration key `k`, as JSON.
+fn default_json(k: &str) -> String {
+    zenoh::Config::default().get_json(k).unwrap_or_default()
+}
+
+/// A configuration value that may depend on the mode (`{router: .., peer: .., client: ..}`),
+/// for the session's mode.
+fn for_mode(c: &zenoh::Config, k: &str) -> serde_json::Value {
+    let v: serde_json::Value =
+        c.get_json(k).ok().and_then(|j| serde_json::from_str(&j).ok()).unwrap_or_default();
+    let mode: String = c
+        .get_json("mode")
+        .ok()
+        .and_then(|j| serde_json::from_str::<Option<String>>(&j).ok().flatten())
+        .unwrap_or_else(|| "peer".into());
+    match v {
+        serde_json::Value::Object(mut m) if m.contains_key(&mode) => m.remove(&mode).unwrap_or_default(),
+        v => v,
+    }
+}
+
+fn endpoints(c: &zenoh::Config) -> Vec<String> {
+    let mut out = Vec::new();
+    for k in ["listen/endpoints", "connect/endpoints"] {
+        if let serde_json::Value::Array(a) = for_mode(c, k) {
+            out.extend(a.into_iter().filter_map(|e| e.as_str().map(str::to_owned)));
+        }
+    }
+    out
+}
+
+/// `true` for an endpoint no other computer can reach: a Unix socket, or TCP/UDP/TLS/QUIC on a
+/// loopback address.
+pub fn is_loopback(endpoint: &str) -> bool {
+    let ep = endpoint.split(['#', '?']).next().unwrap_or("");
+    let Some((proto, addr)) = ep.split_once('/') else { return false };
+    if proto.starts_with("unixsock") {
+        return true;
+    }
+    let host = match addr.rsplit_once(':') {
+        Some((h, _port)) => h.trim_start_matches('[').trim_end_matches(']'),
+        None => return false,
+    };
+    host == "localhost" || host.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_loopback())
+}
+
+/// What of this configuration other computers can reach: non-loopback endpoints, multicast
+/// scouting. Empty: loopback only.
+fn exposure(c: &zenoh::Config) -> Vec<String> {
+    let mut out: Vec<String> = endpoints(c).into_iter().filter(|e| !is_loopback(e)).collect();
+    if for_mode(c, "scouting/multicast/enabled") != serde_json::Value::Bool(false) {
+        out.push("multicast scouting".into());
+    }
+    out
+}
+
+/// How this configuration authenticates the peers that connect to it, if it does: Zenoh
+/// user/password with a dictionary of accepted identities, or TLS with client certificates
+/// on every endpoint.
+fn authentication(c: &zenoh::Config) -> Option<String> {
+    let get =
+        |k: &str| c.get_json(k).ok().and_then(|j| serde_json::from_str::<Option<String>>(&j).ok().flatten());
+    if let (Some(user), Some(_), Some(_)) = (
+        get("transport/auth/usrpwd/user"),
+        get("transport/auth/usrpwd/password"),
+        get("transport/auth/usrpwd/dictionary_file"),
+    ) {
+        return Some(format!("Zenoh user/password, as {user:?}"));
+    }
+    let mtls = c.get_json("transport/link/tls/enable_mtls").is_ok_and(|j| j == "true");
+    let eps = endpoints(c);
+    (mtls && !eps.is_empty() && eps.iter().all(|e| e.starts_with("tls/") || is_loopback(e)))
+        .then(|| "TLS with client certificates".to_string())
+}
+
+/// Why a `connect` endpoint gives no Zenoh session, found by a plain TCP connection to it:
+/// nothing listens, the network does not reach it, or it answers TCP but refused the
+/// session (credentials or certificates).
+pub fn diagnose(endpoint: &str) -> String {
+    use std::net::ToSocketAddrs;
+    let ep = endpoint.split(['#', '?']).next().unwrap_or("");
+    let Some((proto, addr)) = ep.split_once('/') else { return format!("{endpoint}: not an endpoint") };
+    if !matches!(proto, "tcp" | "tls") {
+        return format!("{endpoint}: no connection");
+    }
+    let addrs: Vec<_> = match addr.to_socket_addrs() {
+        Ok(a) => a.collect(),
+        Err(e) => return format!("{endpoint}: cannot resolve the address ({e})"),
+    };
+    let mut why = String::from("no address");
+    for a in addrs {
+        match std::net::TcpStream::connect_timeout(&a, std::time::Duration::from_secs(1)) {
+            Ok(_) => {
+                return format!(
+                    "{endpoint}: it answers TCP but no Zenoh session came up: credentials or \
+                     certificates refused, or authentication on one side only (the other side's \
+                     log says which)"
+                )
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {
+                why = "nothing listens there (connection refused)".into()
+            }
+            Err(e) => why = format!("unreachable ({e})"),
+        }
+    }
+    format!("{endpoint}: {why}")
+}
+
+/// Watches the session's connections in a thread of its own and says at the default log
+/// level when there has been none for `after` (with the reason for each `connect` endpoint,
+/// [`diagnose`]), again every 30 s while it lasts, and when a connection comes up.
+pub fn watch_connections(
+    session: &zenoh::Session,
+    connect: Vec<String>,
+    what: String,
+    after: std::time::Duration,
+) -> Result<()> {
+    use std::time::{Duration, Instant};
+    let session = session.clone();
+    std::thread::Builder::new()
+        .name("zenoh-watch".into())
+        .spawn(move || {
+            let mut down_since = Some(Instant::now());
+            let mut said: Option<Instant> = None;
+            loop {
+                std::thread::sleep(Duration::from_millis(250));
+                let peers =
+                    session.info().peers_zid().wait().count() + session.info().routers_zid().wait().count();
+                match (peers, down_since) {
+                    (0, None) => down_since = Some(Instant::now()),
+                    (0, Some(t))
+                        if t.elapsed() >= after
+                            && said.map_or(true, |s| s.elapsed() >= Duration::from_secs(30)) =>
+                    {
+                        let reasons: Vec<String> = connect.iter().map(|e| diagnose(e)).collect();
+                        tracing::warn!(
+                            "{what}: no Zenoh connection for {:.0} s{}",
+                            t.elapsed().as_secs_f64(),
+                            if reasons.is_empty() {
+                                String::new()
+                            } else {
+                                format!(": {}", reasons.join("; "))
+                            }
+                        );
+                        said = Some(Instant::now());
+                    }
+                    (n, Some(_)) if n > 0 => {
+                        tracing::info!("{what}: connected ({n} Zenoh peer(s))");
+                        (down_since, said) = (None, None);
+                    }
+                    _ => {}
+                }
+            }
+        })
+        .context("start the connection watch")?;
+    Ok(())
+}
+
+/// The `connect` endpoints of a configuration, for the session's mode.
+pub fn connect_endpoints(c: &zenoh::Config) -> Vec<String> {
+    match for_mode(c, "connect/endpoints") {
+        serde_json::Value::Array(a) => a.into_iter().filter_map(|e| e.as_str().map(str::to_owned)).collect(),
+        _ => Vec::new(),
+    }
 }

@@ -1,9 +1,9 @@
 //! The Linux edge of the broker: eventfd, termination signals, absolute sleeps, real-time
-//! scheduling, peer credentials, the control socket's listener and the instance lock.
+//! scheduling, peer credentials and the control socket's listener (the instance lock is
+//! `bassclient::instance`, shared with `bass-bridge mirror`).
 //! System calls go through rustix (and signal-hook for the signals); the few `unsafe`
 //! blocks left are calls neither wraps (SCHED_FIFO, SO_PEERGROUPS, getgrnam).
 
-use std::fs::File;
 use std::io;
 use std::os::fd::{AsRawFd, BorrowedFd, OwnedFd, RawFd};
 use std::os::unix::net::UnixStream;
@@ -179,122 +179,9 @@ pub fn group_id(name: &str) -> io::Result<u32> {
     Ok(unsafe { (*g).gr_gid })
 }
 
-/// Opens the runtime directory (its fd anchors every file the broker makes there).
-pub fn open_dir(dir: &Path) -> io::Result<OwnedFd> {
-    use rustix::fs::{Mode, OFlags};
-    Ok(rustix::fs::open(dir, OFlags::DIRECTORY | OFlags::RDONLY | OFlags::CLOEXEC, Mode::empty())?)
-}
-
-/// Creates the system runtime directory `dir` (mode 0755, owned by us) if absent, and checks
-/// that it is a real directory (not a symlink) owned by us and writable by nobody else.
-pub fn ensure_private_dir(dir: &Path) -> io::Result<()> {
-    use rustix::fs::{FileType, Mode};
-    match rustix::fs::mkdir(dir, Mode::from_raw_mode(0o755)) {
-        Ok(()) | Err(rustix::io::Errno::EXIST) => {}
-        Err(e) => return Err(e.into()),
-    }
-    let st = rustix::fs::lstat(dir)?;
-    let (uid, mode) = (st.st_uid, st.st_mode);
-    let problem = if FileType::from_raw_mode(mode) != FileType::Directory {
-        Some("it is not a directory (a symbolic link?)".to_owned())
-    } else if uid != euid() {
-        Some(format!("it is owned by uid {uid}, not by this broker's user ({})", euid()))
-    } else if mode & 0o022 != 0 {
-        Some(format!("it is writable by others (mode {:o})", mode & 0o7777))
-    } else {
-        None
-    };
-    match problem {
-        Some(p) => Err(io::Error::new(io::ErrorKind::PermissionDenied, format!("{}: {p}", dir.display()))),
-        None => Ok(()),
-    }
-}
-
-/// Refuses a file the broker is about to use in its runtime directory unless it is of kind
-/// `kind`, owned by this process's user and not a hard link to something else.
-fn check_own(name: &str, st: &rustix::fs::Stat, kind: rustix::fs::FileType) -> io::Result<()> {
-    let found = rustix::fs::FileType::from_raw_mode(st.st_mode);
-    let problem = if found != kind {
-        Some(format!("it is a {found:?}, not a {kind:?}"))
-    } else if st.st_uid != euid() {
-        Some(format!(
-            "it is owned by uid {}, not by this broker's user ({}): another user may have planted it",
-            st.st_uid,
-            euid()
-        ))
-    } else if kind == rustix::fs::FileType::RegularFile && st.st_nlink != 1 {
-        Some(format!("it has {} hard links", st.st_nlink))
-    } else {
-        None
-    };
-    match problem {
-        Some(p) => Err(io::Error::new(io::ErrorKind::PermissionDenied, format!("refusing {name}: {p}"))),
-        None => Ok(()),
-    }
-}
-
-/// Opens (or creates, O_EXCL, mode 0644) the instance lock `name` in directory `dir` without
-/// following symlinks, checks it is our own regular file, and takes an exclusive,
-/// non-blocking `flock`; `Ok(None)` if another process holds it (the file is returned for
-/// reading the holder's pid). The lock lives as long as the returned file.
-pub fn try_lock_at(dir: &OwnedFd, name: &str) -> io::Result<(File, bool)> {
-    use rustix::fs::{FileType, FlockOperation, Mode, OFlags};
-    let flags = OFlags::RDWR | OFlags::NOFOLLOW | OFlags::CLOEXEC | OFlags::NONBLOCK;
-    let fd = match rustix::fs::openat(
-        dir,
-        name,
-        flags | OFlags::CREATE | OFlags::EXCL,
-        Mode::from_raw_mode(0o644),
-    ) {
-        Ok(fd) => fd,
-        Err(rustix::io::Errno::EXIST) => match rustix::fs::openat(dir, name, flags, Mode::empty()) {
-            Ok(fd) => fd,
-            Err(rustix::io::Errno::LOOP) => {
-                return Err(io::Error::new(
-                    io::ErrorKind::PermissionDenied,
-                    format!("refusing {name}: it is a symbolic link (remove it; nothing was written)"),
-                ))
-            }
-            Err(e) => return Err(e.into()),
-        },
-        Err(e) => return Err(e.into()),
-    };
-    check_own(name, &rustix::fs::fstat(&fd)?, FileType::RegularFile)?;
-    let f = File::from(fd);
-    loop {
-        match rustix::fs::flock(&f, FlockOperation::NonBlockingLockExclusive) {
-            Ok(()) => return Ok((f, true)),
-            Err(rustix::io::Errno::WOULDBLOCK) => return Ok((f, false)),
-            Err(rustix::io::Errno::INTR) => continue,
-            Err(e) => return Err(e.into()),
-        }
-    }
-}
-
-/// Removes a control socket `name` left in `dir` by a broker of ours that died; refuses
-/// anything else there (a symlink, another user's file). Absent is fine.
-pub fn remove_stale_socket_at(dir: &OwnedFd, name: &str) -> io::Result<bool> {
-    use rustix::fs::{AtFlags, FileType};
-    match rustix::fs::statat(dir, name, AtFlags::SYMLINK_NOFOLLOW) {
-        Ok(st) => {
-            check_own(name, &st, FileType::Socket)?;
-            rustix::fs::unlinkat(dir, name, AtFlags::empty())?;
-            Ok(true)
-        }
-        Err(rustix::io::Errno::NOENT) => Ok(false),
-        Err(e) => Err(e.into()),
-    }
-}
-
-/// Removes our control socket `name` from `dir` at exit, if it is still ours.
-pub fn remove_own_socket_at(dir: &OwnedFd, name: &str) {
-    use rustix::fs::{AtFlags, FileType};
-    if let Ok(st) = rustix::fs::statat(dir, name, AtFlags::SYMLINK_NOFOLLOW) {
-        if check_own(name, &st, FileType::Socket).is_ok() {
-            let _ = rustix::fs::unlinkat(dir, name, AtFlags::empty());
-        }
-    }
-}
+// The instance lock and the runtime directory's file checks are shared with
+// `bass-bridge mirror`, which takes its replica's name the same way: libbassclient.
+use bassclient::instance::check_own;
 
 /// Binds and listens on a SEQPACKET socket `name` in `dir` (path `path`) created with mode
 /// `mode` (through the umask: no window with looser modes, no chmod through a path), then

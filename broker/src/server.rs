@@ -5,8 +5,6 @@
 //! the client connections; the capture runs on its own thread (see [`crate::capture`]). The
 //! Acquire path (checks, refusals, pin budget, device open, the port switch) is in server/acquire.rs.
 
-use std::fs::File;
-use std::io::{Read, Write};
 use std::os::fd::{AsFd, AsRawFd, BorrowedFd, OwnedFd};
 use std::path::PathBuf;
 use std::time::Duration;
@@ -14,6 +12,7 @@ use std::time::Duration;
 use anyhow::{bail, Context};
 use bassclient::control::{self, AcquireRequest, ErrorKind, Reply, Request, Status, WireError};
 use bassclient::format::{error_code, State};
+use bassclient::instance::{Instance, InstanceError};
 use bassclient::paths;
 use bassclient::reader::Port;
 use bassclient::sys::monotonic_ns;
@@ -229,17 +228,17 @@ pub fn peer_allowed(peer: &os::Peer, own_uid: u32, group: Option<u32>) -> bool {
     peer.uid == own_uid || peer.uid == 0 || group.is_some_and(|g| peer.gid == g || peer.groups.contains(&g))
 }
 
-/// The running daemon's files: lock, socket, both anchored to the runtime directory's fd.
+/// The running daemon's name: the instance lock (`bassclient::instance`, the same as
+/// `bass-bridge mirror` takes), its socket removed at exit.
 struct Files {
-    dir: OwnedFd,
-    _lock: File,
+    inst: Instance,
     socket: PathBuf,
     socket_name: String,
 }
 
 impl Drop for Files {
     fn drop(&mut self) {
-        os::remove_own_socket_at(&self.dir, &self.socket_name);
+        self.inst.remove_socket();
     }
 }
 
@@ -250,55 +249,27 @@ impl Drop for Files {
 /// (docs/reliability.md, threat model). The system runtime directory (`/run/bass`, root) is
 /// created 0755 if absent and must be ours and not writable by others.
 fn take_instance(cfg: &Config) -> anyhow::Result<Files> {
-    let dir_path = paths::runtime_dir();
-    let env_dir = std::env::var_os(paths::RUNTIME_DIR_ENV).is_some_and(|d| !d.is_empty());
-    if !env_dir && dir_path == std::path::Path::new(paths::SYSTEM_RUNTIME_DIR) {
-        os::ensure_private_dir(&dir_path).context("the system runtime directory")?;
-    } else if !env_dir {
-        // A per-user broker must not take a name the system broker serves (or served: its
-        // port is still there): clients look there first.
-        let sys = std::path::Path::new(paths::SYSTEM_RUNTIME_DIR);
-        let sys = ["sock", "port"]
-            .map(|ext| sys.join(format!("bass-{}.{ext}", cfg.name)))
-            .into_iter()
-            .find(|p| p.symlink_metadata().is_ok());
-        if let Some(sys) = sys {
-            bail!(
-                "a system broker named {:?} serves {}; clients would find it before this one: \
-                 start this broker with --name OTHER",
-                cfg.name,
-                sys.display()
-            );
-        }
-    }
-    let dir = os::open_dir(&dir_path)
-        .with_context(|| format!("opening the runtime directory {}", dir_path.display()))?;
-    let socket_name = format!("bass-{}.sock", cfg.name);
-    let socket = dir_path.join(&socket_name);
-    let lock_name = format!("bass-{}.lock", cfg.name);
-    let (mut lock, locked) = os::try_lock_at(&dir, &lock_name)
-        .with_context(|| format!("opening {}", dir_path.join(&lock_name).display()))?;
-    if !locked {
-        // Only a number is ever shown from the file: its text is not echoed.
-        let mut text = String::new();
-        let _ = std::io::Read::read_to_string(&mut (&lock).take(32), &mut text);
-        let pid = text.trim().parse::<u32>().map_or_else(|_| "unknown".to_owned(), |p| p.to_string());
-        bail!(
-            "a broker named {:?} is already running (pid {pid}, control socket {}); \
+    let inst = match Instance::take(&cfg.name) {
+        Ok(i) => i,
+        Err(InstanceError::Held { holder, socket, .. }) => bail!(
+            "a broker named {:?} is already running ({holder}, control socket {}); \
              stop it first or start this one with --name OTHER",
             cfg.name,
             socket.display()
-        );
-    }
-    lock.set_len(0)?;
-    writeln!(lock, "{}", std::process::id())?;
-    // We hold the lock, so any socket of ours there was left by a broker that died: replace it.
-    if os::remove_stale_socket_at(&dir, &socket_name)
-        .with_context(|| format!("checking {}", socket.display()))?
-    {
+        ),
+        Err(InstanceError::SystemName { found, .. }) => bail!(
+            "a system broker named {:?} serves {}; clients would find it before this one: \
+             start this broker with --name OTHER",
+            cfg.name,
+            found.display()
+        ),
+        Err(e) => return Err(e.into()),
+    };
+    let socket = inst.socket_path();
+    if inst.removed_stale_socket {
         tracing::warn!("removed the stale control socket {} left by a previous broker", socket.display());
     }
-    let port = dir_path.join(format!("bass-{}.port", cfg.name));
+    let port = inst.port_path();
     if let Ok(p) = Port::open_path(&port) {
         if let Ok(i) = p.info() {
             if !i.writer_alive {
@@ -311,7 +282,8 @@ fn take_instance(cfg: &Config) -> anyhow::Result<Files> {
             }
         }
     }
-    Ok(Files { dir, _lock: lock, socket, socket_name })
+    let socket_name = inst.socket_name();
+    Ok(Files { inst, socket, socket_name })
 }
 
 /// Runs the broker until SIGTERM / SIGINT.
@@ -320,8 +292,9 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
     let signals = os::catch_termination_signals().context("setting up the signal handling")?;
     let files = take_instance(&cfg)?;
     let mode = if cfg.group.is_some() { 0o660 } else { 0o600 };
-    let listener = os::listen_seqpacket_at(&files.dir, &files.socket_name, &files.socket, mode, cfg.group)
-        .with_context(|| format!("listening on {}", files.socket.display()))?;
+    let listener =
+        os::listen_seqpacket_at(files.inst.dir(), &files.socket_name, &files.socket, mode, cfg.group)
+            .with_context(|| format!("listening on {}", files.socket.display()))?;
     tracing::info!(name = %cfg.name, socket = %files.socket.display(), pid = std::process::id(), "bassd ready");
     let own_uid = os::euid();
     let mut broker = Broker::new(cfg.clone());

@@ -11,6 +11,7 @@ pub mod control;
 pub mod error;
 pub mod ffi;
 pub mod format;
+pub mod instance;
 pub mod memfd;
 pub mod paths;
 pub mod portfile;

@@ -11,6 +11,10 @@
 //! writing during the copy: it is dropped and counted as loss. So a reader never
 //! delivers a torn frame, and always `delivered + loss = nfr_out - nfr_in`.
 //!
+//! A replica window started at frame `F` ([`Ring::start_at`]) holds an intent floor of
+//! `F - 1 + nFOP` until the window has passed `F`: by the same re-check, frames before `F`
+//! (never written) count as lost, never as zero frames delivered.
+//!
 //! Samples are stored in 8-byte words, two samples per word, and every access to a
 //! sample word, by the writer and by every reader, is a 64-bit Relaxed atomic of that same
 //! aligned word: the sample area is one array of `AtomicU64`, never also accessed as 32-bit
@@ -394,7 +398,13 @@ impl<'a> Ring<'a> {
     }
 
     /// Publishes `count` frames after frame `lfi`, the current last frame index (writer only,
-    /// which owns that value; `count <= nFOP`). Returns the new last frame index.
+    /// which owns that value and the intent; `count <= nFOP`). Returns the new last frame
+    /// index.
+    ///
+    /// The intent announced is `max(new last frame, current intent)`: an intent above the last
+    /// frame is a floor a replica writer set ([`Ring::start_at`]) to condemn the frames before
+    /// its first one, and it stays until the window has passed them. In every other case the
+    /// intent equals the last frame between publishes, so this is the new last frame.
     ///
     /// `under_intent` runs after the intent is announced and before the frames are
     /// published: the writer updates the chunk table there.
@@ -406,9 +416,31 @@ impl<'a> Ring<'a> {
         src: &Source<'_>,
         under_intent: impl FnOnce(),
     ) -> u64 {
+        self.publish_impl(lfi, count, channels, src, under_intent, true)
+    }
+
+    /// The known-bad variant for the loom model: announces the new last frame as the intent,
+    /// lowering a start's floor (frames before a replica's start then read as zeros).
+    #[cfg(loom)]
+    pub fn publish_without_floor(&self, lfi: u64, count: usize, channels: usize, src: &Source<'_>) -> u64 {
+        self.publish_impl(lfi, count, channels, src, || {}, false)
+    }
+
+    #[inline(always)]
+    fn publish_impl(
+        &self,
+        lfi: u64,
+        count: usize,
+        channels: usize,
+        src: &Source<'_>,
+        under_intent: impl FnOnce(),
+        keep_floor: bool,
+    ) -> u64 {
         let new_lfi = lfi + count as u64;
-        // Announce the frames about to be overwritten before touching any sample.
-        self.write_intent.store(new_lfi, Ordering::Relaxed);
+        // Announce the frames about to be overwritten before touching any sample (never
+        // lowering a floor: Relaxed suffices to read back what only this writer stores).
+        let floor = if keep_floor { self.write_intent.load(Ordering::Relaxed) } else { 0 };
+        self.write_intent.store(new_lfi.max(floor), Ordering::Relaxed);
         fence(Ordering::Release);
         under_intent();
         let mut done = 0usize;
@@ -432,6 +464,20 @@ impl<'a> Ring<'a> {
         }
         self.last_frame_index.store(new_lfi, Ordering::Release);
         new_lfi
+    }
+
+    /// Starts an empty window (`last_frame_index == 0`, writer only) at frame `first`: the next
+    /// publish writes frame `first`, and frames `1..first` — never written — count as lost for
+    /// every reader rather than reading as zeros. The intent is set to `first - 1 + nFOP`, so
+    /// [`Ring::first_intact`] is `first` until the window has passed it; [`Ring::publish`]
+    /// keeps that floor. `first >= 1`, and `first - 1 + nFOP` must not overflow.
+    ///
+    /// No frame is published yet, so no reader can have copied anything: the intent is moved
+    /// before the last frame index, keeping `intent >= last_frame_index` at every step.
+    pub fn start_at(&self, first: u64) {
+        debug_assert!(first >= 1);
+        self.write_intent.store(first - 1 + self.frames_on_port, Ordering::Relaxed);
+        self.last_frame_index.store(first - 1, Ordering::Release);
     }
 
     /// The formal `getAudioData` algorithm on a snapshot `lfi`, without copying.

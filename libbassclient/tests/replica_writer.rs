@@ -46,6 +46,91 @@ fn a_port_started_at_a_frame_publishes_its_first_chunk_at_that_index() {
     w.remove().unwrap();
 }
 
+/// Reads up to `n` frames from `nfr` on a 2-channel port; returns (frames, loss, nfr, left).
+fn read2(port: &Port, n: usize, mut nfr: u64) -> (usize, u64, u64, Vec<i32>) {
+    let (mut l, mut r) = (vec![i32::MIN; n], vec![i32::MIN; n]);
+    let got = port.get_audio_data(n, &mut nfr, &mut [&mut l, &mut r]).unwrap();
+    for (i, (a, b)) in l.iter().zip(&r).take(got.frames).enumerate() {
+        let f = nfr - got.frames as u64 + i as u64;
+        assert_eq!((*a, *b), (pattern_expected(f, 0), pattern_expected(f, 1)), "frame {f}");
+    }
+    l.truncate(got.frames);
+    (got.frames, got.loss, nfr, l)
+}
+
+/// (frames, loss, nfr) of a [`read2`].
+fn nln(r: (usize, u64, u64, Vec<i32>)) -> (usize, u64, u64) {
+    (r.0, r.1, r.2)
+}
+
+/// Issue 20 item 5: a replica started at frame F never presents frames 1..F-1 (which it never
+/// had) as zero audio; every read path counts them as lost until the window has passed F.
+#[test]
+fn frames_before_a_replica_start_are_lost_not_zeros() {
+    let path = temp_port_path("start-at-loss");
+    // nFOP = 12; the replica starts at frame 9 (chunk 3).
+    let mut w = Writer::create_at(&path, &params(4, 3, 2)).unwrap();
+    let port = Port::open_path(&path).unwrap();
+    w.start_at(9).unwrap();
+    // Nothing published: frames 1..=8 are on the window by the formal algorithm (ofi = 0)
+    // but were never written: all lost, nfr moves to the start.
+    assert_eq!(nln(read2(&port, 12, 1)), (0, 8, 9));
+    assert_eq!(nln(read2(&port, 12, 0)), (0, 9, 9), "frame 0 too is before the start");
+    assert_eq!(nln(read2(&port, 12, 5)), (0, 4, 9));
+    let v = port.view(12, &mut 1).unwrap();
+    assert_eq!((v.first_frame, v.frames, port.view_overwritten(&v)), (1, 8, 8));
+    // Frames 9..=12 published: a reader at 1 gets loss 8, then the real frames.
+    let s = pattern_chunk(&w);
+    w.publish(Source::Interleaved(&s), ChunkMeta::default()).unwrap();
+    let (n, loss, nfr, _) = read2(&port, 12, 1);
+    assert_eq!((n, loss, nfr), (4, 8, 13));
+    assert!(port.chunk_info(5).is_err(), "chunk info of a frame before the start");
+    assert_eq!(port.chunk_info(9).unwrap().first_frame, 9);
+    // Frames 13..=16: the window (5..=16) still holds frames before the start.
+    let s = pattern_chunk(&w);
+    w.publish(Source::Interleaved(&s), ChunkMeta::default()).unwrap();
+    assert_eq!(nln(read2(&port, 12, 1)), (8, 8, 17));
+    // A short read wholly before the start: n = 0, nfr moves to the start.
+    assert_eq!(nln(read2(&port, 3, 6)), (0, 3, 9));
+    let mut nfr = 1;
+    let v = port.view(12, &mut nfr).unwrap();
+    assert_eq!((v.first_frame, v.frames, v.loss, port.view_overwritten(&v)), (5, 12, 4, 4));
+    // Frames 17..=24: the window passes the floor (20) and moves on as any window.
+    for _ in 0..2 {
+        let s = pattern_chunk(&w);
+        w.publish(Source::Interleaved(&s), ChunkMeta::default()).unwrap();
+    }
+    let (n, loss, nfr, _) = read2(&port, 12, 1);
+    assert_eq!((n, loss, nfr), (12, 12, 25));
+    let (n, loss, nfr, _) = read2(&port, 12, 13);
+    assert_eq!((n, loss, nfr), (12, 0, 25));
+    w.remove().unwrap();
+}
+
+/// A gap published right after the start (chunk by chunk, and longer than the window) keeps
+/// the accounting: frames before the start lost, GAP frames read as GAP zeros.
+#[test]
+fn a_started_replica_with_lost_runs_still_counts_frames_before_its_start_as_lost() {
+    let path = temp_port_path("start-at-gap");
+    let mut w = Writer::create_at(&path, &params(4, 3, 2)).unwrap();
+    let port = Port::open_path(&path).unwrap();
+    w.start_at(5).unwrap();
+    w.publish_lost(4, ChunkMeta::default()).unwrap(); // frames 5..=8, GAP
+    let (mut l, mut r) = (vec![9; 12], vec![9; 12]);
+    let mut nfr = 1;
+    let got = port.get_audio_data(12, &mut nfr, &mut [&mut l, &mut r]).unwrap();
+    assert_eq!((got.frames, got.loss, nfr), (4, 4, 9));
+    assert!(l[..4].iter().chain(&r[..4]).all(|&x| x == 0));
+    // A run longer than the window jumps: the floor is below its end.
+    assert_eq!(w.publish_lost(40, ChunkMeta::default()).unwrap(), 48);
+    let s = pattern_chunk(&w);
+    w.publish(Source::Interleaved(&s), ChunkMeta::default()).unwrap();
+    let got = port.get_audio_data(12, &mut nfr, &mut [&mut l, &mut r]).unwrap();
+    assert_eq!((got.frames, got.loss, nfr), (12, 32, 53));
+    assert_eq!(l[8], pattern_expected(49, 0));
+    w.remove().unwrap();
+}
+
 #[test]
 fn start_at_refuses_a_frame_inside_a_chunk_and_a_port_with_data() {
     let path = temp_port_path("start-at-bad");
@@ -120,9 +205,10 @@ proptest! {
     #![proptest_config(ProptestConfig { cases: 300, failure_persistence: None, ..ProptestConfig::default() })]
 
     /// Any mix of data chunks and lost runs (short or longer than the window) after a start at
-    /// any chunk reads exactly like the seed model in which a lost run is that many zero frames.
+    /// any chunk reads exactly like the seed model in which a lost run is that many zero frames,
+    /// except that frames before the start, zero frames in the model, are counted as lost.
     #[test]
-    fn replica_writes_read_like_the_seed_model_with_zero_frames(
+    fn replica_writes_read_like_the_seed_model_with_frames_before_the_start_lost(
         nfpc in 1u32..=4, ncop in 1u32..=4, start_chunk in 0u64..5,
         ops in proptest::collection::vec(prop_oneof![
             Just(Op::Publish),
@@ -156,9 +242,20 @@ proptest! {
                 }
                 Op::Read(n, back) => {
                     let lfi = w.last_frame_index();
-                    // Readers of a replica start at or after its first frame.
-                    let start = lfi.saturating_sub(*back).max(first);
-                    let want = model.get_audio_data(*n as i128, start as i128);
+                    // Readers start anywhere, also before the replica's first frame.
+                    let start = lfi.saturating_sub(*back);
+                    let mut want = model.get_audio_data(*n as i128, start as i128);
+                    // The model's frames before `first` are zero frames the replica never had:
+                    // a started replica counts them as lost instead (issue 20 item 5). A port
+                    // not started keeps frame 0, the zero frame of the formal algorithm.
+                    let model_first = want.nfr - want.n;
+                    let lost_from = if start_chunk > 0 { first as i128 } else { 0 };
+                    let before = (lost_from - model_first).clamp(0, want.n);
+                    want.n -= before;
+                    want.loss += before;
+                    for ch in &mut want.channels {
+                        ch.drain(..before as usize);
+                    }
                     let mut bufs = vec![vec![i32::MIN; *n]; 2];
                     let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| b.as_mut_slice()).collect();
                     let mut nfr = start;

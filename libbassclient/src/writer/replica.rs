@@ -17,9 +17,31 @@ impl Writer {
     ///
     /// Only on a port that has published nothing yet (`last_frame_index == 0`), and
     /// `first_frame` must start a chunk (`(first_frame - 1) % nFPC == 0`), so that chunk
-    /// `c` keeps frames `c*nFPC+1 ..= (c+1)*nFPC` as in the source. Frames before it that a
-    /// reader may still reach (the window behind the start) read as zeros, as frame 0 does on
-    /// a new port; a reader starting at `first_frame` (or later) never sees them.
+    /// `c` keeps frames `c*nFPC+1 ..= (c+1)*nFPC` as in the source. Frames before it, which
+    /// this port never had, count as **lost** for every reader (`get_audio_data`, views,
+    /// `chunk_info`), never as zero frames: a reader at frame 1 gets `n = 0`,
+    /// `loss = first_frame - 1` and `nfr = first_frame`, then the frames published from there
+    /// (see [`Ring::start_at`]: the write intent keeps a floor of `first_frame - 1 + nFOP`
+    /// until the window has passed `first_frame`).
+    ///
+    /// ```
+    /// # use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+    /// # let dir = std::env::temp_dir().join(format!("bass-doc-start-at-{}", std::process::id()));
+    /// # std::fs::create_dir_all(&dir).unwrap();
+    /// # let path = dir.join("bass-doc.port");
+    /// let geometry = Geometry { channels: 1, sample_rate: 48000, frames_per_chunk: 4, chunks_on_port: 8 };
+    /// let mut w = Writer::create_at(&path, &PortParams { geometry, device: "replica".into(), group: None })?;
+    /// w.start_at(9)?; // chunk 3 of the source
+    /// let port = Port::open_path(&path)?;
+    /// let (mut out, mut nfr) = (vec![0; 16], 1);
+    /// let r = port.get_audio_data(16, &mut nfr, &mut [&mut out])?;
+    /// assert_eq!((r.frames, r.loss, nfr), (0, 8, 9)); // frames 1..=8: lost, not zeros
+    /// w.publish(Source::Interleaved(&[1, 2, 3, 4]), ChunkMeta::default())?;
+    /// let r = port.get_audio_data(16, &mut nfr, &mut [&mut out])?;
+    /// assert_eq!((r.frames, r.loss, &out[..4]), (4, 0, &[1, 2, 3, 4][..]));
+    /// # w.remove()?;
+    /// # Ok::<(), bassclient::Error>(())
+    /// ```
     pub fn start_at(&mut self, first_frame: u64) -> Result<()> {
         let nfpc = u64::from(self.geometry.frames_per_chunk);
         let h = self.mapping.header();
@@ -36,10 +58,13 @@ impl Writer {
                 2 * nfpc + 1
             )));
         }
-        // No frame is published yet, so no reader can have copied anything: moving the
-        // intent first keeps the protocol's order (intent >= last_frame_index) at every step.
-        h.write_intent.store(first_frame - 1, Relaxed);
-        h.last_frame_index.store(first_frame - 1, Release);
+        let ring = Ring {
+            last_frame_index: &h.last_frame_index,
+            write_intent: &h.write_intent,
+            samples: self.mapping.samples(&self.layout, self.geometry.channels),
+            frames_on_port: self.layout.frames_on_port,
+        };
+        ring.start_at(first_frame);
         h.heartbeat_mono_ns.store(sys::monotonic_ns(), Relaxed);
         wake(h);
         Ok(())
@@ -77,7 +102,8 @@ impl Writer {
         // Longer than the window: write one window of zeros as frames end-nFOP+1 ..= end in
         // one publish. The intent (= end) is announced first, so every old frame
         // (<= lfi <= end - nFOP) is condemned before its slot is touched, and readers lapped
-        // by the jump count what they missed as loss.
+        // by the jump count what they missed as loss. A start's intent floor
+        // (first - 1 + nFOP <= lfi + nFOP < end) is below `end`, so `publish` announces `end`.
         let h = self.mapping.header();
         let from = end - fop;
         let cop = u64::from(self.geometry.chunks_on_port);

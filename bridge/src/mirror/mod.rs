@@ -1,0 +1,265 @@
+//! `bass-bridge mirror`: subscribes to one source and writes a local replica port at the
+//! source's frame indices, so every local client reads remote audio unchanged.
+//!
+//! The message handling (bounds, followed instance, rate limits, gaps, states) is
+//! [`core::Core`], pure and tested in-process; this module wires it to Zenoh, takes the
+//! replica's name (the instance lock, as bassd does: `bassclient::instance`), serves the
+//! replica's control socket ([`crate::control`]), writes the status file and logs.
+//!
+//! - source unreachable (liveliness lost, or silent) longer than `--timeout`, or the source
+//!   port in error or gone: the replica shows a device error; data brings it back;
+//! - SIGTERM/SIGINT: the replica port, the control socket and the lock are removed.
+
+pub mod bounds;
+pub mod core;
+
+use std::sync::atomic::Ordering;
+use std::sync::mpsc::{channel, RecvTimeoutError};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use anyhow::{anyhow, Result};
+use bassclient::instance::{Instance, InstanceError};
+use bassclient::sys::monotonic_ns;
+use zenoh::sample::SampleKind;
+use zenoh::Wait;
+
+use self::bounds::Bounds;
+use self::core::{Core, LogLimit, MirrorStatus};
+use crate::clock::ClockEstimator;
+use crate::net::{self, NetOpts, UsageError};
+
+/// Longest `--timeout` / `--probe-interval` (seconds), as the `bass` tool's durations.
+pub const MAX_SECONDS: f64 = 1e9;
+
+/// Parses a duration in seconds: a finite number in (0, [`MAX_SECONDS`]], as the `bass`
+/// tool does (broker/src/cli.rs `parse_seconds`): NaN, infinities, zero and negative values
+/// are refused by clap (exit 2, naming the option).
+pub fn parse_seconds(s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number of seconds"))?;
+    if !v.is_finite() || v <= 0.0 || v > MAX_SECONDS {
+        return Err(format!(
+            "{s} is not in the accepted range: more than 0 and at most {MAX_SECONDS:e} seconds"
+        ));
+    }
+    Ok(v)
+}
+
+/// Options of `mirror`.
+#[derive(clap::Args, Debug)]
+pub struct MirrorOpts {
+    /// Source broker name (as given to `serve --name`).
+    #[arg(long, default_value = "default")]
+    pub source: String,
+    /// Name of the local replica port (default `<host>-<source>`).
+    #[arg(long)]
+    pub name: Option<String>,
+    /// Seconds without the source (liveliness or any message) before the replica shows an error.
+    #[arg(long, default_value = "2", value_parser = parse_seconds)]
+    pub timeout: f64,
+    /// Write the mirror's counters and clock estimate as JSON to this file, once a second.
+    #[arg(long)]
+    pub status_file: Option<std::path::PathBuf>,
+    /// Seconds between clock probes.
+    #[arg(long, default_value = "0.5", value_parser = parse_seconds)]
+    pub probe_interval: f64,
+    #[command(flatten)]
+    pub bounds: Bounds,
+    #[command(flatten)]
+    pub net: NetOpts,
+}
+
+/// What the subscribers other than the chunks' report to the main loop.
+enum Event {
+    State(Vec<u8>),
+    /// A liveliness token of the source appeared or went (its serve instance, if it says).
+    Alive(Option<u64>, bool),
+}
+
+fn lock(core: &Mutex<Core>) -> MutexGuard<'_, Core> {
+    core.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Takes the replica's name; a name held by a live broker or mirror is a usage error (exit 2)
+/// naming the holder.
+fn take_name(name: &str) -> Result<Instance> {
+    Instance::take(name).map_err(|e| match e {
+        InstanceError::Held { name, holder, lock, .. } => UsageError(format!(
+            "the name {name:?} is taken by a running bass broker or mirror ({holder}, lock {}): \
+             give this mirror another --name",
+            lock.display()
+        ))
+        .into(),
+        InstanceError::SystemName { .. } | InstanceError::Name(_) => UsageError(e.to_string()).into(),
+        e => anyhow!(e),
+    })
+}
+
+/// Runs `mirror` until SIGTERM/SIGINT.
+pub fn run(o: MirrorOpts) -> Result<()> {
+    let term = net::termination_flag()?;
+    let name = o.name.clone().unwrap_or_else(|| format!("{}-{}", hostname(), o.source));
+    let instance = take_name(&name)?;
+    if instance.removed_stale_socket {
+        tracing::warn!(
+            "removed the stale control socket {} left by a process that died",
+            instance.socket_path().display()
+        );
+    }
+    let r = run_named(&o, &name, &instance, term);
+    // Whatever ended it (a signal, or an error at start-up): the name is given back whole.
+    instance.remove_socket();
+    instance.remove_lock();
+    r
+}
+
+/// `mirror` once its name is taken.
+fn run_named(
+    o: &MirrorOpts,
+    name: &str,
+    instance: &Instance,
+    term: Arc<std::sync::atomic::AtomicBool>,
+) -> Result<()> {
+    let session = o.net.open()?;
+    let clock = Arc::new(ClockEstimator::spawn(
+        &session,
+        o.net.key(&o.source, "clock"),
+        Duration::from_secs_f64(o.probe_interval.max(0.01)),
+    )?);
+    let st = MirrorStatus {
+        replica: name.to_owned(),
+        source: o.source.clone(),
+        insecure: o.net.insecure,
+        ..Default::default()
+    };
+    let core = Arc::new(Mutex::new(Core::new(instance.port_path(), o.bounds.clone(), st, monotonic_ns())));
+    let (chunk_core, chunk_clock) = (core.clone(), clock.clone());
+    let chunks = session
+        .declare_subscriber(o.net.key(&o.source, "chunks"))
+        .callback(move |s| {
+            let (offset, _) = chunk_clock.estimate();
+            let mut c = lock(&chunk_core);
+            c.on_message(&s.payload().to_bytes(), monotonic_ns(), offset);
+            if let Some((source, local)) = c.take_stamp() {
+                chunk_clock.observe_chunk(source, local);
+            }
+        })
+        .wait()
+        .map_err(|e| anyhow!("subscribe to chunks: {e}"))?;
+    let (tx, rx) = channel::<Event>();
+    let state_tx = tx.clone();
+    let _state = session
+        .declare_subscriber(o.net.key(&o.source, "state"))
+        .callback(move |s| {
+            let _ = state_tx.send(Event::State(s.payload().to_bytes().into_owned()));
+        })
+        .wait()
+        .map_err(|e| anyhow!("subscribe to state: {e}"))?;
+    // serve's token is `NS/<broker>/alive/<instance>` (an older serve's: `NS/<broker>/alive`).
+    let alive_key = o.net.key(&o.source, "alive");
+    let _alive = session
+        .liveliness()
+        .declare_subscriber(format!("{alive_key}/**"))
+        .history(true)
+        .callback(move |s| {
+            let leaf = s.key_expr().as_str().strip_prefix(alive_key.as_str()).unwrap_or_default();
+            let instance = leaf.strip_prefix('/').and_then(|h| u64::from_str_radix(h, 16).ok());
+            let _ = tx.send(Event::Alive(instance, s.kind() == SampleKind::Put));
+        })
+        .wait()
+        .map_err(|e| anyhow!("liveliness subscriber: {e}"))?;
+
+    let forwarder =
+        crate::control::spawn_forwarder(&session, o.net.key(&o.source, "control"), instance, term.clone())?;
+    let timeout_ns = (o.timeout * 1e9) as u64;
+    let endpoints = match (&o.net.connect[..], &o.net.listen[..], &o.net.zenoh_config) {
+        ([], [], Some(p)) => format!("endpoints of {}", p.display()),
+        ([], [], None) => "Zenoh's default endpoints and scouting".to_owned(),
+        ([], listen, _) => format!("listening on {}", listen.join(", ")),
+        (connect, _, _) => format!("connecting to {}", connect.join(", ")),
+    };
+    let mut alive = false;
+    let mut tokens = std::collections::BTreeSet::new();
+    let mut last_status = 0u64;
+    let mut status_log = LogLimit::default();
+    tracing::info!(replica = %name, source = %o.source, "mirroring");
+    while !term.load(Ordering::Relaxed) {
+        let ev = rx.recv_timeout(Duration::from_millis(100));
+        let now = monotonic_ns();
+        let mut c = lock(&core);
+        match ev {
+            Ok(Event::State(bytes)) => c.on_state(&bytes, now),
+            Ok(Event::Alive(instance, a)) => {
+                // Bounded: a peer declaring many tokens cannot grow it past the cap.
+                let id = instance.unwrap_or(0);
+                if a && tokens.len() < 64 {
+                    tokens.insert(id);
+                } else if !a {
+                    tokens.remove(&id);
+                }
+                if a {
+                    c.last_heard_ns = now;
+                }
+                if let Some(i) = instance {
+                    c.on_token(i, a);
+                }
+                alive = !tokens.is_empty();
+                let instance = instance.map(|i| format!("{i:016x}")).unwrap_or_default();
+                tracing::info!(alive = a, source = %o.source, instance, "source liveliness");
+            }
+            Err(RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Disconnected) => break,
+        }
+        if let Some(why) = c.tick(now, timeout_ns, alive) {
+            tracing::warn!("source {:?} ({endpoints}): {why}", o.source);
+        }
+        if now.saturating_sub(last_status) >= 1_000_000_000 {
+            last_status = now;
+            let (off, unc) = clock.estimate();
+            c.st.clock_offset_ns = off;
+            c.st.clock_uncertainty_ns = unc;
+            c.st.clock_drift_ppm = clock.drift_ppm();
+            c.st.clock_replies_refused = clock.refused();
+            c.refresh();
+            let st = c.st.clone();
+            drop(c);
+            // Written without the lock: the chunk subscriber never waits for the disk.
+            if let Some(p) = &o.status_file {
+                if let Err(e) = write_status(p, &st) {
+                    lock(&core).st.status_write_failures += 1;
+                    if let Some(n) = status_log.allow(now) {
+                        let more =
+                            if n > 0 { format!(" ({n} more failures not logged)") } else { String::new() };
+                        tracing::warn!("status file {}: {e:#}{more}", p.display());
+                    }
+                }
+            }
+        }
+    }
+    drop(chunks);
+    lock(&core).remove();
+    forwarder.stop();
+    tracing::info!("mirror: terminated");
+    Ok(())
+}
+
+fn write_status(p: &std::path::Path, st: &MirrorStatus) -> Result<()> {
+    let tmp = p.with_extension("tmp");
+    std::fs::write(&tmp, serde_json::to_vec_pretty(st)?)?;
+    std::fs::rename(&tmp, p)?;
+    Ok(())
+}
+
+fn hostname() -> String {
+    let h =
+        std::fs::read_to_string("/proc/sys/kernel/hostname").map(|s| s.trim().to_owned()).unwrap_or_default();
+    // A host name that is not a valid port name part (bassclient::paths::check_name) is not used.
+    if !h.is_empty() && h.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'.' || b == b'_') {
+        h
+    } else {
+        "remote".into()
+    }
+}
+
+#[cfg(test)]
+mod tests;
