@@ -213,6 +213,9 @@ pub struct SourceState {
     /// name, one source); says which (instance, Zenoh id when known).
     #[serde(default)]
     pub conflict: Option<String>,
+    /// `serve` runs open on a network (`--insecure`): no authentication.
+    #[serde(default)]
+    pub insecure: bool,
 }
 
 /// A random instance id (not cryptographic: it only tells two `serve` runs apart).

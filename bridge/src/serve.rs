@@ -67,7 +67,7 @@ pub struct ServeOpts {
     /// broker (docs/network.md, "Remote control"). Off: the path is read-only.
     #[arg(long)]
     pub allow_control: bool,
-    /// Also offer each chunk on the iceoryx2 service `bass/<name>/chunks` (feature `iceoryx2`).
+    /// Also offer each chunk on the iceoryx2 service `bass/<name>/chunks` (feature `iceoryx2`, on by default).
     #[arg(long)]
     pub iceoryx2: bool,
     #[command(flatten)]
@@ -227,7 +227,13 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
         let mut cur = shared.lock().unwrap_or_else(|e| e.into_inner());
         let changed = (cur.state.as_str(), cur.epoch, cur.error_code, &cur.conflict)
             != (s.state.as_str(), s.epoch, s.error_code, &conflict);
-        *cur = SourceState { instance: instance_hex.clone(), zid: zid.clone(), conflict, ..s.clone() };
+        *cur = SourceState {
+            instance: instance_hex.clone(),
+            zid: zid.clone(),
+            conflict,
+            insecure: o.net.insecure,
+            ..s.clone()
+        };
         if changed || force || last_state_pub.elapsed() >= Duration::from_millis(500) {
             last_state_pub = Instant::now();
             // Through the state thread: a put may block (the chunks' put holds the link's

@@ -44,7 +44,8 @@ rig_cleanup() {
 }
 trap rig_cleanup EXIT
 trap 'echo "$CASE: stopped (watchdog or signal); failures so far: ${FAILED[*]:-none}"; rig_logs; exit 1' TERM INT
-( sleep "${CASE_LIMIT:-300}"; echo "$CASE: watchdog expired"; kill -TERM $$ ) 2>/dev/null & PIDS+=($!)
+# The sleep keeps no descriptor of ours: a pipe reading this case ends when the case does.
+( sleep "${CASE_LIMIT:-300}" </dev/null >/dev/null 2>&1; echo "$CASE: watchdog expired"; kill -TERM $$ ) 2>/dev/null & PIDS+=($!)
 
 # rig_up [3]: namespaces A (robot) and B (workstation) joined by veth vA-vB
 # (fd00:ba55::1, ::2); with 3, a third computer C (another workstation of the lab) joined
