@@ -43,6 +43,8 @@ rig_cleanup() {
   if [[ -n ${BRIDGE_KEEP:-} ]]; then echo "$CASE: logs kept in $WORK"; else rm -rf "$WORK"; fi
 }
 trap rig_cleanup EXIT
+# set -e ends a case at a failing command: say which, so a case never fails in silence.
+trap 'echo "$CASE: stopped by a failing command at line $LINENO: $BASH_COMMAND"' ERR
 trap 'echo "$CASE: stopped (watchdog or signal); failures so far: ${FAILED[*]:-none}"; rig_logs; exit 1' TERM INT
 # The sleep keeps no descriptor of ours: a pipe reading this case ends when the case does.
 ( sleep "${CASE_LIMIT:-300}" </dev/null >/dev/null 2>&1; echo "$CASE: watchdog expired"; kill -TERM $$ ) 2>/dev/null & PIDS+=($!)

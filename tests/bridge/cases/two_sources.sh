@@ -24,8 +24,11 @@ SERVE2=$!; PIDS+=($SERVE2)
 start_mirror --connect "$EP2"
 wait_replica
 
-# instance=… and zid=… of a serve's "serving" line.
-ids() { grep -m1 ' serving ' "$1" | grep -o "$2=[0-9a-f]*" | cut -d= -f2; }
+# instance=… and zid=… of a serve's "serving" line (empty when not there).
+ids() { grep -m1 ' serving ' "$1" | grep -o "$2=[0-9a-f]*" | cut -d= -f2 || true; }
+# Under load the second serve may start after the replica exists: wait for both.
+wait_for 20 grep -q ' serving ' "$WORK/serve.log" || bad "serve 1 never said it was serving"
+wait_for 20 grep -q ' serving ' "$WORK/serve2.log" || bad "serve 2 never said it was serving"
 I1=$(ids "$WORK/serve.log" instance); Z1=$(ids "$WORK/serve.log" zid)
 I2=$(ids "$WORK/serve2.log" instance); Z2=$(ids "$WORK/serve2.log" zid)
 echo "  serve 1: instance $I1, Zenoh id $Z1; serve 2: instance $I2, Zenoh id $Z2"
