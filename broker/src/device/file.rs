@@ -45,7 +45,7 @@ pub struct FileDevice {
 /// Opens `path` for an Acquire at `rate` Hz with `channels` channels.
 pub fn open(path: &Path, looping: bool, rate: u32, channels: u32, period: u32) -> Result<FileDevice, String> {
     let name = path.display();
-    let reader = hound::WavReader::open(path)
+    let reader = hound::WavReader::new(BufReader::new(open_regular(path)?))
         .map_err(|e| format!("sim:file:{name}: cannot read the WAV file: {e}"))?;
     let spec = reader.spec();
     if spec.sample_rate != rate || u32::from(spec.channels) != channels {
@@ -82,6 +82,36 @@ pub fn open(path: &Path, looping: bool, rate: u32, channels: u32, period: u32) -
         start_ns: 0,
         gaps,
     })
+}
+
+/// Opens `path` for reading if it is a regular file, without ever blocking: a FIFO (or a
+/// device node) would block `open` until someone writes to it, and with it the Acquire, every
+/// later request and bassd's shutdown. The open is non-blocking (a FIFO opens at once), the
+/// type is checked on the open descriptor (no race with a rename), then the descriptor is
+/// made blocking again for the reads of a regular file.
+fn open_regular(path: &Path) -> Result<File, String> {
+    use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+    let name = path.display();
+    let f = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(rustix::fs::OFlags::NONBLOCK.bits() as i32)
+        .open(path)
+        .map_err(|e| format!("sim:file:{name}: cannot open: {e}"))?;
+    let t = f.metadata().map_err(|e| format!("sim:file:{name}: {e}"))?.file_type();
+    if !t.is_file() {
+        let what = if t.is_fifo() {
+            "a FIFO"
+        } else if t.is_char_device() || t.is_block_device() {
+            "a device node"
+        } else if t.is_socket() {
+            "a socket"
+        } else {
+            "not a regular file"
+        };
+        return Err(format!("sim:file:{name} is {what}: give a regular WAV file"));
+    }
+    rustix::fs::fcntl_setfl(&f, rustix::fs::OFlags::empty()).map_err(|e| format!("sim:file:{name}: {e}"))?;
+    Ok(f)
 }
 
 /// The GAP chunks of the sidecar `PATH.json`, as runs of file frames (none without one).
@@ -267,6 +297,27 @@ mod tests {
         let mut out = vec![0; 20];
         d.fill(&mut out, 10).unwrap();
         assert_eq!(out[3], 3 << 16, "16-bit samples are left-justified");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_fifo_is_refused_at_once_without_blocking_in_open() {
+        let dir = std::env::temp_dir().join(format!("bass-file-fifo-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("fifo.wav");
+        rustix::fs::mknodat(
+            rustix::fs::CWD,
+            &p,
+            rustix::fs::FileType::Fifo,
+            rustix::fs::Mode::RUSR | rustix::fs::Mode::WUSR,
+            0,
+        )
+        .unwrap();
+        // With a blocking open this call never returns (nobody writes to the FIFO).
+        let e = open(&p, false, 48000, 2, 480).err().expect("a FIFO is refused");
+        assert!(e.contains("is a FIFO: give a regular WAV file"), "{e}");
+        let e = open(Path::new("/dev/null"), false, 48000, 2, 480).err().expect("/dev/null is refused");
+        assert!(e.contains("is a device node"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
