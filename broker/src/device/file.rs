@@ -96,7 +96,7 @@ fn open_regular(path: &Path) -> Result<File, String> {
         .read(true)
         .custom_flags(rustix::fs::OFlags::NONBLOCK.bits() as i32)
         .open(path)
-        .map_err(|e| format!("sim:file:{name}: cannot open: {e}"))?;
+        .map_err(|e| format!("sim:file:{name}: cannot read the WAV file: {e}"))?;
     let t = f.metadata().map_err(|e| format!("sim:file:{name}: {e}"))?.file_type();
     if !t.is_file() {
         let what = if t.is_fifo() {
