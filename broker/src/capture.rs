@@ -21,7 +21,7 @@ use bassclient::reader::Port;
 use bassclient::sys::{monotonic_ns, realtime_ns};
 use bassclient::{ChunkMeta, Geometry, Source, Writer};
 
-use crate::device::{Capture, ReadEvent, StopSignal};
+use crate::device::{Capture, ReadEvent, RecordedChunk, StopSignal};
 use crate::rate_estimator::RateDll;
 
 /// State shared by the capture thread and the control thread.
@@ -318,6 +318,66 @@ impl Assembler<'_> {
     }
 }
 
+/// Publishing the chunks of a replayed recording as they were recorded (see `device::file`).
+struct Replay {
+    rate: f64,
+    requested_ns: u64,
+    published: u64,
+    /// The last chunk published was GAP (a GAP run counts as one overrun, as live).
+    in_gap: bool,
+}
+
+impl Replay {
+    /// Publishes one recorded chunk, first skipping to its readable frame; false once the
+    /// acquisition has ended.
+    fn publish(&mut self, shared: &Shared, samples: &[i32], c: &RecordedChunk) -> bool {
+        let mut w = shared.writer();
+        if shared.ended.load(Ordering::Acquire) || shared.stop.is_set() {
+            return false;
+        }
+        let lfi = w.last_frame_index();
+        let placed = if c.readable_from > lfi + 1 {
+            // The recording's start, or frames its recorder lost: lost for readers here too.
+            let skipped = w.skip_to(c.readable_from);
+            if lfi > 0 {
+                w.add_lost_upstream(c.readable_from - lfi - 1);
+            }
+            skipped
+        } else {
+            Ok(lfi)
+        };
+        match placed {
+            Ok(last) if last + 1 == c.first_frame => {}
+            other => {
+                drop(w);
+                let msg = format!(
+                    "replay: chunk {} cannot follow frame {lfi} (readable from {}): {other:?}",
+                    c.first_frame, c.readable_from
+                );
+                shared.fail(error_code::INTERNAL, &msg);
+                return false;
+            }
+        }
+        let src = if c.zeros { Source::Zeros } else { Source::Interleaved(samples) };
+        if let Err(e) = w.publish(src, c.meta) {
+            drop(w);
+            shared.fail(error_code::INTERNAL, &format!("publishing a chunk failed: {e}"));
+            return false;
+        }
+        if c.zeros && !self.in_gap {
+            w.add_xruns(1);
+        }
+        self.in_gap = c.zeros;
+        self.published += 1;
+        if self.published == 1 {
+            w.set_rate_estimate(self.rate);
+            let ms = monotonic_ns().saturating_sub(self.requested_ns) as f64 / 1e6;
+            tracing::info!("first chunk published {ms:.2} ms after the Acquire request");
+        }
+        true
+    }
+}
+
 fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
     if p.rt_priority > 0 {
         if let Err(e) = crate::os::set_realtime(p.rt_priority) {
@@ -355,6 +415,8 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
         requested_ns: p.requested_ns,
     };
     let mut scratch = vec![0i32; nfpc * channels];
+    let mut replay =
+        Replay { rate: f64::from(g.sample_rate), requested_ns: p.requested_ns, published: 0, in_gap: false };
     // Time of the frame after the last one read, for estimating overrun gaps.
     let mut expected_ns: Option<u64> = None;
     let mut after_xrun = false;
@@ -399,6 +461,13 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
             ReadEvent::Xrun => {
                 shared.writer().add_xruns(1);
                 after_xrun = true;
+            }
+            ReadEvent::Chunk(c) => {
+                shared.progress_ns.store(monotonic_ns(), Ordering::Release);
+                shared.got_data.store(true, Ordering::Release);
+                if !replay.publish(shared, &scratch[..nfpc * channels], &c) {
+                    break;
+                }
             }
             ReadEvent::Idle => {}
             ReadEvent::Stopped => break,

@@ -56,8 +56,12 @@ pub struct AcquireArgs {
     #[arg(short = 'f', long = "format", value_name = "FORMAT", value_parser = format_names())]
     pub format: Option<String>,
     /// Replay a sim:file: device in a loop (the same as naming it sim:file-loop:PATH)
-    #[arg(long = "loop")]
+    #[arg(long = "loop", conflicts_with = "renumber")]
     pub looping: bool,
+    /// Replay a sim:file: device from frame 1 rather than at its recorded frame indices (the
+    /// same as naming it sim:file-renumber:PATH)
+    #[arg(long)]
+    pub renumber: bool,
 }
 
 impl Default for AcquireArgs {
@@ -70,6 +74,7 @@ impl Default for AcquireArgs {
             channels: d.channels,
             format: None,
             looping: false,
+            renumber: false,
         }
     }
 }
@@ -85,11 +90,13 @@ impl AcquireArgs {
                 ));
             }
         }
-        let device = match (self.looping, device.strip_prefix("sim:file:")) {
-            (false, _) => device.to_owned(),
-            (true, Some(path)) => format!("sim:file-loop:{path}"),
-            (true, None) => {
-                return Err(format!("--loop applies to sim:file:PATH devices only, not {device:?}"))
+        let device = match (self.looping, self.renumber, device.strip_prefix("sim:file:")) {
+            (false, false, _) => device.to_owned(),
+            (true, _, Some(path)) => format!("sim:file-loop:{path}"),
+            (_, true, Some(path)) => format!("sim:file-renumber:{path}"),
+            (looping, _, None) => {
+                let opt = if looping { "--loop" } else { "--renumber" };
+                return Err(format!("{opt} applies to sim:file:PATH devices only, not {device:?}"));
             }
         };
         Ok(AcquireRequest {
@@ -186,6 +193,9 @@ mod tests {
         let t = parse("--loop").unwrap();
         assert_eq!(t.a.request("sim:file:/r.wav").unwrap().device, "sim:file-loop:/r.wav");
         assert!(t.a.request("sim:sine").unwrap_err().contains("--loop applies to sim:file:"));
+        let t = parse("--renumber").unwrap();
+        assert_eq!(t.a.request("sim:file:/r.wav").unwrap().device, "sim:file-renumber:/r.wav");
+        assert!(t.a.request("hw:0").unwrap_err().contains("--renumber applies to sim:file:"));
     }
 
     #[test]

@@ -10,6 +10,8 @@
 //! - [`rate_estimator`]: the device-clock rate estimator (a delay-locked loop);
 //! - [`pins`]: superseded ports still mapped by readers, and the bound on them;
 //! - [`os`]: the Linux edge on rustix (eventfd, signals, sleeps, scheduling, credentials, lock);
+//! - [`sidecar`]: the sidecar of a recording (`FILE.wav.json`), written by `bass record`, read by
+//!   the replay and the checker;
 //! - [`cli`]: the small argument parser both binaries use.
 
 pub mod capture;
@@ -23,6 +25,7 @@ pub mod policy;
 pub mod rate_estimator;
 pub mod request;
 pub mod server;
+pub mod sidecar;
 
 /// Sets up logging to stderr: `BASS_LOG` (or `RUST_LOG`) filters, `info` by default.
 pub fn init_logging() {

@@ -7,8 +7,8 @@
 //! - card references: `hw`, `plughw`, `dsnoop`, `sysdefault` or `default`, alone or with
 //!   plain arguments (`hw:1,0`, `plughw:CARD=PCH,DEV=0`, `default:U0x46d0x825`): letters,
 //!   digits and `_ = , . -` only;
-//! - simulated devices `sim:NAME`, except the file replay devices `sim:file:PATH` and
-//!   `sim:file-loop:PATH`;
+//! - simulated devices `sim:NAME`, except the file replay devices `sim:file:PATH`,
+//!   `sim:file-renumber:PATH` and `sim:file-loop:PATH`;
 //! - the PCM names the broker itself lists in ListDevices (hints of the system's ALSA
 //!   configuration, which only the machine's administrator writes);
 //! - whatever the operator allowed with `bassd --allow-device PATTERN` (glob syntax:
@@ -42,7 +42,7 @@ impl DevicePolicy {
     /// asked for when the cheaper rules did not decide).
     pub fn check(&self, name: &str, listed: impl FnOnce() -> Vec<DeviceInfo>) -> Result<(), String> {
         if let Some(sim) = name.strip_prefix("sim:") {
-            // `sim:file:PATH` and `sim:file-loop:PATH` read files: operator patterns only.
+            // `sim:file:PATH`, `sim:file-renumber:PATH`, `sim:file-loop:PATH` read files: operator patterns only.
             if !sim.starts_with("file") {
                 return Ok(());
             }
@@ -138,6 +138,7 @@ mod tests {
             ("bass_jack", "not a card reference"),
             ("sim:file:/tmp/a.wav", "file replay"),
             ("sim:file-loop:/tmp/a.wav", "file replay"),
+            ("sim:file-renumber:/tmp/a.wav", "file replay"),
             ("hw:", "not a card reference"),
         ] {
             let e = p.check(bad, listed).unwrap_err();

@@ -86,12 +86,13 @@ pub enum DeviceKind {
     Sim(SimKind),
     /// An ALSA PCM name.
     Alsa(String),
-    /// A WAV file replayed (`sim:file:PATH`, `sim:file-loop:PATH`; see `device::file`).
+    /// A WAV file replayed (`sim:file:PATH`, `sim:file-renumber:PATH`, `sim:file-loop:PATH`;
+    /// see `device::file`).
     File {
         /// The file.
         path: std::path::PathBuf,
-        /// Start again at its end.
-        looping: bool,
+        /// At the recorded indices, renumbered, or in a loop.
+        mode: crate::device::file::Mode,
     },
 }
 
@@ -121,11 +122,13 @@ pub fn check(r: &AcquireRequest, max_port_bytes: u64, limits: &Limits) -> Result
         return Err(format!("device name {name:?} contains control characters"));
     }
     let device = match name.strip_prefix("sim:") {
-        Some(s) if s.starts_with("file:") || s.starts_with("file-loop:") => file_device(s)?,
-        Some(s) => DeviceKind::Sim(SimKind::from_name(s).ok_or_else(|| {
-            let known: Vec<String> = DEVICES.iter().map(|(k, _)| format!("sim:{}", k.name())).collect();
-            format!("unknown simulated device {name:?} (available: {})", known.join(", "))
-        })?),
+        Some(s) => match file_device(s) {
+            Some(file) => file?,
+            None => DeviceKind::Sim(SimKind::from_name(s).ok_or_else(|| {
+                let known: Vec<String> = DEVICES.iter().map(|(k, _)| format!("sim:{}", k.name())).collect();
+                format!("unknown simulated device {name:?} (available: {})", known.join(", "))
+            })?),
+        },
         None => DeviceKind::Alsa(name.to_owned()),
     };
     let format = match &r.format {
@@ -156,16 +159,20 @@ pub fn check(r: &AcquireRequest, max_port_bytes: u64, limits: &Limits) -> Result
     Ok(Checked { geometry, device, format, port_bytes: layout.total_size })
 }
 
-/// `file:PATH` or `file-loop:PATH` (after `sim:`).
-fn file_device(s: &str) -> Result<DeviceKind, String> {
-    let (path, looping) = match s.strip_prefix("file:") {
-        Some(p) => (p, false),
-        None => (s.trim_start_matches("file-loop:"), true),
-    };
+/// `file:PATH`, `file-renumber:PATH` or `file-loop:PATH` (after `sim:`); `None` for any other name.
+fn file_device(s: &str) -> Option<Result<DeviceKind, String>> {
+    use crate::device::file::Mode;
+    let (mode, path) = [Mode::Recorded, Mode::Renumber, Mode::Loop]
+        .into_iter()
+        .find_map(|m| s.strip_prefix(m.prefix()).map(|p| (m, p)))?;
     if path.is_empty() {
-        return Err("sim:file: needs the WAV file, e.g. sim:file:/data/rec.wav".into());
+        return Some(Err(format!(
+            "sim:{} needs the WAV file, e.g. sim:{}/data/rec.wav",
+            mode.prefix(),
+            mode.prefix()
+        )));
     }
-    Ok(DeviceKind::File { path: path.into(), looping })
+    Some(Ok(DeviceKind::File { path: path.into(), mode }))
 }
 
 #[cfg(test)]

@@ -480,6 +480,26 @@ impl<'a> Ring<'a> {
         self.last_frame_index.store(first - 1, Ordering::Release);
     }
 
+    /// Moves the window of a writer whose last frame is `lfi` on to frame `first` without
+    /// writing anything (writer only): frames `lfi + 1 .. first`, never written, and every
+    /// frame before them still in the window count as lost for every reader, and the next
+    /// publish writes frame `last + 1`, where `last` (returned) is the frame before the chunk
+    /// boundary at or below `first` (`chunk` frames per chunk). Requires `lfi < first`.
+    ///
+    /// The intent floor `first - 1 + nFOP` is announced before the last frame index moves,
+    /// so a reader that sees the new last frame also sees every frame below `first` condemned,
+    /// and one still copying the old window finds what it copied condemned on its re-check.
+    pub fn skip_to(&self, lfi: u64, first: u64, chunk: u64) -> u64 {
+        debug_assert!(first > lfi && chunk > 0);
+        let last = (first - 1) / chunk * chunk;
+        let floor = (first - 1 + self.frames_on_port).max(self.write_intent.load(Ordering::Relaxed));
+        self.write_intent.store(floor, Ordering::Relaxed);
+        fence(Ordering::Release);
+        let last = last.max(lfi);
+        self.last_frame_index.store(last, Ordering::Release);
+        last
+    }
+
     /// The formal `getAudioData` algorithm on a snapshot `lfi`, without copying.
     ///
     /// `ofi = max(0, lfi - nFOP + 1)`; `nfr < ofi` is a loss that moves `nfr`
@@ -563,6 +583,13 @@ impl<'a> Ring<'a> {
             }
             outcome.frames -= torn;
             outcome.loss += torn as u64;
+            if intact > end {
+                // Every frame copied was condemned, and the ones after them up to `intact`
+                // too (a writer that skipped ahead, see `skip_to`): the whole run is one loss,
+                // reported at once rather than `max` frames per call.
+                outcome.loss += intact - end;
+                outcome.next_frame = intact;
+            }
         }
         outcome
     }

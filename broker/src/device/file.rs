@@ -1,12 +1,25 @@
-//! `sim:file:PATH.wav` (and `sim:file-loop:PATH.wav`): replays a WAV file as a capture device,
-//! paced in real time like the other simulated devices, with the chunking of the Acquire.
+//! Replay of a WAV file as a capture device, paced in real time, one chunk at a time:
 //!
-//! Samples are left-justified to S32 (a 32-bit recording made by `bass record` replays bit
+//! - `sim:file:PATH.wav` — with the sidecar `PATH.wav.json` that `bass record` writes, the
+//!   recording comes back as the live port had it: **at its recorded frame indices** (the port
+//!   starts at the recording's first frame; the frames before it are lost for readers, never
+//!   zeros), **every chunk with its recorded flags** (GAP, DISCONTINUITY, TIME_ESTIMATED, LATE;
+//!   GAP chunks at the start, at the end, everywhere) and CLOCK_REALTIME timestamp
+//!   (CLOCK_MONOTONIC ones keep their recorded spacing, moved by one constant onto this boot's
+//!   clock), and **the recorder's losses as losses**: the port skips ahead over them
+//!   (`Writer::skip_to`), so a reader keeping up gets the same `loss` at the same frame as the
+//!   recorder did (a reader further behind also loses what was still before it, as when a
+//!   live port overtakes it). That needs the recording's chunk size; another is refused.
+//!   Without a sidecar: WAV frame 0 becomes frame 1, flags 0, the replay's own timestamps.
+//! - `sim:file-renumber:PATH.wav` — the same, but WAV frame 0 becomes frame 1 (the recorded
+//!   flags and times are kept where the chunk grids agree; elsewhere GAP frames still replay as
+//!   GAP, DISCONTINUITY marks a chunk holding some, and timestamps are the replay's).
+//! - `sim:file-loop:PATH.wav` — renumbered, and starts again at its end; GAP runs are kept,
+//!   losses replay as the zeros the file holds.
+//!
+//! A recording that ends inside a chunk is completed with zero frames (the end-of-recording
+//! message says how many). Samples are left-justified to S32 (a 32-bit recording replays bit
 //! for bit; a 16- or 24-bit one as its value shifted left; float as value × 2³¹, clipped).
-//! If the sidecar `PATH.wav.json` written by `bass record` exists, its GAP chunks are
-//! replayed as overruns: the device reports an xrun and skips those (zero) frames, so the
-//! broker zero-fills them and flags the chunks GAP again, at the same frame indices when the
-//! replay uses the recording's chunk size and the recording started on a chunk boundary.
 //! The rate and channel count of the Acquire must be the file's: anything else is refused.
 
 use std::fs::File;
@@ -15,42 +28,105 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use bassclient::format::{chunk_flags, error_code};
-use bassclient::sys::monotonic_ns;
+use bassclient::sys::{monotonic_ns, realtime_ns};
+use bassclient::ChunkMeta;
 
-use super::{Capture, ReadEvent, StopSignal};
+use super::{Capture, ReadEvent, RecordedChunk, StopSignal};
 use crate::os::{self, sleep_until_mono};
+use crate::sidecar::Sidecar;
 
 const NS_PER_MS: u64 = 1_000_000;
+
+/// How a file is replayed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mode {
+    /// `sim:file:` — at the recorded frame indices when a sidecar says them.
+    Recorded,
+    /// `sim:file-renumber:` — from frame 1.
+    Renumber,
+    /// `sim:file-loop:` — from frame 1, again and again.
+    Loop,
+}
+
+impl Mode {
+    /// The device-name prefix after `sim:`.
+    pub fn prefix(self) -> &'static str {
+        match self {
+            Mode::Recorded => "file:",
+            Mode::Renumber => "file-renumber:",
+            Mode::Loop => "file-loop:",
+        }
+    }
+}
+
+/// What a port frame of the replay holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kind {
+    /// Before the recording's first frame or after its last: no frame of the file.
+    Outside,
+    /// A frame the recorder lost.
+    Lost,
+    /// A frame of a GAP chunk.
+    Gap,
+    /// A frame of audio.
+    Data,
+}
+
+/// What the replay gave back so far (for the end-of-recording message).
+#[derive(Default, Debug)]
+struct Replayed {
+    /// Frames of the file published.
+    frames: u64,
+    /// Of them, in GAP chunks.
+    gap: u64,
+    /// Frames the recorder lost, replayed as lost.
+    lost: u64,
+    /// Zero frames completing the last chunk.
+    padded: u64,
+    /// First and last port frame of the file published.
+    first: Option<u64>,
+    last: u64,
+}
 
 /// A WAV file replayed as a device.
 pub struct FileDevice {
     path: PathBuf,
     reader: hound::WavReader<BufReader<File>>,
     spec: hound::WavSpec,
-    looping: bool,
+    mode: Mode,
+    sidecar: Option<Sidecar>,
     rate: u64,
     channels: usize,
-    period: usize,
-    /// Frames in the file.
+    nfpc: u64,
+    /// Frames of the file replayed.
     total: u64,
-    /// Next frame of the file (0-based).
+    /// Port frame of WAV frame 0.
+    base: u64,
+    /// Recorded frame of WAV frame 0 (`base` without a sidecar).
+    rec_first: u64,
+    /// The port's chunks are the recording's: each chunk's row gives its flags and times.
+    exact: bool,
+    /// Next WAV frame the reader returns.
     file_pos: u64,
-    /// Device frames produced or skipped so far (paces the replay).
-    pos: u64,
+    /// First port frame of the next chunk.
+    next: u64,
+    /// First port frame of the first chunk (the pacing origin).
+    origin: u64,
     start_ns: u64,
-    /// GAP runs of the sidecar, as (first, frames) in file frames (0-based), sorted.
-    gaps: Vec<(u64, u64)>,
+    /// Recorded CLOCK_MONOTONIC + this = the replay's, set by the first chunk with a row.
+    mono_offset: Option<i128>,
+    done: Replayed,
 }
 
-/// Opens `path` for an Acquire at `rate` Hz with `channels` channels.
-pub fn open(path: &Path, looping: bool, rate: u32, channels: u32, period: u32) -> Result<FileDevice, String> {
-    let name = path.display();
+/// Opens `path` for an Acquire at `rate` Hz with `channels` channels and `nfpc` frames per chunk.
+pub fn open(path: &Path, mode: Mode, rate: u32, channels: u32, nfpc: u32) -> Result<FileDevice, String> {
+    let name = format!("sim:{}{}", mode.prefix(), path.display());
     let reader = hound::WavReader::new(BufReader::new(open_regular(path)?))
-        .map_err(|e| format!("sim:file:{name}: cannot read the WAV file: {e}"))?;
+        .map_err(|e| format!("sim:file:{}: cannot read the WAV file: {e}", path.display()))?;
     let spec = reader.spec();
     if spec.sample_rate != rate || u32::from(spec.channels) != channels {
         return Err(format!(
-            "sim:file:{name} holds {} Hz, {} channel(s); the Acquire asks for {rate} Hz, {channels} channel(s): use --rate {} --channels {}",
+            "{name} holds {} Hz, {} channel(s); the Acquire asks for {rate} Hz, {channels} channel(s): use --rate {} --channels {}",
             spec.sample_rate, spec.channels, spec.sample_rate, spec.channels
         ));
     }
@@ -59,28 +135,77 @@ pub fn open(path: &Path, looping: bool, rate: u32, channels: u32, period: u32) -
         || !float_ok && spec.sample_format == hound::SampleFormat::Float
     {
         return Err(format!(
-            "sim:file:{name}: {}-bit {:?} samples are not supported",
+            "{name}: {}-bit {:?} samples are not supported",
             spec.bits_per_sample, spec.sample_format
         ));
     }
-    let total = u64::from(reader.duration());
+    let mut total = u64::from(reader.duration());
     if total == 0 {
-        return Err(format!("sim:file:{name} holds no frames"));
+        return Err(format!("{name} holds no frames"));
     }
-    let gaps = sidecar_gaps(path);
+    let sidecar = Sidecar::load_for(path)
+        .map_err(|e| format!("{name}: {e}; fix it or move it away to replay the WAV alone"))?;
+    let nfpc = u64::from(nfpc.max(1));
+    let (mut base, mut rec_first, mut exact) = (1, 1, false);
+    if let Some(sc) = &sidecar {
+        let (a, r) = (&sc.acquisition, &sc.recording);
+        if a.sample_rate != spec.sample_rate || r.channels.len() != usize::from(spec.channels) {
+            return Err(format!(
+                "{name}: the sidecar says {} Hz, {} channel(s); the WAV holds {} Hz, {} channel(s)",
+                a.sample_rate,
+                r.channels.len(),
+                spec.sample_rate,
+                spec.channels
+            ));
+        }
+        if r.frames > total || r.frames < total && !r.in_progress {
+            return Err(format!(
+                "{name}: the sidecar says {} frames; the WAV holds {total} (check the pair with bass record --check)",
+                r.frames
+            ));
+        }
+        // A checkpoint of a recorder that was killed: the frames it vouches for.
+        total = r.frames;
+        if total == 0 {
+            return Err(format!("{name}: its sidecar vouches for no frames"));
+        }
+        rec_first = r.first_frame;
+        let same_chunks = u64::from(a.frames_per_chunk) == nfpc;
+        match mode {
+            Mode::Recorded if !same_chunks => {
+                return Err(format!(
+                    "{name} was recorded with {} frames per chunk; replaying it at its frame indices needs \
+                     the same chunks: use --frames {} (or sim:file-renumber:{} to replay it from frame 1)",
+                    a.frames_per_chunk,
+                    a.frames_per_chunk,
+                    path.display()
+                ))
+            }
+            Mode::Recorded => (base, exact) = (rec_first, true),
+            Mode::Renumber => exact = same_chunks && (rec_first - 1) % nfpc == 0,
+            Mode::Loop => {}
+        }
+    }
+    let origin = (base - 1) / nfpc * nfpc + 1;
     Ok(FileDevice {
         path: path.to_owned(),
         reader,
         spec,
-        looping,
+        mode,
+        sidecar,
         rate: u64::from(rate),
         channels: channels as usize,
-        period: period.max(1) as usize,
+        nfpc,
         total,
+        base,
+        rec_first,
+        exact,
         file_pos: 0,
-        pos: 0,
+        next: origin,
+        origin,
         start_ns: 0,
-        gaps,
+        mono_offset: None,
+        done: Replayed::default(),
     })
 }
 
@@ -114,38 +239,43 @@ fn open_regular(path: &Path) -> Result<File, String> {
     Ok(f)
 }
 
-/// The GAP chunks of the sidecar `PATH.json`, as runs of file frames (none without one).
-fn sidecar_gaps(wav: &Path) -> Vec<(u64, u64)> {
-    let mut p = wav.as_os_str().to_owned();
-    p.push(".json");
-    let Ok(bytes) = std::fs::read(&p) else { return Vec::new() };
-    let Ok(v) = serde_json::from_slice::<serde_json::Value>(&bytes) else {
-        tracing::warn!("sidecar {} is not JSON; replaying without its gaps", Path::new(&p).display());
-        return Vec::new();
-    };
-    let first = v["recording"]["first_frame"].as_u64().unwrap_or(1).max(1);
-    let mut runs: Vec<(u64, u64)> = Vec::new();
-    for row in v["chunks"].as_array().into_iter().flatten() {
-        let (Some(f), Some(n), Some(flags)) =
-            (row["first_frame"].as_u64(), row["frames"].as_u64(), row["flags"].as_u64())
-        else {
-            continue;
-        };
-        if flags & u64::from(chunk_flags::GAP) == 0 || f < first {
-            continue;
-        }
-        let start = f - first;
-        match runs.last_mut() {
-            Some((s, len)) if *s + *len == start => *len += n,
-            _ => runs.push((start, n)),
-        }
-    }
-    runs
+/// The GAP flag of a sidecar row.
+fn is_gap(flags: u32) -> bool {
+    flags & chunk_flags::GAP != 0
 }
 
 impl FileDevice {
-    fn due_ns(&self, k: u64) -> u64 {
+    /// CLOCK_MONOTONIC at which port frame `p` is due (the replay's clock).
+    fn due_ns(&self, p: u64) -> u64 {
+        let k = p.saturating_sub(self.origin);
         self.start_ns + (u128::from(k) * 1_000_000_000 / u128::from(self.rate)) as u64
+    }
+
+    /// Last port frame of the file (none for a loop).
+    fn last(&self) -> Option<u64> {
+        (self.mode != Mode::Loop).then(|| self.base + self.total - 1)
+    }
+
+    /// WAV frame of port frame `p`, if the file has one.
+    fn wav_frame(&self, p: u64) -> Option<u64> {
+        let i = p.checked_sub(self.base)?;
+        match self.mode {
+            Mode::Loop => Some(i % self.total),
+            _ => (i < self.total).then_some(i),
+        }
+    }
+
+    fn kind(&self, p: u64) -> Kind {
+        let Some(i) = self.wav_frame(p) else { return Kind::Outside };
+        let Some(sc) = &self.sidecar else { return Kind::Data };
+        let r = self.rec_first + i;
+        if self.mode != Mode::Loop && sc.is_lost(r) {
+            Kind::Lost
+        } else if sc.row_of(r).is_some_and(|row| is_gap(row.flags)) {
+            Kind::Gap
+        } else {
+            Kind::Data
+        }
     }
 
     /// Sleeps until `deadline`, returning false if the stop fired.
@@ -168,8 +298,13 @@ impl FileDevice {
         }
     }
 
-    /// Reads `n` frames of the file into `out` (interleaved, left-justified S32).
-    fn fill(&mut self, out: &mut [i32], n: usize) -> Result<(), String> {
+    /// Reads `n` frames from WAV frame `i` into `out` (interleaved, left-justified S32).
+    fn fill(&mut self, i: u64, out: &mut [i32], n: usize) -> Result<(), String> {
+        if self.file_pos != i {
+            let to = u32::try_from(i).map_err(|_| format!("frame {i} is past a WAV file's reach"))?;
+            self.reader.seek(to).map_err(|e| e.to_string())?;
+            self.file_pos = i;
+        }
         let want = n * self.channels;
         let shift = 32 - u32::from(self.spec.bits_per_sample);
         let mut got = 0;
@@ -193,18 +328,107 @@ impl FileDevice {
         Ok(())
     }
 
-    fn rewind(&mut self) -> Result<(), String> {
-        self.reader.seek(0).map_err(|e| e.to_string())?;
-        self.file_pos = 0;
+    /// Fills `out` with port frames `p0 .. p0 + n` (zeros where the file has none).
+    fn fill_chunk(&mut self, p0: u64, out: &mut [i32]) -> Result<(), String> {
+        let n = self.nfpc as usize;
+        out[..n * self.channels].fill(0);
+        let mut k = 0usize;
+        while k < n {
+            let Some(i) = self.wav_frame(p0 + k as u64) else {
+                k += 1;
+                continue;
+            };
+            let run = (n - k).min((self.total - i) as usize);
+            let ch = self.channels;
+            self.fill(i, &mut out[k * ch..(k + run) * ch], run)?;
+            k += run;
+        }
         Ok(())
     }
 
     fn failed(&self, what: &str) -> ReadEvent {
         ReadEvent::Failed {
             code: error_code::DEVICE_LOST,
-            message: format!("sim:file:{}: {what}", self.path.display()),
+            message: format!("sim:{}{}: {what}", self.mode.prefix(), self.path.display()),
         }
     }
+
+    fn ended(&self) -> ReadEvent {
+        let d = &self.done;
+        let (first, last) = (d.first.unwrap_or(self.base), d.last);
+        let at = if self.mode == Mode::Recorded && self.sidecar.is_some() {
+            "at the recorded indices"
+        } else {
+            "renumbered from frame 1"
+        };
+        let pad = if d.padded > 0 {
+            format!(
+                "; the last chunk is completed with {} zero frames (to frame {})",
+                d.padded,
+                last + d.padded
+            )
+        } else {
+            String::new()
+        };
+        ReadEvent::Ended {
+            message: format!(
+                "sim:{}{}: end of the recording after {} frames (frames {first}..={last} {at}, {} of them GAP, \
+                 {} lost as in the recording{pad}) (replay ended)",
+                self.mode.prefix(),
+                self.path.display(),
+                d.frames,
+                d.gap,
+                d.lost
+            ),
+        }
+    }
+
+    /// The flags and timestamps of the chunk at port frame `p0`, and whether it is GAP.
+    fn meta(&mut self, p0: u64, counts: &Counts, late: bool) -> (ChunkMeta, bool) {
+        let row = if self.exact {
+            let r0 = p0 + self.rec_first - self.base;
+            self.sidecar.as_ref().and_then(|sc| sc.row_of(r0).filter(|row| row.first_frame == r0).copied())
+        } else {
+            None
+        };
+        if let Some(row) = row {
+            let due = i128::from(self.due_ns(p0));
+            let off = *self.mono_offset.get_or_insert(due - i128::from(row.mono_ns));
+            let mono = (i128::from(row.mono_ns) + off).clamp(1, i128::from(u64::MAX)) as u64;
+            let meta = ChunkMeta { mono_ns: mono, realtime_ns: row.realtime_ns.max(1), flags: row.flags };
+            return (meta, is_gap(row.flags));
+        }
+        let zeros = counts.gap > 0 && counts.data == 0;
+        let mut flags = if zeros {
+            chunk_flags::GAP
+        } else if counts.gap > 0 {
+            chunk_flags::DISCONTINUITY
+        } else {
+            0
+        };
+        if self.exact {
+            // The recorder never saw this chunk's row: its times are the replay's own.
+            flags |= chunk_flags::TIME_ESTIMATED;
+        } else if late {
+            flags |= chunk_flags::LATE;
+        }
+        let mono = self.due_ns(p0);
+        let realtime = realtime_ns().wrapping_add(mono).wrapping_sub(monotonic_ns());
+        (ChunkMeta { mono_ns: mono.max(1), realtime_ns: realtime.max(1), flags }, zeros)
+    }
+}
+
+/// The frames of one port chunk by kind.
+#[derive(Default)]
+struct Counts {
+    /// Lost frames before the first readable one (replayed as lost).
+    lost: u64,
+    gap: u64,
+    data: u64,
+    /// Frames after the file's end.
+    after: u64,
+    /// Lost frames after the first readable one (replayed as the file's zeros).
+    late_lost: u64,
 }
 
 impl Capture for FileDevice {
@@ -213,55 +437,57 @@ impl Capture for FileDevice {
         Ok(())
     }
 
-    fn read(&mut self, out: &mut [i32], max_frames: usize, stop: &StopSignal) -> ReadEvent {
-        if self.file_pos >= self.total {
-            if !self.looping {
-                return ReadEvent::Ended {
-                    message: format!(
-                        "sim:file:{}: end of the recording after {} frames (replay ended)",
-                        self.path.display(),
-                        self.total
-                    ),
-                };
+    fn read(&mut self, out: &mut [i32], _max_frames: usize, stop: &StopSignal) -> ReadEvent {
+        loop {
+            let p0 = self.next;
+            if self.last().is_some_and(|l| p0 > l) {
+                return self.ended();
             }
-            if let Err(e) = self.rewind() {
+            let mut c = Counts::default();
+            let mut readable_from = None;
+            for p in p0..p0 + self.nfpc {
+                match self.kind(p) {
+                    Kind::Outside if p >= self.base => c.after += 1,
+                    Kind::Outside => {}
+                    Kind::Lost if readable_from.is_none() => c.lost += 1,
+                    Kind::Lost => c.late_lost += 1,
+                    k => {
+                        readable_from.get_or_insert(p);
+                        if k == Kind::Gap {
+                            c.gap += 1;
+                        } else {
+                            c.data += 1;
+                        }
+                    }
+                }
+            }
+            self.next = p0 + self.nfpc;
+            self.done.lost += c.lost;
+            let Some(readable_from) = readable_from else {
+                // Nothing of this chunk is readable (lost whole): the port skips it, with the
+                // chunk that next holds a frame of the file.
+                continue;
+            };
+            let due = self.due_ns(p0 + self.nfpc);
+            if !self.sleep_until(due, stop) {
+                return ReadEvent::Stopped;
+            }
+            let woke = monotonic_ns();
+            if let Err(e) = self.fill_chunk(p0, out) {
                 return self.failed(&e);
             }
-        }
-        // A GAP run of the sidecar starting here: an overrun that skips its (zero) frames.
-        if let Some(&(_, len)) = self.gaps.iter().find(|(s, _)| *s == self.file_pos) {
-            let len = len.min(self.total - self.file_pos);
-            if let Err(e) = self.reader.seek((self.file_pos + len) as u32) {
-                return self.failed(&e.to_string());
+            let span = due - self.due_ns(p0);
+            let late = woke.saturating_sub(due) > span.max(NS_PER_MS);
+            let (meta, zeros) = self.meta(p0, &c, late);
+            let in_file = c.gap + c.data + c.late_lost;
+            self.done.frames += in_file;
+            if zeros {
+                self.done.gap += in_file;
             }
-            self.file_pos += len;
-            self.pos += len;
-            return ReadEvent::Xrun;
-        }
-        let next_gap = self.gaps.iter().map(|(s, _)| *s).find(|s| *s > self.file_pos).unwrap_or(self.total);
-        let n = max_frames
-            .min(self.period)
-            .min(out.len() / self.channels.max(1))
-            .min((next_gap.min(self.total) - self.file_pos) as usize);
-        let first = self.pos + 1;
-        if !self.sleep_until(self.due_ns(self.pos + n as u64), stop) {
-            return ReadEvent::Stopped;
-        }
-        let woke = monotonic_ns();
-        if let Err(e) = self.fill(out, n) {
-            return self.failed(&e);
-        }
-        let due = self.due_ns(self.pos + n as u64);
-        let span = due - self.due_ns(self.pos);
-        self.pos += n as u64;
-        ReadEvent::Frames {
-            frames: n,
-            first_mono_ns: self.due_ns(first - 1),
-            time_estimated: false,
-            observed_mono_ns: woke.saturating_sub(span),
-            // Woken well after the frames were due (the thread was starved): a catch-up read,
-            // as the sim devices flag it.
-            late: woke.saturating_sub(due) > span.max(1_000_000),
+            self.done.padded += c.after;
+            self.done.first.get_or_insert(readable_from);
+            self.done.last = p0 + self.nfpc - 1 - c.after;
+            return ReadEvent::Chunk(RecordedChunk { first_frame: p0, readable_from, zeros, meta });
         }
     }
 
@@ -290,12 +516,12 @@ mod tests {
             w.write_sample(i as i16).unwrap();
         }
         w.finalize().unwrap();
-        let e = open(&p, false, 48000, 2, 80).err().unwrap();
+        let e = open(&p, Mode::Recorded, 48000, 2, 80).err().unwrap();
         assert!(e.contains("8000 Hz, 2 channel(s)") && e.contains("--rate 8000 --channels 2"), "{e}");
-        assert!(open(&p, false, 8000, 1, 80).err().unwrap().contains("--channels 2"));
-        let mut d = open(&p, false, 8000, 2, 80).unwrap();
+        assert!(open(&p, Mode::Recorded, 8000, 1, 80).err().unwrap().contains("--channels 2"));
+        let mut d = open(&p, Mode::Recorded, 8000, 2, 80).unwrap();
         let mut out = vec![0; 20];
-        d.fill(&mut out, 10).unwrap();
+        d.fill(0, &mut out, 10).unwrap();
         assert_eq!(out[3], 3 << 16, "16-bit samples are left-justified");
         std::fs::remove_dir_all(&dir).unwrap();
     }
@@ -314,9 +540,10 @@ mod tests {
         )
         .unwrap();
         // With a blocking open this call never returns (nobody writes to the FIFO).
-        let e = open(&p, false, 48000, 2, 480).err().expect("a FIFO is refused");
+        let e = open(&p, Mode::Recorded, 48000, 2, 480).err().expect("a FIFO is refused");
         assert!(e.contains("is a FIFO: give a regular WAV file"), "{e}");
-        let e = open(Path::new("/dev/null"), false, 48000, 2, 480).err().expect("/dev/null is refused");
+        let e =
+            open(Path::new("/dev/null"), Mode::Recorded, 48000, 2, 480).err().expect("/dev/null is refused");
         assert!(e.contains("is a device node"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }

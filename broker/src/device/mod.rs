@@ -62,6 +62,9 @@ pub enum ReadEvent {
     },
     /// An overrun happened and was recovered: frames were lost before the next read.
     Xrun,
+    /// One whole chunk of a replayed recording, published as it was recorded (frames
+    /// interleaved at the start of the buffer unless it is GAP).
+    Chunk(RecordedChunk),
     /// No data arrived within the poll slice; the caller decides whether that is a stall.
     Idle,
     /// The stop signal fired.
@@ -79,6 +82,21 @@ pub enum ReadEvent {
         /// What ended.
         message: String,
     },
+}
+
+/// A chunk of a replayed recording ([`file`]): its place, flags and timestamps as recorded.
+#[derive(Debug, PartialEq)]
+pub struct RecordedChunk {
+    /// Frame index of the chunk's first frame.
+    pub first_frame: u64,
+    /// The first frame readers may read: every frame before it that the port has not
+    /// published yet is lost (a recording's start, or a loss of the recorder), see
+    /// `Writer::skip_to`.
+    pub readable_from: u64,
+    /// A GAP chunk (zeros; the buffer is not read).
+    pub zeros: bool,
+    /// Timestamps and flags, published as they are.
+    pub meta: bassclient::ChunkMeta,
 }
 
 /// A configured capture device, owned by the capture thread.

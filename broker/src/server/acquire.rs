@@ -184,8 +184,8 @@ fn open_device(
         DeviceKind::Sim(kind) => {
             Ok(Box::new(SimDevice::new(*kind, g.sample_rate, g.channels, g.frames_per_chunk)))
         }
-        DeviceKind::File { path, looping } => {
-            device::file::open(path, *looping, g.sample_rate, g.channels, g.frames_per_chunk)
+        DeviceKind::File { path, mode } => {
+            device::file::open(path, *mode, g.sample_rate, g.channels, g.frames_per_chunk)
                 .map(|d| Box::new(d) as Box<dyn Capture>)
                 .map_err(|message| alsa::OpenError { code: error_code::CONFIG, message, busy: false })
         }

@@ -70,6 +70,60 @@ impl Writer {
         Ok(())
     }
 
+    /// Moves on to frame `first` without publishing the frames before it: every frame before
+    /// `first` that readers could still read (the ones in the window and the unpublished ones
+    /// after it) counts as **lost** for every reader, exactly as frames a writer overtook. The
+    /// next chunk published is the one holding `first` (its frames before `first` are lost too).
+    /// A replay uses it to give back a recording's losses at their frame indices: a reader
+    /// keeping up sees `loss = first - nfr` at the same place as the recorder did. Returns the
+    /// new last frame index. `first` must be after the last frame published; `first ==
+    /// last + 1` does nothing.
+    ///
+    /// ```
+    /// # use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+    /// # let dir = std::env::temp_dir().join(format!("bass-doc-skip-to-{}", std::process::id()));
+    /// # std::fs::create_dir_all(&dir).unwrap();
+    /// # let path = dir.join("bass-doc.port");
+    /// let geometry = Geometry { channels: 1, sample_rate: 48000, frames_per_chunk: 4, chunks_on_port: 8 };
+    /// let mut w = Writer::create_at(&path, &PortParams { geometry, device: "replay".into(), group: None })?;
+    /// let port = Port::open_path(&path)?;
+    /// let (mut out, mut nfr) = (vec![0; 4], 1);
+    /// w.publish(Source::Interleaved(&[1, 2, 3, 4]), ChunkMeta::default())?;
+    /// assert_eq!(port.get_audio_data(4, &mut nfr, &mut [&mut out])?.frames, 4);
+    /// w.skip_to(15)?; // frames 5..=14 lost; the next chunk is 13..=16
+    /// w.publish(Source::Interleaved(&[0, 0, 15, 16]), ChunkMeta::default())?;
+    /// let r = port.get_audio_data(4, &mut nfr, &mut [&mut out])?;
+    /// assert_eq!((r.frames, r.loss, nfr), (0, 10, 15)); // one loss of 10 frames, at once
+    /// let r = port.get_audio_data(4, &mut nfr, &mut [&mut out])?;
+    /// assert_eq!((r.frames, &out[..2]), (2, &[15, 16][..]));
+    /// # w.remove()?;
+    /// # Ok::<(), bassclient::Error>(())
+    /// ```
+    pub fn skip_to(&mut self, first: u64) -> Result<u64> {
+        let nfpc = u64::from(self.geometry.frames_per_chunk);
+        let h = self.mapping.header();
+        let lfi = h.last_frame_index.load(Relaxed);
+        if first <= lfi || first > format::MAX_FRAME_INDEX {
+            return Err(Error::InvalidArgument(format!(
+                "skip_to({first}): the port has published frame {lfi}; give a later frame (at most {})",
+                format::MAX_FRAME_INDEX
+            )));
+        }
+        if first == lfi + 1 {
+            return Ok(lfi);
+        }
+        let ring = Ring {
+            last_frame_index: &h.last_frame_index,
+            write_intent: &h.write_intent,
+            samples: self.mapping.samples(&self.layout, self.geometry.channels),
+            frames_on_port: self.layout.frames_on_port,
+        };
+        let last = ring.skip_to(lfi, first, nfpc);
+        h.heartbeat_mono_ns.store(sys::monotonic_ns(), Relaxed);
+        wake(h);
+        Ok(last)
+    }
+
     /// Publishes `frames` zero-filled GAP frames standing for frames lost before they reached
     /// this writer (upstream of a replica, or on the network). They are counted in
     /// `gap_frames` and in `lost_upstream_frames`. Returns the new last frame index.

@@ -29,6 +29,8 @@ pub fn replay_args(dir: &Path) -> Vec<String> {
         format!("sim:file:{d}/*"),
         "--allow-device".into(),
         format!("sim:file-loop:{d}/*"),
+        "--allow-device".into(),
+        format!("sim:file-renumber:{d}/*"),
     ]
 }
 
