@@ -7,7 +7,7 @@ CFLAGS_STRICT := -std=c11 -Wall -Wextra -Wpedantic -Werror
 # One list for make, the network suite and the network bench (scripts/bridge-features).
 BRIDGE_FEATURES := $(shell cat scripts/bridge-features)
 
-.PHONY: all deps deps-build build build-bridge demo test test-rust test-loom test-c test-broker test-clients test-faults test-bridge \
+.PHONY: all deps deps-build build build-bridge demo test test-rust test-loom test-c test-broker test-replay test-clients test-faults test-bridge \
         header fmt lint bench install clean
 
 all: build
@@ -28,7 +28,7 @@ demo: build
 	scripts/demo.sh
 
 # Everything CI runs.
-test: deps lint test-rust test-loom test-c test-broker test-clients test-faults test-bridge
+test: deps lint test-rust test-loom test-c test-broker test-replay test-clients test-faults test-bridge
 	@echo "make test: all suites passed"
 
 lint:
@@ -48,6 +48,10 @@ test-c: build
 
 test-broker: build
 	tests/broker/run.sh
+
+# record -> replay -> compare through the C ABI (tests/replay/run.sh; docs/broker.md).
+test-replay: build
+	tests/replay/run.sh
 
 test-clients: build
 	tests/clients/run.sh

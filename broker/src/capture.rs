@@ -470,6 +470,7 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
                 }
             }
             ReadEvent::Idle => {}
+            ReadEvent::Pending => shared.progress_ns.store(monotonic_ns(), Ordering::Release),
             ReadEvent::Stopped => break,
             ReadEvent::Failed { code, message } => {
                 shared.fail(code, &message);

@@ -36,6 +36,8 @@ use crate::os::{self, sleep_until_mono};
 use crate::sidecar::Sidecar;
 
 const NS_PER_MS: u64 = 1_000_000;
+/// Longest sleep of one read: a longer wait returns `Pending` in between.
+const PENDING_SLICE_NS: u64 = 100 * NS_PER_MS;
 
 /// How a file is replayed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -116,6 +118,8 @@ pub struct FileDevice {
     /// Recorded CLOCK_MONOTONIC + this = the replay's, set by the first chunk with a row.
     mono_offset: Option<i128>,
     done: Replayed,
+    /// The chunk prepared while waiting for its time.
+    ready: Option<(u64, u64, Counts)>,
 }
 
 /// Opens `path` for an Acquire at `rate` Hz with `channels` channels and `nfpc` frames per chunk.
@@ -206,6 +210,7 @@ pub fn open(path: &Path, mode: Mode, rate: u32, channels: u32, nfpc: u32) -> Res
         start_ns: 0,
         mono_offset: None,
         done: Replayed::default(),
+        ready: None,
     })
 }
 
@@ -346,6 +351,41 @@ impl FileDevice {
         Ok(())
     }
 
+    /// The next chunk holding a frame of the file, as (first frame, first readable frame,
+    /// frames by kind); chunks lost whole are passed over (the port skips them with it).
+    /// `None` at the end of the file.
+    fn prepare(&mut self) -> Option<(u64, u64, Counts)> {
+        loop {
+            let p0 = self.next;
+            if self.last().is_some_and(|l| p0 > l) {
+                return None;
+            }
+            let mut c = Counts::default();
+            let mut readable_from = None;
+            for p in p0..p0 + self.nfpc {
+                match self.kind(p) {
+                    Kind::Outside if p >= self.base => c.after += 1,
+                    Kind::Outside => {}
+                    Kind::Lost if readable_from.is_none() => c.lost += 1,
+                    Kind::Lost => c.late_lost += 1,
+                    k => {
+                        readable_from.get_or_insert(p);
+                        if k == Kind::Gap {
+                            c.gap += 1;
+                        } else {
+                            c.data += 1;
+                        }
+                    }
+                }
+            }
+            self.next = p0 + self.nfpc;
+            self.done.lost += c.lost;
+            if let Some(r) = readable_from {
+                return Some((p0, r, c));
+            }
+        }
+    }
+
     fn failed(&self, what: &str) -> ReadEvent {
         ReadEvent::Failed {
             code: error_code::DEVICE_LOST,
@@ -438,57 +478,40 @@ impl Capture for FileDevice {
     }
 
     fn read(&mut self, out: &mut [i32], _max_frames: usize, stop: &StopSignal) -> ReadEvent {
-        loop {
-            let p0 = self.next;
-            if self.last().is_some_and(|l| p0 > l) {
-                return self.ended();
-            }
-            let mut c = Counts::default();
-            let mut readable_from = None;
-            for p in p0..p0 + self.nfpc {
-                match self.kind(p) {
-                    Kind::Outside if p >= self.base => c.after += 1,
-                    Kind::Outside => {}
-                    Kind::Lost if readable_from.is_none() => c.lost += 1,
-                    Kind::Lost => c.late_lost += 1,
-                    k => {
-                        readable_from.get_or_insert(p);
-                        if k == Kind::Gap {
-                            c.gap += 1;
-                        } else {
-                            c.data += 1;
-                        }
-                    }
-                }
-            }
-            self.next = p0 + self.nfpc;
-            self.done.lost += c.lost;
-            let Some(readable_from) = readable_from else {
-                // Nothing of this chunk is readable (lost whole): the port skips it, with the
-                // chunk that next holds a frame of the file.
-                continue;
-            };
-            let due = self.due_ns(p0 + self.nfpc);
-            if !self.sleep_until(due, stop) {
-                return ReadEvent::Stopped;
-            }
-            let woke = monotonic_ns();
-            if let Err(e) = self.fill_chunk(p0, out) {
-                return self.failed(&e);
-            }
-            let span = due - self.due_ns(p0);
-            let late = woke.saturating_sub(due) > span.max(NS_PER_MS);
-            let (meta, zeros) = self.meta(p0, &c, late);
-            let in_file = c.gap + c.data + c.late_lost;
-            self.done.frames += in_file;
-            if zeros {
-                self.done.gap += in_file;
-            }
-            self.done.padded += c.after;
-            self.done.first.get_or_insert(readable_from);
-            self.done.last = p0 + self.nfpc - 1 - c.after;
-            return ReadEvent::Chunk(RecordedChunk { first_frame: p0, readable_from, zeros, meta });
+        let (p0, readable_from, c) = match self.ready.take() {
+            Some(r) => r,
+            None => match self.prepare() {
+                Some(r) => r,
+                None => return self.ended(),
+            },
+        };
+        let due = self.due_ns(p0 + self.nfpc);
+        let slice_end = monotonic_ns() + PENDING_SLICE_NS;
+        if due > slice_end {
+            // A long wait (the time of a recorded loss): report in between that the device is
+            // alive, so the stall watchdog does not take the silence for a dead device.
+            self.ready = Some((p0, readable_from, c));
+            return if self.sleep_until(slice_end, stop) { ReadEvent::Pending } else { ReadEvent::Stopped };
         }
+        if !self.sleep_until(due, stop) {
+            return ReadEvent::Stopped;
+        }
+        let woke = monotonic_ns();
+        if let Err(e) = self.fill_chunk(p0, out) {
+            return self.failed(&e);
+        }
+        let span = due - self.due_ns(p0);
+        let late = woke.saturating_sub(due) > span.max(NS_PER_MS);
+        let (meta, zeros) = self.meta(p0, &c, late);
+        let in_file = c.gap + c.data + c.late_lost;
+        self.done.frames += in_file;
+        if zeros {
+            self.done.gap += in_file;
+        }
+        self.done.padded += c.after;
+        self.done.first.get_or_insert(readable_from);
+        self.done.last = p0 + self.nfpc - 1 - c.after;
+        ReadEvent::Chunk(RecordedChunk { first_frame: p0, readable_from, zeros, meta })
     }
 
     fn format_name(&self) -> &'static str {

@@ -67,6 +67,9 @@ pub enum ReadEvent {
     Chunk(RecordedChunk),
     /// No data arrived within the poll slice; the caller decides whether that is a stall.
     Idle,
+    /// Nothing to publish yet, by design (a replayed recording waiting out the time of a
+    /// loss): the device is alive, this is no stall.
+    Pending,
     /// The stop signal fired.
     Stopped,
     /// The device failed for good (`code` is a `format::error_code`).

@@ -1,0 +1,118 @@
+#!/usr/bin/env bash
+# tests/replay: record -> replay -> compare, across real processes and through the C ABI.
+#
+# Each case records a live port with `bass record` (real bassd, real shared memory), replays
+# the file with `sim:file:` under bassd, reads the replay live with tests/replay/port_dump.c
+# (the C ABI, strict warnings) and checks every frame, loss, flag and timestamp against the
+# WAV + sidecar with tests/replay/compare.py (its own WAV parser). The cases:
+#   gap-ends  sim:xrun from frame 4001: starts on GAP chunks, ends on GAP chunks
+#   late      sim:pattern with bassd stopped 0.4 s mid-recording: LATE chunks
+#   loss      sim:pattern with the recorder stopped longer than the window: a loss inside
+#   renumber  gap-ends replayed with --renumber: from frame 1, same flags
+# Assertions are on indices, samples, losses and flags; the stops only create the conditions.
+set -euo pipefail
+top=$(cd "$(dirname "$0")/../.." && pwd)
+bin="${CARGO_TARGET_DIR:-$top/target}/release"
+for f in bassd bass libbassclient.so; do
+  [[ -e "$bin/$f" ]] || { echo "tests/replay: $bin/$f missing; run cargo build --release --workspace" >&2; exit 1; }
+done
+work=$(mktemp -d -t bass-replay-tests.XXXXXX)
+pids=()
+cleanup() {
+  for p in "${pids[@]}"; do kill -CONT "$p" 2>/dev/null || true; kill -TERM "$p" 2>/dev/null || true; done
+  for p in "${pids[@]}"; do wait "$p" 2>/dev/null || true; done
+  rm -rf "$work"
+}
+trap cleanup EXIT
+passed=0
+failed=0
+ok() { passed=$((passed + 1)); echo "ok   $*"; }
+bad() { failed=$((failed + 1)); echo "FAIL $*"; }
+
+cc=${CC:-cc}
+"$cc" -std=c11 -Wall -Wextra -Wpedantic -Werror -O2 -I "$top/include" "$top/tests/replay/port_dump.c" \
+  -o "$work/port_dump" -L "$bin" -lbassclient -Wl,-rpath,"$bin" -lpthread
+
+export BASS_RUNTIME_DIR=$work/rt
+mkdir -p "$BASS_RUNTIME_DIR" "$work/rec"
+BASS_LOG=warn "$bin/bassd" --rt-priority 0 --allow-device "sim:file:$work/rec/*" \
+  --allow-device "sim:file-renumber:$work/rec/*" 2>>"$work/bassd.log" &
+bassd_pid=$!
+pids+=("$bassd_pid")
+for _ in $(seq 400); do [[ -S "$BASS_RUNTIME_DIR/bass-default.sock" ]] && break; sleep 0.025; done
+bass() { "$bin/bass" "$@"; }
+
+# Waits (bounded) until the sidecar of $1 exists.
+wait_sidecar() {
+  for _ in $(seq 400); do [[ -s "$1.json" ]] && return 0; sleep 0.05; done
+  echo "no sidecar for $1"; return 1
+}
+
+# replay CASE WAV [--renumber]: replays WAV, dumps what a client reads, compares.
+replay() {
+  local case=$1 wav=$2 extra=${3:-}
+  local flag=()
+  [[ -n "$extra" ]] && flag=(--renumbered)
+  if ! out=$(bass acquire "sim:file:$wav" -r 8000 --frames 100 --chunks 400 -c 2 $extra 2>&1); then
+    bad "$case: the replay was refused: $out"; return
+  fi
+  if ! timeout 30 "$work/port_dump" default 1000 25 >"$work/$case.dump" 2>"$work/$case.err"; then
+    bad "$case: port_dump: $(cat "$work/$case.err")"; return
+  fi
+  if out=$(python3 "$top/tests/replay/compare.py" "$wav" "$work/$case.dump" "${flag[@]}"); then
+    ok "$case: $out"
+  else
+    bad "$case: $out"
+  fi
+}
+
+# sidecar_has WAV PYTHON-EXPR: whether the expression holds of the sidecar `s`.
+sidecar_has() {
+  python3 -c "import json,sys; s=json.load(open(sys.argv[1])); sys.exit(0 if ($2) else 1)" "$1.json"
+}
+
+# 1. gap-ends: sim:xrun, 8000 Hz, 100-frame chunks: GAP chunks at 4001..4400 and 8501..8800.
+bass acquire sim:xrun -r 8000 --frames 100 --chunks 200 -c 2 >/dev/null
+gap=$work/rec/gap-ends.wav
+bass record "$gap" --from 4001 --frames 4800 -q
+if sidecar_has "$gap" 's["chunks"][0]["flags"] & 1 and s["chunks"][-1]["flags"] & 1 and s["recording"]["first_frame"] == 4001'; then
+  replay gap-ends "$gap"
+else
+  bad "gap-ends: the recording does not start and end on GAP chunks: $(head -c 600 "$gap.json")"
+fi
+
+# 2. late: bassd stopped for 0.4 s while the recorder runs: the sim device catches up in a
+# burst and flags those chunks LATE.
+bass acquire sim:pattern -r 8000 --frames 100 --chunks 200 -c 2 >/dev/null
+late=$work/rec/late.wav
+"$bin/bass" record "$late" --frames 12000 -q &
+rec=$!
+sleep 0.5
+kill -STOP "$bassd_pid"; sleep 0.4; kill -CONT "$bassd_pid"
+wait "$rec" || true
+if sidecar_has "$late" 'any(r["flags"] & 8 for r in s["chunks"])'; then
+  replay late "$late"
+else
+  bad "late: the recording has no LATE chunk (nothing to test): $(grep -c '"flags": 8' "$late.json" || true)"
+fi
+
+# 3. loss: a 1000-frame window (125 ms); the recorder stopped for 0.6 s loses frames inside
+# the file.
+bass acquire sim:pattern -r 8000 --frames 100 --chunks 10 -c 2 >/dev/null
+loss=$work/rec/loss.wav
+"$bin/bass" record "$loss" --frames 12000 -q &
+rec=$!
+sleep 0.4
+kill -STOP "$rec"; sleep 0.6; kill -CONT "$rec"
+wait "$rec" || true
+if sidecar_has "$loss" 's["recording"]["lost_frames"] > 0 and len(s["losses"]) == 1'; then
+  replay loss "$loss"
+else
+  bad "loss: the recording has no single loss inside (nothing to test): $(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["losses"])' "$loss.json")"
+fi
+
+# 4. renumber: the gap-ends recording from frame 1.
+replay renumber "$gap" --renumber
+
+echo "tests/replay: $passed passed, $failed failed"
+[[ $failed == 0 ]]
