@@ -25,14 +25,12 @@
 use std::fs::File;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
-use std::time::Duration;
 
 use bassclient::format::{chunk_flags, error_code};
 use bassclient::sys::{monotonic_ns, realtime_ns};
 use bassclient::ChunkMeta;
 
-use super::{Capture, ReadEvent, RecordedChunk, StopSignal};
-use crate::os::{self, sleep_until_mono};
+use super::{sleep_until, Capture, ReadEvent, RecordedChunk, StopSignal};
 use crate::sidecar::Sidecar;
 
 const NS_PER_MS: u64 = 1_000_000;
@@ -283,26 +281,6 @@ impl FileDevice {
         }
     }
 
-    /// Sleeps until `deadline`, returning false if the stop fired.
-    fn sleep_until(&self, deadline: u64, stop: &StopSignal) -> bool {
-        loop {
-            if stop.is_set() {
-                return false;
-            }
-            let now = monotonic_ns();
-            if now >= deadline {
-                return true;
-            }
-            let remaining = deadline - now;
-            if remaining > 2 * NS_PER_MS {
-                let mut fds = [os::pollin(stop.fd())];
-                let _ = os::poll(&mut fds, Some(Duration::from_nanos(remaining - NS_PER_MS)));
-            } else {
-                sleep_until_mono(deadline);
-            }
-        }
-    }
-
     /// Reads `n` frames from WAV frame `i` into `out` (interleaved, left-justified S32).
     fn fill(&mut self, i: u64, out: &mut [i32], n: usize) -> Result<(), String> {
         if self.file_pos != i {
@@ -491,9 +469,9 @@ impl Capture for FileDevice {
             // A long wait (the time of a recorded loss): report in between that the device is
             // alive, so the stall watchdog does not take the silence for a dead device.
             self.ready = Some((p0, readable_from, c));
-            return if self.sleep_until(slice_end, stop) { ReadEvent::Pending } else { ReadEvent::Stopped };
+            return if sleep_until(slice_end, stop) { ReadEvent::Pending } else { ReadEvent::Stopped };
         }
-        if !self.sleep_until(due, stop) {
+        if !sleep_until(due, stop) {
             return ReadEvent::Stopped;
         }
         let woke = monotonic_ns();

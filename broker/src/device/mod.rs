@@ -41,6 +41,29 @@ impl StopSignal {
     }
 }
 
+/// Sleeps until CLOCK_MONOTONIC `deadline` (ns) — in `poll` on the stop's eventfd while more
+/// than 2 ms remain, then with an absolute-deadline sleep for the last stretch — and returns
+/// false as soon as the stop fires. The pacing of the simulated and replayed devices.
+pub fn sleep_until(deadline: u64, stop: &StopSignal) -> bool {
+    const MS: u64 = 1_000_000;
+    loop {
+        if stop.is_set() {
+            return false;
+        }
+        let now = bassclient::sys::monotonic_ns();
+        if now >= deadline {
+            return true;
+        }
+        let remaining = deadline - now;
+        if remaining > 2 * MS {
+            let mut fds = [crate::os::pollin(stop.fd())];
+            let _ = crate::os::poll(&mut fds, Some(std::time::Duration::from_nanos(remaining - MS)));
+        } else {
+            crate::os::sleep_until_mono(deadline);
+        }
+    }
+}
+
 /// Outcome of one device read.
 #[derive(Debug, PartialEq)]
 pub enum ReadEvent {

@@ -29,10 +29,7 @@ use bassclient::format::error_code;
 use bassclient::sys::monotonic_ns;
 use bassclient::testsignal::pattern_sample;
 
-use super::{Capture, ReadEvent, StopSignal};
-use std::time::Duration;
-
-use crate::os::{self, sleep_until_mono};
+use super::{sleep_until, Capture, ReadEvent, StopSignal};
 
 /// The simulated devices.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -131,26 +128,6 @@ impl SimDevice {
 
     /// Sleeps until `deadline` (CLOCK_MONOTONIC ns), returning false if the stop fired.
     /// Long waits poll the stop eventfd until about 1 ms before the deadline; the last
-    /// stretch is an absolute `clock_nanosleep`, so the wake-up is on the deadline.
-    fn sleep_until(&self, deadline: u64, stop: &StopSignal) -> bool {
-        loop {
-            if stop.is_set() {
-                return false;
-            }
-            let now = monotonic_ns();
-            if now >= deadline {
-                return true;
-            }
-            let remaining = deadline - now;
-            if remaining > 2 * NS_PER_MS {
-                let mut fds = [os::pollin(stop.fd())];
-                let _ = os::poll(&mut fds, Some(Duration::from_nanos(remaining - NS_PER_MS)));
-            } else {
-                sleep_until_mono(deadline);
-            }
-        }
-    }
-
     fn fill(&self, out: &mut [i32], first: u64, frames: usize) {
         let ch = self.channels;
         for (i, frame) in out[..frames * ch].chunks_exact_mut(ch).enumerate() {
@@ -217,7 +194,7 @@ impl Capture for SimDevice {
                 };
             }
             // Stalled: deliver nothing until stopped.
-            let _ = self.sleep_until(monotonic_ns() + STALL_SLICE_NS, stop);
+            let _ = sleep_until(monotonic_ns() + STALL_SLICE_NS, stop);
             return if stop.is_set() { ReadEvent::Stopped } else { ReadEvent::Idle };
         }
         let mut n = max_frames.min(self.period).min(out.len() / self.channels.max(1));
@@ -226,7 +203,7 @@ impl Capture for SimDevice {
         }
         let first = self.pos + 1;
         let due = self.due_ns(self.pos + n as u64);
-        if !self.sleep_until(due, stop) {
+        if !sleep_until(due, stop) {
             return ReadEvent::Stopped;
         }
         let woke = monotonic_ns();
