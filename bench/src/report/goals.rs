@@ -1,0 +1,251 @@
+//! The goal table: each performance goal of the project, what this run measured, the verdict.
+
+use crate::publish::Design;
+use crate::stats::{fmt_bytes, fmt_ns, fmt_ratio, median, min_max, spread};
+
+use super::Results;
+
+/// One line of the goal table.
+pub(super) struct Goal {
+    pub(super) part: &'static str,
+    pub(super) goal: String,
+    pub(super) measured: String,
+    pub(super) met: Option<bool>,
+    /// The repetitions fall on both sides of the threshold.
+    pub(super) borderline: bool,
+}
+
+pub(super) fn verdict(g: &Goal) -> &'static str {
+    match g.met {
+        Some(true) if g.borderline => "**met** (borderline: repetitions on both sides)",
+        Some(false) if g.borderline => "**missed** (borderline: repetitions on both sides)",
+        Some(true) => "**met**",
+        Some(false) => "**missed**",
+        None if g.measured.starts_with("not measured") => "not measured",
+        None => "measured (no numeric goal)",
+    }
+}
+
+pub(super) fn goals(r: &Results) -> Vec<Goal> {
+    let mut g = Vec::new();
+    let big: Vec<&crate::read::ReadRow> = r.read.iter().filter(|x| x.bytes >= 65536).collect();
+    if !big.is_empty() {
+        let worst = big.iter().map(|x| x.ratio_median()).fold(f64::INFINITY, f64::min);
+        let worst_stream = big.iter().map(|x| x.stream_ratio_median()).fold(f64::INFINITY, f64::min);
+        g.push(Goal {
+            part: "1 read",
+            goal: "`bass_get_audio_data` ≥ 0.8× memcpy for blocks ≥ 64 KiB, hot and streaming".into(),
+            measured: format!(
+                "worst block ≥ 64 KiB: {} with the source hot in L1/L2 (the same block re-read); {} streaming through the window",
+                fmt_ratio(worst),
+                fmt_ratio(worst_stream)
+            ),
+            borderline: false,
+            met: Some(worst >= 0.8 && worst_stream >= 0.8),
+        });
+    }
+    if let Some(p) = &r.publish {
+        let ring = |w: f64, k: usize| p.publish_median(Design::Ring, w, k);
+        let flat_w = ring(60.0, 1) / ring(0.1, 1);
+        g.push(Goal {
+            part: "2 publish",
+            goal: "flat in window size (60 s vs 0.1 s, 1 reader)".into(),
+            measured: format!(
+                "{} ({} vs {} CPU per chunk)",
+                fmt_ratio(flat_w),
+                fmt_ns(ring(60.0, 1)),
+                fmt_ns(ring(0.1, 1))
+            ),
+            borderline: false,
+            met: Some(flat_w <= 1.1),
+        });
+        let flat_r = ring(10.0, 64) / ring(10.0, 1);
+        g.push(Goal {
+            part: "2 publish",
+            goal: "capture-thread publish cost flat in readers: 64 readers ≤ 1.5× one reader (10 s window)"
+                .into(),
+            measured: format!(
+                "{} ({} vs {})",
+                fmt_ratio(flat_r),
+                fmt_ns(ring(10.0, 64)),
+                fmt_ns(ring(10.0, 1))
+            ),
+            borderline: false,
+            met: Some(flat_r <= 1.5),
+        });
+        let vs = |k: usize| p.publish_median(Design::Original, 10.0, k) / ring(10.0, k);
+        g.push(Goal {
+            part: "2 publish",
+            goal: "≥ 100× cheaper than the original design at a 10 s window (2205-frame chunks)".into(),
+            measured: format!(
+                "{} with 1 reader, {} with none, {} with 64 (writer CPU per chunk); {} at 60 s, 1 reader{}",
+                fmt_ratio(vs(1)),
+                fmt_ratio(vs(0)),
+                fmt_ratio(vs(64)),
+                fmt_ratio(p.publish_median(Design::Original, 60.0, 1) / ring(60.0, 1)),
+                p.sweep
+                    .iter()
+                    .map(|x| format!(
+                        "; {} at 10 s with {}-frame chunks",
+                        fmt_ratio(median(&x.orig_ns) / median(&x.ring_ns)),
+                        x.frames_per_chunk
+                    ))
+                    .collect::<String>()
+            ),
+            borderline: false,
+            met: Some(vs(1) >= 100.0),
+        });
+    }
+    if let Some(w) = &r.wake {
+        let ratio = median(&w.ratio_1);
+        g.push(Goal {
+            part: "3 wake",
+            goal: "median wake latency (1 reader) ≤ 1.2× a raw futex".into(),
+            measured: format!(
+                "{} (median of per-repetition ratios {}; {} vs {})",
+                fmt_ratio(ratio),
+                spread(&w.ratio_1, fmt_ratio),
+                fmt_ns(w.bass.get(&1).map(|d| d.median()).unwrap_or(f64::NAN)),
+                fmt_ns(w.raw.median())
+            ),
+            met: Some(ratio <= 1.2),
+            borderline: {
+                let (lo, hi) = min_max(&w.ratio_1);
+                lo <= 1.2 && hi > 1.2
+            },
+        });
+        if !w.ratio_memfd.is_empty() {
+            let ratio = median(&w.ratio_memfd);
+            g.push(Goal {
+                part: "3 wake",
+                goal: "the same on a sealed memfd port (`bassd --port-backing memfd`)".into(),
+                measured: format!(
+                    "{} (median of per-repetition ratios {}; {} vs {})",
+                    fmt_ratio(ratio),
+                    spread(&w.ratio_memfd, fmt_ratio),
+                    fmt_ns(w.bass_memfd.median()),
+                    fmt_ns(w.raw.median())
+                ),
+                met: Some(ratio <= 1.2),
+                borderline: {
+                    let (lo, hi) = min_max(&w.ratio_memfd);
+                    lo <= 1.2 && hi > 1.2
+                },
+            });
+        }
+        for (ratios, lasts, port) in [
+            (&w.ratio_n, &w.ratio_n_last, ""),
+            (&w.ratio_n_memfd, &w.ratio_n_memfd_last, ", sealed memfd port"),
+        ] {
+            for (k, each) in ratios {
+                let last = lasts.get(k).cloned().unwrap_or_default();
+                g.push(many_readers_goal(*k, port, each, &last));
+            }
+        }
+    }
+    match r.e2e.as_ref() {
+        Some(e) if e.e2e.iter().any(|x| !x.bass.is_empty()) => {
+            let parts: Vec<String> = e
+                .e2e
+                .iter()
+                .filter(|x| !x.bass.is_empty())
+                .map(|x| {
+                    format!(
+                        "period {}: {} vs {} = {}",
+                        x.period,
+                        fmt_ns(median(&x.bass)),
+                        fmt_ns(median(&x.jack)),
+                        fmt_ratio(median(&x.bass) / median(&x.jack))
+                    )
+                })
+                .collect();
+            g.push(Goal {
+                part: "4 end to end",
+                goal: "jackd (dummy) → ALSA jack PCM → bassd → reader, vs a direct JACK client (no numeric goal)".into(),
+                measured: format!("median delay from the JACK cycle start, bass reader vs JACK client: {}", parts.join("; ")),
+                borderline: false,
+            met: None,
+            });
+        }
+        Some(e) => g.push(Goal {
+            part: "4 end to end",
+            goal: "jackd → ALSA jack PCM → bassd → reader, vs a direct JACK client".into(),
+            measured: format!(
+                "not measured: {}",
+                e.skipped
+                    .clone()
+                    .or_else(|| e.e2e.iter().find_map(|x| x.skipped.clone()))
+                    .unwrap_or_default()
+            ),
+            borderline: false,
+            met: None,
+        }),
+        None => {}
+    }
+    if let Some(e) = r.e2e.as_ref().filter(|e| !e.cpu.is_empty()) {
+        let cpu: Vec<String> =
+            e.cpu.iter().map(|c| format!("{}: {:.2} %", c.chunk, c.bassd * 100.0)).collect();
+        let worst_wait = e.cpu.iter().map(|c| c.waiter).fold(0.0, f64::max);
+        g.push(Goal {
+            part: "5 CPU",
+            goal: "bassd's share of one core at 48 kHz stereo (sim device), 32/64/256/2205-frame chunks"
+                .into(),
+            measured: format!("{} of one core (no numeric goal)", cpu.join(", ")),
+            borderline: false,
+            met: None,
+        });
+        g.push(Goal {
+            part: "5 CPU",
+            goal: "a reader blocked in a wait uses ~0 CPU".into(),
+            measured: format!(
+                "a reader waiting for 1 s blocks: up to {:.2} % of a core ({:.0} sleeps/s at 32-frame chunks); {:.3} % at 2205",
+                worst_wait * 100.0,
+                e.cpu.first().map(|c| c.waiter_wakes).unwrap_or(0.0),
+                e.cpu.last().map(|c| c.waiter * 100.0).unwrap_or(0.0)
+            ),
+            borderline: false,
+            met: Some(worst_wait < 0.001),
+        });
+    }
+    if let Some(m) = &r.memory {
+        let exact = m.iter().all(|x| {
+            x.file_bytes == x.window_bytes + x.overhead_bytes
+                && x.overhead_bytes <= 4096 + (x.window_s as u64 * 20 * 32).div_ceil(4096) * 4096
+        });
+        let worst = m.iter().map(|x| x.overhead_bytes).max().unwrap_or(0);
+        g.push(Goal {
+            part: "6 memory",
+            goal: "shared memory = header + window exactly".into(),
+            measured: format!(
+                "file = window + 4 KiB header + chunk table (32 B per chunk, page-rounded): at most {} over the window",
+                fmt_bytes(worst as f64)
+            ),
+            borderline: false,
+            met: Some(exact),
+        });
+    }
+    g
+}
+
+/// The goal row for `k` readers: each reader's and the last reader's median wake against a
+/// raw futex waking `k` processes, per repetition.
+pub(super) fn many_readers_goal(k: usize, port: &str, each: &[f64], last: &[f64]) -> Goal {
+    let (re, rl) = (median(each), median(last));
+    Goal {
+        part: "3 wake",
+        goal: format!("{k} readers{port}: median wake ≤ 1.2× a raw futex waking {k} processes (each reader and the last)"),
+        measured: format!(
+            "each {} (repetitions {}), last {} (repetitions {})",
+            fmt_ratio(re),
+            spread(each, fmt_ratio),
+            fmt_ratio(rl),
+            spread(last, fmt_ratio)
+        ),
+        met: Some(re <= 1.2 && rl <= 1.2),
+        borderline: {
+            let (lo, hi) = min_max(each);
+            let (lo2, hi2) = min_max(last);
+            (lo <= 1.2 && hi > 1.2) || (lo2 <= 1.2 && hi2 > 1.2)
+        },
+    }
+}
