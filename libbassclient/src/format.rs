@@ -87,6 +87,38 @@ impl State {
             _ => return None,
         })
     }
+
+    /// The state's name as every tool and binding shows it (`"capturing"`), NUL-terminated for
+    /// C (`bass_state_str`). The one spelling of the states: the match is exhaustive, so a new
+    /// state does not compile without its name.
+    pub const fn c_name(self) -> &'static std::ffi::CStr {
+        match self {
+            State::Idle => c"idle",
+            State::Capturing => c"capturing",
+            State::Stopped => c"stopped",
+            State::Error => c"error",
+            State::Superseded => c"superseded",
+            State::Starting => c"starting",
+        }
+    }
+
+    /// The state's name (`"capturing"`); see [`State::c_name`].
+    ///
+    /// ```
+    /// use bassclient::format::State;
+    /// assert_eq!(State::Starting.name(), "starting");
+    /// assert_eq!(State::from_u32(1).map(State::name), Some("capturing"));
+    /// ```
+    pub fn name(self) -> &'static str {
+        // Every name above is ASCII.
+        self.c_name().to_str().unwrap_or("?")
+    }
+
+    /// The name of a state value read from shared memory or a message: "unknown" for a value
+    /// no state has.
+    pub fn name_of(v: u32) -> &'static str {
+        State::from_u32(v).map_or("unknown", State::name)
+    }
 }
 
 /// Why an acquisition ended in [`State::Error`] (the header's `error_code`).

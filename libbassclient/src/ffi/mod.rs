@@ -437,25 +437,12 @@ pub extern "C" fn bass_result_str(code: c_int) -> *const c_char {
     })
 }
 
-/// The name of a port state, as shown by every binding. The match is exhaustive over
-/// [`State`]: a new state does not compile without its name.
-fn state_name(s: State) -> &'static CStr {
-    match s {
-        State::Idle => c"idle",
-        State::Capturing => c"capturing",
-        State::Stopped => c"stopped",
-        State::Error => c"error",
-        State::Superseded => c"superseded",
-        State::Starting => c"starting",
-    }
-}
-
 /// A static name of a port state (`BASS_STATE_IDLE` gives "idle", `BASS_STATE_STARTING`
 /// "starting", ...: the constant's name in lower case); any other value gives "unknown"
 /// (never NULL).
 #[no_mangle]
 pub extern "C" fn bass_state_str(state: u32) -> *const c_char {
-    static_text_boundary(c"unknown", || State::from_u32(state).map_or(c"unknown", state_name).as_ptr())
+    static_text_boundary(c"unknown", || State::from_u32(state).map_or(c"unknown", State::c_name).as_ptr())
 }
 
 /// The detailed message of the last failed call on this thread (never NULL; empty if none).
