@@ -34,6 +34,9 @@ pub struct Shared {
     ended: AtomicBool,
     /// Whether the device delivered anything yet (the watchdog gives a longer grace before).
     got_data: AtomicBool,
+    /// The error that ended the acquisition (code, message), as `fail` recorded it: Status
+    /// reports it even when the port it was written into was cut and reads something else.
+    failure: Mutex<Option<(u32, String)>>,
 }
 
 impl Shared {
@@ -57,6 +60,7 @@ impl Shared {
             return false;
         }
         tracing::error!(code, "{message}");
+        *self.failure.lock().unwrap_or_else(|e| e.into_inner()) = Some((code, message.to_owned()));
         self.writer().set_state(State::Error, code, message);
         self.stop.signal();
         true
@@ -119,6 +123,7 @@ impl Acquisition {
             progress_ns: AtomicU64::new(monotonic_ns()),
             ended: AtomicBool::new(false),
             got_data: AtomicBool::new(false),
+            failure: Mutex::new(None),
         });
         let format = dev.format_name().to_owned();
         let (tx, done) = mpsc::channel();
@@ -189,7 +194,13 @@ impl Acquisition {
     /// Moves a port that ended on an error to stopped (see `Writer::clear_error`); returns
     /// the error message it cleared.
     pub fn clear_error(&self) -> Option<String> {
-        self.shared.writer().clear_error()
+        let recorded = self.shared.failure.lock().unwrap_or_else(|e| e.into_inner()).take();
+        self.shared.writer().clear_error().or(recorded.map(|(_, m)| m))
+    }
+
+    /// The error that ended the acquisition (code, message), until a Stop clears it.
+    pub fn failure(&self) -> Option<(u32, String)> {
+        self.shared.failure.lock().unwrap_or_else(|e| e.into_inner()).clone()
     }
 
     /// Whether the capture thread is still running.

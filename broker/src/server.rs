@@ -3,10 +3,14 @@
 //!
 //! One thread runs everything here with `poll` over the listening socket, the signals' wake-up and
 //! the client connections; the capture runs on its own thread (see [`crate::capture`]). The
-//! Acquire path (checks, refusals, pin budget, device open, the port switch) is in server/acquire.rs.
+//! Acquire path (checks, refusals, pin budget, device open, the port switch) is in server/acquire.rs;
+//! the device open runs on a worker thread bounded by `--open-timeout-ms` (server/opening.rs),
+//! so no device can stop this loop from answering, nor from ending on SIGTERM.
 
 use std::os::fd::{AsFd, AsRawFd, BorrowedFd, OwnedFd};
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{bail, Context};
@@ -25,6 +29,9 @@ use crate::policy::DevicePolicy;
 use crate::request::Limits;
 
 mod acquire;
+mod opening;
+
+pub use opening::{DEFAULT_OPEN_TIMEOUT, MAX_STUCK_OPENS};
 
 /// Broker configuration (command line of `bassd`).
 #[derive(Clone, Debug)]
@@ -50,6 +57,8 @@ pub struct Config {
     pub idle_timeout: Duration,
     /// What holds the port (`--port-backing`; see crate::handoff).
     pub port_backing: bassclient::Backing,
+    /// Longest wait for a device to open and configure (`--open-timeout-ms`).
+    pub open_timeout: Duration,
 }
 
 impl Default for Config {
@@ -65,14 +74,20 @@ impl Default for Config {
             limits: Limits::default(),
             idle_timeout: DEFAULT_IDLE_TIMEOUT,
             port_backing: bassclient::Backing::File,
+            open_timeout: DEFAULT_OPEN_TIMEOUT,
         }
     }
 }
 
 /// Default memory cap of a port: 512 MiB (about 23 minutes of 48 kHz stereo).
 pub const DEFAULT_MAX_PORT_BYTES: u64 = 512 << 20;
-/// How long a Stop waits for the capture thread before leaving it behind.
-const STOP_TIMEOUT: Duration = Duration::from_secs(2);
+/// How long a Stop waits for the capture thread before leaving it behind (a healthy one
+/// stops within a poll slice; one stuck in a device never does). The control loop waits in
+/// it, so it also bounds how late a SIGTERM arriving meanwhile is handled: 500 + 400 ms < 1 s.
+const STOP_TIMEOUT: Duration = Duration::from_millis(500);
+/// The same on SIGTERM: bassd ends within 1 s in every state (a thread stuck in a device is
+/// left behind; the process exits).
+const SHUTDOWN_STOP_TIMEOUT: Duration = Duration::from_millis(400);
 /// Period of the stall watchdog.
 const TICK: Duration = Duration::from_millis(25);
 /// A gap between two watchdog ticks longer than this means the broker was frozen.
@@ -100,6 +115,10 @@ pub struct Broker {
     pins: Ledger,
     last_prune_ns: u64,
     own_uid: u32,
+    /// The Acquire whose device is opening, if any.
+    opening: Option<opening::Opening>,
+    /// Device-open threads alive (stuck ones included).
+    open_threads: Arc<AtomicUsize>,
 }
 
 impl Broker {
@@ -112,26 +131,63 @@ impl Broker {
             pins: Ledger::default(),
             last_prune_ns: 0,
             own_uid: os::euid(),
+            opening: None,
+            open_threads: Arc::new(AtomicUsize::new(0)),
         }
     }
 
-    /// Answers one request of the broker's own user.
-    pub fn handle(&mut self, req: Request) -> Reply {
-        self.handle_as(req, self.own_uid)
-    }
-
-    /// Answers one request of a client running as `peer_uid`.
-    pub fn handle_as(&mut self, req: Request, peer_uid: u32) -> Reply {
-        match req {
+    /// Answers one request of a client running as `peer_uid`. An Acquire is answered later
+    /// (None) once its device open is under way: the reply goes to `reply_to` (None: the
+    /// start-up Acquire, whose outcome is logged).
+    fn handle_as(&mut self, req: Request, peer_uid: u32, reply_to: Option<opening::Parked>) -> Option<Reply> {
+        Some(match req {
             Request::ListDevices => Reply::Devices { devices: device::list() },
             Request::Status => Reply::Status(self.status()),
             Request::Stop => self.stop(),
-            Request::Acquire(r) => self.acquire(&r, peer_uid),
+            Request::Acquire(r) => return self.acquire(&r, peer_uid, reply_to),
             Request::OpenPort => crate::handoff::not_on_a_socket(),
-        }
+        })
+    }
+
+    /// The connection parked on the pending Acquire, if any.
+    fn parked_conn(&self) -> Option<u64> {
+        self.opening.as_ref().and_then(|o| o.reply_to.as_ref()).map(|p| p.id)
+    }
+
+    /// The pending device open's wake-up descriptor (-1: none, which poll ignores).
+    fn open_wake_fd(&self) -> std::os::fd::RawFd {
+        self.opening.as_ref().map_or(-1, |o| o.job.wake_fd())
     }
 
     fn status(&self) -> Status {
+        let mut s = self.port_status();
+        if let Some(op) = &self.opening {
+            // An Acquire waits for its device: say so, and what the port does meanwhile.
+            let now = monotonic_ns();
+            let port = match self.current.as_ref().map(|a| a.port.info()) {
+                None => "no port yet".to_owned(),
+                Some(_) => format!(
+                    "until it opens, the port (epoch {}) is {}",
+                    s.epoch,
+                    State::from_u32(s.state).map_or("unknown".into(), |st| format!("{st:?}").to_lowercase())
+                ),
+            };
+            s.state = State::Starting as u32;
+            s.error_code = error_code::NONE;
+            s.message = format!(
+                "opening device {:?} for an Acquire ({} ms so far, at most {} ms); {port}",
+                op.req.device,
+                op.job.elapsed_ms(now),
+                self.cfg.open_timeout.as_millis()
+            );
+        }
+        s
+    }
+
+    /// Status from the current port, with what the broker knows beyond it: a failure the
+    /// capture recorded (written into a port that may have been cut, so readers may never see
+    /// it), and a port file cut under the broker.
+    fn port_status(&self) -> Status {
         let mut s = Status {
             broker_pid: std::process::id(),
             broker_version: env!("CARGO_PKG_VERSION").into(),
@@ -168,6 +224,16 @@ impl Broker {
                 s.message = format!("cannot read the port: {e}");
             }
         }
+        if let Some(cut) = port_cut(a) {
+            s.state = State::Error as u32;
+            s.error_code = error_code::INTERNAL;
+            s.message = cut;
+        }
+        if let Some((code, message)) = a.failure() {
+            s.state = State::Error as u32;
+            s.error_code = code;
+            s.message = message;
+        }
         s
     }
 
@@ -175,9 +241,11 @@ impl Broker {
     /// that had ended on an error is moved out of the error state. The reply's `message`
     /// says what was done.
     fn stop(&mut self) -> Reply {
+        let cancelled = self.cancel_open("by a Stop").map(|d| format!("cancelled the Acquire of {d:?}; "));
+        let cancelled = cancelled.unwrap_or_default();
         let Some(a) = self.current.as_mut() else {
             return Reply::Stopped {
-                message: "nothing to stop: no acquisition since the broker started".into(),
+                message: format!("{cancelled}nothing to stop: no acquisition since the broker started"),
             };
         };
         let before = a.port.info().ok().and_then(|i| i.state);
@@ -188,6 +256,7 @@ impl Broker {
             None if before == Some(State::Stopped) => format!("already stopped at frame {last}"),
             None => format!("stopped at frame {last}"),
         };
+        let msg = format!("{cancelled}{msg}");
         tracing::info!(device = %a.device, "{msg}");
         Reply::Stopped { message: msg }
     }
@@ -215,12 +284,28 @@ impl Broker {
         }
     }
 
-    /// Stops everything (on SIGTERM / SIGINT).
+    /// Stops everything (on SIGTERM / SIGINT), within [`SHUTDOWN_STOP_TIMEOUT`]: a pending
+    /// Acquire is cancelled, threads stuck in a device are left behind.
     pub fn shutdown(&mut self) {
+        self.cancel_open("because the broker is shutting down");
         if let Some(a) = self.current.as_mut() {
-            a.stop(STOP_TIMEOUT);
+            a.stop(SHUTDOWN_STOP_TIMEOUT);
         }
     }
+}
+
+/// Why the acquisition's port file is no longer whole (cut under the broker), if it is not:
+/// one fstat, so that Status reports a cut even before the capture's next publish trips on it.
+fn port_cut(a: &Acquisition) -> Option<String> {
+    let len = a.port.file().metadata().ok()?.len();
+    (len < a.port.size()).then(|| {
+        format!(
+            "the port file {} shrank to {len} bytes under the broker (it needs {}): something cut it; \
+             Acquire again to make a new port",
+            a.port.path().display(),
+            a.port.size()
+        )
+    })
 }
 
 /// Whether `peer` may control a broker running as `own_uid` with allowed group `group`.
@@ -299,7 +384,7 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
     let own_uid = os::euid();
     let mut broker = Broker::new(cfg.clone());
     if let Some(r) = &cfg.acquire {
-        if let Reply::Error { message, .. } = broker.handle(Request::Acquire(r.clone())) {
+        if let Some(Reply::Error { message, .. }) = broker.acquire(r, own_uid, None) {
             tracing::error!("start-up Acquire failed: {message}");
         }
     }
@@ -310,10 +395,16 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
         let listening = monotonic_ns() >= acceptor.paused_until_ns;
         // A negative descriptor is ignored by poll: while backing off, the listener is not watched.
         let lfd = if listening { listener.as_raw_fd() } else { -1 };
-        let mut fds = vec![os::pollin(lfd), os::pollin(signals.as_raw_fd())];
-        fds.extend(clients.iter().map(|c| os::pollin(c.fd.as_raw_fd())));
+        // A connection parked on a pending Acquire is not read (its reply comes first).
+        let parked = broker.parked_conn();
+        let mut fds =
+            vec![os::pollin(lfd), os::pollin(signals.as_raw_fd()), os::pollin(broker.open_wake_fd())];
+        fds.extend(
+            clients.iter().map(|c| os::pollin(if Some(c.id) == parked { -1 } else { c.fd.as_raw_fd() })),
+        );
         os::poll(&mut fds, Some(TICK)).context("poll")?;
         broker.tick();
+        broker.poll_open();
         if fds[1].revents != 0 {
             if let Some(sig) = os::read_signal(&signals) {
                 tracing::info!(signal = sig, "terminating: stopping the capture");
@@ -326,7 +417,12 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
         let now = monotonic_ns();
         let mut closed = Vec::new();
         for (i, c) in clients.iter_mut().enumerate() {
-            let rev = fds[2 + i].revents;
+            if Some(c.id) == parked {
+                // Waiting for its reply is not idleness.
+                c.last_ns = now;
+                continue;
+            }
+            let rev = fds[3 + i].revents;
             if rev == 0 {
                 if now.saturating_sub(c.last_ns) >= idle_ns {
                     tracing::debug!(
@@ -334,13 +430,13 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
                         "closing a control connection idle for {:?}",
                         cfg.idle_timeout
                     );
-                    close_idle(&mut broker, &c.fd);
+                    close_idle(&mut broker, c);
                     closed.push(i);
                 }
                 continue;
             }
             c.last_ns = now;
-            if !serve_one(&mut broker, &c.fd) {
+            if !serve_one(&mut broker, c) {
                 closed.push(i);
             }
         }
@@ -355,11 +451,20 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
 
 /// One open control connection.
 struct Conn {
+    /// Unique in this process (a pending Acquire names the connection it answers).
+    id: u64,
     fd: OwnedFd,
     /// Peer process (for the logs).
     pid: i32,
     /// CLOCK_MONOTONIC (ns) of the accept or of the last request.
     last_ns: u64,
+}
+
+impl Conn {
+    fn new(fd: OwnedFd, pid: i32) -> Conn {
+        static NEXT_ID: AtomicU64 = AtomicU64::new(1);
+        Conn { id: NEXT_ID.fetch_add(1, Ordering::Relaxed), fd, pid, last_ns: monotonic_ns() }
+    }
 }
 
 /// Accepts control connections, and keeps the broker alive when descriptors run out.
@@ -511,7 +616,7 @@ fn admit(c: OwnedFd, clients: &mut Vec<Conn>, own_uid: u32, group: Option<u32>) 
         );
         return;
     }
-    clients.push(Conn { fd: c, pid: peer.pid, last_ns: monotonic_ns() });
+    clients.push(Conn::new(c, peer.pid));
 }
 
 /// The last step on a connection closed for idleness (the caller drops it afterwards).
@@ -519,9 +624,9 @@ fn admit(c: OwnedFd, clients: &mut Vec<Conn>, own_uid: u32, group: Option<u32>) 
 /// A request may have arrived since poll returned. Reading is shut first: a request sent from
 /// then on fails at the client (EPIPE; the library then reconnects), and one that arrived
 /// before is still queued and is answered.
-fn close_idle(broker: &mut Broker, c: &OwnedFd) {
-    let _ = rustix::net::shutdown(c, rustix::net::Shutdown::Read);
-    if request_pending(c) {
+fn close_idle(broker: &mut Broker, c: &Conn) {
+    let _ = rustix::net::shutdown(&c.fd, rustix::net::Shutdown::Read);
+    if request_pending(&c.fd) {
         serve_one(broker, c);
     }
 }
@@ -533,11 +638,13 @@ fn request_pending(c: &OwnedFd) -> bool {
     matches!(rustix::net::recv(c, &mut probe[..], flags), Ok((_, n)) if n > 0)
 }
 
-/// Reads one request from `c` and answers it; false when the connection is finished.
+/// Reads one request from `conn` and answers it; false when the connection is finished. An
+/// Acquire is answered once its device is open (the connection is parked until then).
 ///
 /// A request in the version-1 text form is answered in that form (`code=version`), the one
 /// reply a version-1 client can read; any other version gets a version-2 `error` naming both.
-fn serve_one(broker: &mut Broker, c: &OwnedFd) -> bool {
+fn serve_one(broker: &mut Broker, conn: &Conn) -> bool {
+    let c = &conn.fd;
     let bytes = match control::recv_datagram(c.as_fd()) {
         Ok(None) => return false,
         Ok(Some(b)) => b,
@@ -550,7 +657,19 @@ fn serve_one(broker: &mut Broker, c: &OwnedFd) -> bool {
         Ok(Request::OpenPort) => return crate::handoff::serve(c.as_fd(), broker.current.as_ref()),
         Ok(r) => {
             let uid = os::peer_credentials(c.as_fd()).map_or(u32::MAX, |p| p.uid);
-            broker.handle_as(r, uid)
+            let reply_to = match (&r, c.try_clone()) {
+                (Request::Acquire(_), Ok(fd)) => Some(opening::Parked { id: conn.id, fd }),
+                (Request::Acquire(_), Err(e)) => {
+                    let reply =
+                        Reply::error(ErrorKind::Internal, &format!("cannot keep the connection: {e}"));
+                    return control::send_reply(c.as_fd(), &reply).is_ok();
+                }
+                _ => None,
+            };
+            match broker.handle_as(r, uid, reply_to) {
+                Some(reply) => reply,
+                None => return true,
+            }
         }
         Err(WireError::Version { found }) => {
             let text = format!(
@@ -580,8 +699,9 @@ mod tests {
             socketpair(AddressFamily::UNIX, SocketType::SEQPACKET, SocketFlags::CLOEXEC, None).unwrap();
         control::send_request(client.as_fd(), &Request::Status).unwrap();
         let mut broker = Broker::new(Config::default());
-        close_idle(&mut broker, &server);
-        drop(server);
+        let conn = Conn::new(server, 0);
+        close_idle(&mut broker, &conn);
+        drop(conn);
         match control::recv_reply(client.as_fd()) {
             Ok(Some(Reply::Status(s))) => assert_eq!(s.epoch, 0, "a broker with no acquisition"),
             other => panic!("the queued request got {other:?}, not its status reply"),

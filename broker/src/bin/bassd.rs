@@ -36,6 +36,12 @@ struct BassdArgs {
     #[arg(long, value_name = "MS", default_value_t = 0,
           value_parser = clap::value_parser!(u64).range(0..=3_600_000))]
     stall_ms: u64,
+    /// Longest wait for a device to open and configure (ms): an Acquire whose device open
+    /// has not returned by then is refused (the open is left behind), and the broker answers
+    /// every other request meanwhile
+    #[arg(long, value_name = "MS", default_value_t = server::DEFAULT_OPEN_TIMEOUT.as_millis() as u64,
+          value_parser = clap::value_parser!(u64).range(1..=600_000))]
+    open_timeout_ms: u64,
     /// What holds the port: `file` (a file in the runtime directory; readers open it by path,
     /// and its last window stays readable after the broker dies) or `memfd` (a sealed memfd
     /// handed to readers over the control socket: its size cannot change under a reader, so
@@ -124,6 +130,7 @@ fn config(a: &BassdArgs) -> Result<Config> {
             max_window_s: h.max_window_s,
         },
         idle_timeout: std::time::Duration::from_millis(h.idle_timeout_ms),
+        open_timeout: std::time::Duration::from_millis(a.open_timeout_ms),
         port_backing: if a.port_backing == "memfd" {
             bassclient::Backing::Memfd
         } else {

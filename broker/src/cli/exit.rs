@@ -4,11 +4,14 @@
 //! |------|---------|
 //! | 0 | success (including a read that ended on a Stop or on its own limits) |
 //! | 1 | any other failure (a file, the port format, an unexpected reply) |
-//! | 2 | usage error: a bad option or value, or a request the broker refused as invalid |
+//! | 2 | usage error: a bad option or value, or a request the broker refused as invalid or not permitted (a window over `--max-port-bytes`, a port that does not fit in the port directory, a device its policy does not allow) |
 //! | 3 | the broker cannot be reached (not running, socket missing, or it died) |
 //! | 4 | device error: the broker could not open or configure the device |
 //! | 5 | the acquisition being read ended on a device error |
 //! | 6 | timeout: the broker did not answer, or no port appeared, within `--timeout` |
+//!
+//! The same table is in docs/broker.md; broker/tests/exit_codes.rs holds the two together and
+//! produces each code with a real broker.
 
 use std::fmt;
 
@@ -74,7 +77,7 @@ fn code_of_library(e: &Error) -> i32 {
         Error::Timeout { .. } => TIMEOUT,
         Error::Io { source, .. } if source.kind() == std::io::ErrorKind::TimedOut => TIMEOUT,
         Error::Broker(m) if m.ends_with("[device]") => DEVICE,
-        Error::Broker(m) if m.ends_with("[invalid-argument]") => USAGE,
+        Error::Broker(m) if m.ends_with("[invalid-argument]") || m.ends_with("[permission]") => USAGE,
         _ => FAILURE,
     }
 }

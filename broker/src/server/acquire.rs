@@ -1,9 +1,12 @@
 //! The Acquire path of the broker: the request checks and their refusal messages, the
-//! pin budget for superseded ports, the device open, and the switch from the running
-//! acquisition's port to the new one (built under a temporary name, renamed into place).
+//! pin budget for superseded ports, the device open (on a worker thread, bounded in time:
+//! [`super::opening`]), and the switch from the running acquisition's port to the new one
+//! (built under a temporary name, renamed into place).
 //!
 //! Everything that can fail happens before the running acquisition or its port is touched;
-//! the control loop that calls [`Broker::acquire`] is in [`super`].
+//! the control loop that calls [`Broker::acquire`] and [`Broker::poll_open`] is in [`super`].
+
+use std::sync::atomic::Ordering;
 
 use bassclient::control::{AcquireRequest, Acquired, ErrorKind, Reply};
 use bassclient::format::error_code;
@@ -11,11 +14,12 @@ use bassclient::portfile::mib;
 use bassclient::sys::monotonic_ns;
 use bassclient::PortParams;
 
+use super::opening::{answer, OpenJob, Opened, Opening, Parked, Poll, MAX_STUCK_OPENS};
 use super::{Broker, STOP_TIMEOUT};
 use crate::capture::{Acquisition, CaptureParams};
 use crate::device::{self, alsa, sim::SimDevice, Capture};
 use crate::pins::PIN_BUDGET_FACTOR;
-use crate::request::{self, DeviceKind};
+use crate::request::{self, Checked, DeviceKind};
 
 impl Broker {
     /// What a failed Acquire left in place, for its error message.
@@ -32,58 +36,183 @@ impl Broker {
         }
     }
 
-    /// Acquire. Everything that can fail is done before the running acquisition or its port
-    /// is touched: the request is checked, the new port is built and allocated under a
-    /// temporary name, the device is opened and configured. Only then is the old capture
-    /// stopped and the new port renamed into place. A failed Acquire therefore leaves the
-    /// old port exactly as it was (same epoch, frames and state) and says why.
+    /// Acquire, first half: the request is checked and the new port is built and allocated
+    /// under a temporary name; then the device open starts on a worker thread
+    /// ([`super::opening`]) and the request's connection is parked. Returns the reply of a
+    /// refusal, or None once the open is under way ([`Broker::poll_open`] finishes it).
+    ///
+    /// Everything that can fail is done before the running acquisition or its port is
+    /// touched: the request is checked, the new port is built and allocated under a
+    /// temporary name, the device is opened and configured (within `--open-timeout-ms`).
+    /// Only then is the old capture stopped and the new port renamed into place. A failed
+    /// Acquire therefore leaves the old port exactly as it was (same epoch, frames and state)
+    /// and says why.
     ///
     /// One exception: a device that is busy while an acquisition runs may be busy because
     /// the running acquisition holds it (an ALSA hw device opens once). Then the running
     /// capture is stopped (its port keeps its window, state stopped) and the open retried
     /// once; if that fails too, the old port stays stopped, with its epoch and frames.
-    pub(super) fn acquire(&mut self, r: &AcquireRequest, peer_uid: u32) -> Reply {
+    pub(super) fn acquire(
+        &mut self,
+        r: &AcquireRequest,
+        peer_uid: u32,
+        reply_to: Option<Parked>,
+    ) -> Option<Reply> {
         let requested_ns = monotonic_ns();
+        if let Some(op) = &self.opening {
+            let msg = format!(
+                "Acquire refused: another Acquire is opening device {:?} (for {} ms, at most {} ms); \
+                 wait for its reply, or send Stop to cancel it; {}",
+                op.req.device,
+                op.job.elapsed_ms(requested_ns),
+                self.cfg.open_timeout.as_millis(),
+                self.unchanged()
+            );
+            tracing::warn!("{msg}");
+            return Some(Reply::error(ErrorKind::Device, &msg));
+        }
+        let stuck = self.open_threads.load(Ordering::Acquire);
+        if stuck >= MAX_STUCK_OPENS {
+            let msg = format!(
+                "Acquire refused: {stuck} earlier device opens never returned (their threads are still \
+                 blocked in the devices; is a sound server stopped?); restart bassd once the device \
+                 is back; {}",
+                self.unchanged()
+            );
+            tracing::error!("{msg}");
+            return Some(Reply::error(ErrorKind::Device, &msg));
+        }
         let checked = match request::check(r, self.cfg.max_port_bytes, &self.cfg.limits) {
             Ok(c) => c,
             Err(msg) => {
                 tracing::warn!("Acquire refused (nothing changed): {msg}");
-                return Reply::error(ErrorKind::InvalidArgument, &msg);
+                return Some(Reply::error(ErrorKind::InvalidArgument, &msg));
             }
         };
         if let Err(msg) = self.cfg.policy.check(&r.device, device::list) {
             tracing::warn!("Acquire refused by the device policy (nothing changed): {msg}");
-            return Reply::error(ErrorKind::Permission, &msg);
+            return Some(Reply::error(ErrorKind::Permission, &msg));
         }
         let g = checked.geometry.clone();
         let params = PortParams { geometry: g.clone(), device: r.device.clone(), group: self.cfg.group };
         if let Err(msg) = self.check_pin_budget(peer_uid, g.layout().map_or(0, |l| l.total_size)) {
             tracing::warn!(uid = peer_uid, "{msg}");
-            return Reply::error(ErrorKind::InvalidArgument, &msg);
+            return Some(Reply::error(ErrorKind::InvalidArgument, &msg));
         }
         let pending = match crate::handoff::prepare(&self.cfg, &params, self.current.as_ref()) {
             Ok(p) => p,
+            // No room for the port where ports live: a refusal like a window over
+            // --max-port-bytes (the message names the size needed and the space there is).
+            Err(e) if is_no_space(&e) => {
+                let msg = format!("Acquire refused: {e}; {}", self.unchanged());
+                tracing::warn!("{msg}");
+                return Some(Reply::error(ErrorKind::InvalidArgument, &msg));
+            }
             Err(e) => {
                 let msg = format!("Acquire refused: cannot create the port: {e}; {}", self.unchanged());
                 tracing::error!("{msg}");
-                return Reply::error(ErrorKind::Internal, &msg);
+                return Some(Reply::error(ErrorKind::Internal, &msg));
             }
         };
-        let mut opened = open_device(&checked.device, &g, checked.format);
-        let mut freed = false;
-        if opened.as_ref().is_err_and(|e| e.busy) && self.current.as_ref().is_some_and(Acquisition::running) {
+        let job = match self.spawn_open(&checked) {
+            Ok(j) => j,
+            Err(e) => {
+                let msg = format!(
+                    "Acquire refused: cannot start the device open thread: {e}; {}",
+                    self.unchanged()
+                );
+                tracing::error!("{msg}");
+                return Some(Reply::error(ErrorKind::Internal, &msg));
+            }
+        };
+        tracing::debug!(device = %r.device, "opening the device");
+        self.opening =
+            Some(Opening { req: r.clone(), checked, pending, requested_ns, freed: false, reply_to, job });
+        // The reply comes from poll_open, when the worker's eventfd wakes the loop (or the
+        // bound passes).
+        None
+    }
+
+    fn spawn_open(&self, checked: &Checked) -> std::io::Result<OpenJob> {
+        let (kind, g, format) = (checked.device.clone(), checked.geometry.clone(), checked.format);
+        OpenJob::spawn(move || open_device(&kind, &g, format), self.cfg.open_timeout, &self.open_threads)
+    }
+
+    /// Finishes the pending Acquire if its device open returned or ran out of time (called
+    /// by the control loop on every wake-up), and sends its reply.
+    pub(super) fn poll_open(&mut self) {
+        let Some(op) = &self.opening else { return };
+        let now = monotonic_ns();
+        let opened = match op.job.poll(now) {
+            Poll::Pending => return,
+            Poll::Done(r) => r,
+            Poll::TimedOut => {
+                let waited = op.job.elapsed_ms(now);
+                let Some(op) = self.opening.take() else { return };
+                let msg = format!(
+                    "device {:?}: the open did not return within {waited} ms (bassd --open-timeout-ms {}): \
+                     is its sound server running, or stopped? The open is left behind (the device is \
+                     closed if it ever returns); {}",
+                    op.req.device,
+                    self.cfg.open_timeout.as_millis(),
+                    self.unchanged()
+                );
+                tracing::error!("Acquire failed: {msg}");
+                answer(op.reply_to, &Reply::error(ErrorKind::Device, &msg));
+                return;
+            }
+        };
+        let Some(op) = self.opening.take() else { return };
+        if let Some((to, reply)) = self.finish_acquire(op, opened) {
+            answer(to, &reply);
+        }
+    }
+
+    /// Cancels the pending Acquire (Stop, shutdown): its client gets an error saying `why`.
+    /// Returns the device it was opening.
+    pub(super) fn cancel_open(&mut self, why: &str) -> Option<String> {
+        let op = self.opening.take()?;
+        let msg = format!(
+            "the Acquire of {:?} was cancelled {why} while its device was opening (after {} ms); {}",
+            op.req.device,
+            op.job.elapsed_ms(monotonic_ns()),
+            self.unchanged()
+        );
+        tracing::warn!("{msg}");
+        answer(op.reply_to, &Reply::error(ErrorKind::Device, &msg));
+        Some(op.req.device)
+    }
+
+    /// Acquire, second half: the device open returned. Returns who gets which reply, or None
+    /// when the open was started again (a busy device, after stopping the running capture).
+    fn finish_acquire(&mut self, mut op: Opening, opened: Opened) -> Option<(Option<Parked>, Reply)> {
+        let r = &op.req;
+        if !op.freed
+            && opened.as_ref().is_err_and(|e| e.busy)
+            && self.current.as_ref().is_some_and(Acquisition::running)
+        {
             if let Some(old) = self.current.as_mut() {
                 tracing::info!(device = %r.device, "device busy: stopping the running acquisition to retry");
                 old.stop(STOP_TIMEOUT);
-                freed = true;
             }
-            opened = open_device(&checked.device, &g, checked.format);
+            op.freed = true;
+            match self.spawn_open(&op.checked) {
+                Ok(j) => {
+                    op.job = j;
+                    self.opening = Some(op);
+                    return None;
+                }
+                Err(e) => {
+                    let msg = format!("cannot start the device open thread: {e}; {}", self.unchanged());
+                    return Some((op.reply_to, Reply::error(ErrorKind::Internal, &msg)));
+                }
+            }
         }
         let dev = match opened {
             Ok(d) => d,
             Err(e) => {
                 let kept = self.unchanged();
-                let msg = if freed {
+                let msg = if op.freed {
                     format!(
                         "{} (after stopping the running acquisition, which may have held the device); \
                          its port keeps its window: {kept}",
@@ -93,20 +222,21 @@ impl Broker {
                     format!("{}; {kept}", e.message)
                 };
                 tracing::error!("Acquire failed: {msg}");
-                return Reply::error(ErrorKind::Device, &msg);
+                return Some((op.reply_to, Reply::error(ErrorKind::Device, &msg)));
             }
         };
+        let g = op.checked.geometry.clone();
         // The switch: the old capture stops, then the new port takes the name.
         if let Some(old) = self.current.as_mut() {
             old.stop(STOP_TIMEOUT);
         }
-        let writer = match pending.commit() {
+        let writer = match op.pending.commit() {
             Ok(w) => w,
             Err(e) => {
                 // The rename failed: the old acquisition stays current (stopped, its window kept).
                 let msg = format!("cannot put the new port in place: {e}; {}", self.unchanged());
                 tracing::error!("{msg}");
-                return Reply::error(ErrorKind::Internal, &msg);
+                return Some((op.reply_to, Reply::error(ErrorKind::Internal, &msg)));
             }
         };
         if let Some(old) = self.current.take() {
@@ -121,10 +251,10 @@ impl Broker {
         let cp = CaptureParams {
             geometry: g.clone(),
             rt_priority: self.cfg.rt_priority,
-            requested_ns,
+            requested_ns: op.requested_ns,
             stall_ms: self.cfg.stall_ms,
         };
-        match Acquisition::start(writer, dev, &r.device, cp) {
+        let reply = match Acquisition::start(writer, dev, &r.device, cp) {
             Ok(a) => {
                 tracing::info!(
                     epoch,
@@ -140,7 +270,8 @@ impl Broker {
                 Reply::Acquired(Acquired { epoch, port: port_path.into(), format: format.into() })
             }
             Err(e) => Reply::error(ErrorKind::Internal, &format!("cannot start the capture thread: {e}")),
-        }
+        };
+        Some((op.reply_to, reply))
     }
 
     /// The bound on shared memory other users can make the broker's ports pin: for an
@@ -174,7 +305,12 @@ impl Broker {
     }
 }
 
-/// Opens (and configures) the device of an Acquire.
+/// Whether creating the port failed for want of space in its file system (ENOSPC).
+fn is_no_space(e: &bassclient::Error) -> bool {
+    matches!(e, bassclient::Error::Io { source, .. } if source.raw_os_error() == Some(libc::ENOSPC))
+}
+
+/// Opens (and configures) the device of an Acquire (on a worker thread: it may block).
 fn open_device(
     kind: &DeviceKind,
     g: &bassclient::Geometry,

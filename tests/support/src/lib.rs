@@ -12,7 +12,9 @@ mod bins;
 mod cli;
 mod jackd;
 mod port;
+mod skip;
 mod tempdir;
+mod tmpfs;
 mod wait;
 
 pub use bassd::{Bassd, BassdBuilder};
@@ -20,7 +22,12 @@ pub use bins::{bass_bin, bassd_bin, bin_path};
 pub use cli::{bass, bass_cmd, text};
 pub use jackd::{jack_missing, JackRig, Jackd};
 pub use port::{acquire_req, read_frames, replay_args, wait_frame};
+pub use skip::{
+    as_nobody, impersonation_missing, is_root, nobody_in_group, root_missing, setpriv, skip, skips_forbidden,
+    NOBODY, NO_SKIP_VAR,
+};
 pub use tempdir::{list_dir, TempDir};
+pub use tmpfs::Tmpfs;
 pub use wait::{eventually, wait_until, PATIENCE};
 
 /// Sends signal `sig` (a `libc::SIG*` number) to process `pid`; errors (the process is
