@@ -10,7 +10,8 @@
 //! - [`follow`]: opening a port and following it across acquisitions (new epochs);
 //! - [`meter`]: `bass meter`, the live level meter;
 //! - [`plot`]: `bass plot`, PNG pictures of a recording or of the port;
-//! - [`record`]: `bass record FILE.wav` with its timestamp sidecar;
+//! - [`record`]: `bass record FILE.wav` with its timestamp sidecar, and `--check`;
+//! - [`wav`]: the WAV writer, header parser and repair of `bass record`;
 //! - [`exit`]: the documented exit codes and how errors map onto them.
 
 pub mod bass;
@@ -20,6 +21,7 @@ pub mod follow;
 pub mod meter;
 pub mod plot;
 pub mod record;
+pub mod wav;
 
 use bassclient::control::AcquireRequest;
 use bassclient::format::MAX_CHANNELS;

@@ -377,7 +377,8 @@ mod tests {
 
     #[test]
     fn each_disagreement_is_named() {
-        let cases: Vec<(fn(&mut Sidecar), &str)> = vec![
+        type Break = fn(&mut Sidecar);
+        let cases: Vec<(Break, &str)> = vec![
             (|s| s.losses[0].frames = 300, "losses[0]: frames 301..=600 are not inside the file"),
             (|s| s.recording.lost_frames = 7, "lost_frames is 7; the losses sum to 100"),
             (|s| s.recording.gap_frames = 200, "gap_frames is 200; the GAP chunks hold 150"),
