@@ -20,7 +20,7 @@ use bassclient::control::{self, ErrorKind, PortFd, Reply};
 use bassclient::{memfd, Backing, PendingPort, PortParams, Writer};
 
 use crate::capture::Acquisition;
-use crate::server::Config;
+use crate::config::Config;
 
 /// Builds the next port in the configured backing; its epoch follows the current
 /// acquisition's (whatever is left at the port's path: a cut or removed file says nothing).

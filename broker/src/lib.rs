@@ -2,6 +2,7 @@
 //! integration tests are thin layers over these modules.
 //!
 //! - [`server`]: the control loop (socket, peer checks, requests, watchdog, signals);
+//! - [`config`]: the broker's configuration (bassd's command line);
 //! - [`capture`]: one acquisition — the capture thread, chunk assembly, gap filling;
 //! - [`device`]: ALSA PCMs and simulated devices;
 //! - [`request`]: checks an Acquire before anything running is touched (and the operator's bounds);
@@ -16,6 +17,7 @@
 
 pub mod capture;
 pub mod cli;
+pub mod config;
 pub mod convert;
 pub mod device;
 pub mod handoff;

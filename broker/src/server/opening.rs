@@ -29,8 +29,8 @@ use crate::device::{alsa::OpenError, Capture};
 use crate::os::EventFd;
 use crate::request::Checked;
 
-/// Default bound on one device open (`bassd --open-timeout-ms`).
-pub const DEFAULT_OPEN_TIMEOUT: Duration = Duration::from_secs(5);
+pub use crate::config::DEFAULT_OPEN_TIMEOUT;
+
 /// Most device-open threads alive at once (stuck ones included); beyond, Acquires are refused.
 pub const MAX_STUCK_OPENS: usize = 4;
 
