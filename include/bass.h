@@ -80,13 +80,7 @@
 // Wait forever (for `bass_port_wait`).
 #define BASS_WAIT_FOREVER UINT32_MAX
 
-// Delivered late, in a catch-up burst: the capture fell behind (its thread was starved
-// or stopped), so the chunk reached the port more than a chunk's duration after its
-// last frame was due. The rate estimate does not use its arrival time.
-#define LATE 8
 
-// How many port mappings one process can have guarded at once.
-#define SLOTS 256
 
 // Result codes. `BASS_OK` is 0; the codes are stable and never renumbered.
 typedef enum {
@@ -224,7 +218,7 @@ typedef struct {
   char message[BASS_MESSAGE_LEN];
   // Frames lost upstream of this port or on the network (a replica port written by
   // `bass-bridge mirror`), published as zero-filled GAP frames and also counted in
-  // `gap_frames`; 0 for a local broker's port. Added at the end in port format 1.1.
+  // `gap_frames`; 0 for a local broker's port. Added at the end in port format 2.1.
   uint64_t lost_upstream_frames;
 } bass_port_info;
 

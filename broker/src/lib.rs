@@ -1,5 +1,6 @@
-//! bassd, the bass capture broker, as a library: the two binaries (`bassd`, `bass`) and the
-//! integration tests are thin layers over these modules.
+//! bassd, the bass capture broker, as a library: the `bassd` binary and the integration tests
+//! are thin layers over these modules (the `bass` tool is its own crate, cli/, which talks to
+//! bassd only through the control protocol).
 //!
 //! - [`server`]: the control loop (socket, peer checks, requests, watchdog, signals);
 //! - [`config`]: the broker's configuration (bassd's command line);
@@ -11,12 +12,8 @@
 //! - [`rate_estimator`]: the device-clock rate estimator (a delay-locked loop);
 //! - [`pins`]: superseded ports still mapped by readers, and the bound on them;
 //! - [`os`]: the Linux edge on rustix (eventfd, signals, sleeps, scheduling, credentials, lock);
-//! - [`sidecar`]: the sidecar of a recording (`FILE.wav.json`), written by `bass record`, read by
-//!   the replay and the checker;
-//! - [`cli`]: the small argument parser both binaries use.
 
 pub mod capture;
-pub mod cli;
 pub mod config;
 pub mod convert;
 pub mod device;
@@ -27,7 +24,6 @@ pub mod policy;
 pub mod rate_estimator;
 pub mod request;
 pub mod server;
-pub mod sidecar;
 
 /// Sets up logging to stderr: `BASS_LOG` (or `RUST_LOG`) filters, `info` by default.
 pub fn init_logging() {

@@ -13,8 +13,7 @@ use bassclient::format::{Geometry, DEVICE_LEN};
 use crate::convert::SampleFormat;
 use crate::device::sim::{SimKind, DEVICES};
 
-/// Highest sample rate accepted (Hz).
-pub const MAX_SAMPLE_RATE: u32 = 768_000;
+pub use bassclient::args::MAX_SAMPLE_RATE;
 
 /// Operator-set bounds a client's Acquire cannot exceed (bassd `--min-chunk-us`,
 /// `--max-rate`, `--max-channels`, `--max-window-s`). The defaults keep the capture

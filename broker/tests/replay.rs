@@ -209,7 +209,7 @@ fn another_chunk_size_or_a_sidecar_that_disagrees_is_refused_by_name() {
     wait_frame(&port, 800);
     assert_eq!(read_frames(&port, 1, 800)[0][799], pattern_sample(800, 0));
     // A sidecar claiming a loss outside its file.
-    let side = bassd::sidecar::path_of(&wav);
+    let side = bassclient::sidecar::path_of(&wav);
     let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(&side).unwrap()).unwrap();
     v["losses"] = serde_json::json!([{"first_frame": 700, "frames": 500}]);
     v["recording"]["lost_frames"] = serde_json::json!(500);

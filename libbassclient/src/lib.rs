@@ -1,12 +1,23 @@
 //! bass client library: the shared audio port of the bass broker.
 //!
-//! - [`format`]: the port format v1 (the one definition of the shared layout);
+//! - [`format`]: the port format (the one definition of the shared layout);
 //! - [`ring`]: the lock-free one-writer / many-readers window protocol;
 //! - [`writer::Writer`]: creates a port and publishes chunks (used by `bassd`, simulators, tests);
 //! - [`reader::Port`]: opens a port read-only; `get_audio_data` is the formal
 //!   `getAudioData` algorithm of the BASS documentation;
-//! - [`ffi`]: the C ABI (`include/bass.h`).
+//! - [`ffi`]: the C ABI (`include/bass.h`);
+//! - [`sidecar`]: the sidecar of a recording (`FILE.wav.json`), for `bass record` and the replay;
+//! - [`args`]: the command-line vocabulary bassd, bass and bass-bridge share;
+//! - [`control`]: the broker's control protocol and its [`control::Client`].
+//!
+//! The main paths, each with a runnable example: open a port, wait, read
+//! ([`Port::open`], [`Port::wait`], [`Port::get_audio_data`], [`Port::chunk_info`]); create a
+//! writer and publish ([`Writer::create_at`], [`Writer::publish`]); ask a broker to acquire
+//! ([`control::Client`]).
 
+#![warn(missing_docs)]
+
+pub mod args;
 pub mod control;
 pub mod error;
 pub mod ffi;
@@ -18,6 +29,7 @@ pub mod portfile;
 pub mod reader;
 pub mod ring;
 mod shm;
+pub mod sidecar;
 pub mod sigbus;
 pub mod sys;
 pub mod testsignal;

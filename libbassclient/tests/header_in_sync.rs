@@ -21,3 +21,17 @@ fn committed_header_matches_cbindgen_output() {
     let committed = std::fs::read(&path).unwrap_or_default();
     assert!(committed == generated, "include/bass.h is out of date: run `make header` and commit it");
 }
+
+/// Every macro and type bass.h defines is in the `BASS_` / `bass_` namespace: a Rust constant
+/// that leaks into the header unprefixed (`LATE`, `SLOTS` did) would collide in C users' code.
+#[test]
+fn the_header_defines_only_prefixed_names() {
+    let h = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../include/bass.h")).unwrap();
+    let stray: Vec<&str> = h
+        .lines()
+        .filter_map(|l| l.strip_prefix("#define "))
+        .filter_map(|l| l.split_whitespace().next())
+        .filter(|name| !name.starts_with("BASS_"))
+        .collect();
+    assert!(stray.is_empty(), "bass.h defines unprefixed names {stray:?}: exclude them in cbindgen.toml");
+}

@@ -246,7 +246,7 @@ proptest! {
                     let start = lfi.saturating_sub(*back);
                     let mut want = model.get_audio_data(*n as i128, start as i128);
                     // The model's frames before `first` are zero frames the replica never had:
-                    // a started replica counts them as lost instead (issue 20 item 5). A port
+                    // a started replica counts them as lost instead. A port
                     // not started keeps frame 0, the zero frame of the formal algorithm.
                     let model_first = want.nfr - want.n;
                     let lost_from = if start_chunk > 0 { first as i128 } else { 0 };
@@ -255,6 +255,13 @@ proptest! {
                     want.loss += before;
                     for ch in &mut want.channels {
                         ch.drain(..before as usize);
+                    }
+                    // A read whose frames all lie before the start reports the whole run up to
+                    // the start as one loss (the loss is not cut into blocks of `n`, as in the
+                    // formal algorithm's `ofi - nfr`): `nfr` moves to the start.
+                    if before > 0 && want.n == 0 && want.nfr < lost_from {
+                        want.loss += lost_from - want.nfr;
+                        want.nfr = lost_from;
                     }
                     let mut bufs = vec![vec![i32::MIN; *n]; 2];
                     let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| b.as_mut_slice()).collect();

@@ -1,7 +1,7 @@
 //! `bassd`: the bass capture broker daemon. See docs/broker.md.
 
 use anyhow::{Context, Result};
-use bassd::cli::AcquireArgs;
+use bassclient::args::AcquireArgs;
 use bassd::request::Limits;
 use bassd::server::{self, Config, DEFAULT_MAX_PORT_BYTES};
 use clap::Parser;

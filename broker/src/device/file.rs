@@ -31,7 +31,7 @@ use bassclient::sys::{monotonic_ns, realtime_ns};
 use bassclient::ChunkMeta;
 
 use super::{sleep_until, Capture, ReadEvent, RecordedChunk, StopSignal};
-use crate::sidecar::Sidecar;
+use bassclient::sidecar::Sidecar;
 
 const NS_PER_MS: u64 = 1_000_000;
 /// Longest sleep of one read: a longer wait returns `Pending` in between.

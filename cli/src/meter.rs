@@ -10,10 +10,10 @@ use anyhow::Result;
 use bassclient::Error;
 use serde::Serialize;
 
-use super::blocks::{dbfs, gaps_in, levels};
-use super::exit::{self, Exit};
-use super::follow::{after_stop, open_port, AfterStop};
-use crate::cli::parse_seconds;
+use crate::blocks::{dbfs, gaps_in, levels};
+use crate::exit::{self, Exit};
+use crate::follow::{after_stop, open_port, AfterStop};
+use bassclient::args::parse_seconds;
 
 /// A peak at or above this (dBFS) counts as clipping.
 pub const CLIP_DBFS: f64 = -0.01;

@@ -10,10 +10,10 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Instant;
 
+use bass_cli::record::convert;
 use bass_test_support::*;
 use bassclient::format::chunk_flags;
 use bassclient::testsignal::pattern_sample;
-use bassd::cli::record::convert;
 use serde_json::Value;
 
 /// The samples of a WAV file, per channel.

@@ -10,7 +10,7 @@
 //! | 5 | the acquisition being read ended on a device error |
 //! | 6 | timeout: the broker did not answer, or no port appeared, within `--timeout` |
 //!
-//! The same table is in docs/broker.md; broker/tests/exit_codes.rs holds the two together and
+//! The same table is in docs/broker.md; cli/tests/exit_codes.rs holds the two together and
 //! produces each code with a real broker.
 
 use std::fmt;

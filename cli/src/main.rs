@@ -1,6 +1,6 @@
 //! `bass`: the command-line tool of the bass broker. The command line and the commands live in
-//! the library's [`bassd::cli`] module tree; see docs/broker.md.
+//! the [`bass_cli`] library; see docs/broker.md.
 
 fn main() {
-    bassd::cli::bass::main()
+    bass_cli::bass::main()
 }

@@ -13,9 +13,9 @@ use bassclient::format::{chunk_flags, State};
 use bassclient::{Error, Port};
 use serde::Serialize;
 
-use super::exit::{self, Exit};
-use super::follow::{after_stop, open_port, AfterStop};
-use crate::cli::parse_seconds;
+use crate::exit::{self, Exit};
+use crate::follow::{after_stop, open_port, AfterStop};
+use bassclient::args::parse_seconds;
 
 /// Largest block (frames per channel) `--block` accepts.
 pub const MAX_BLOCK: u64 = 1 << 24;

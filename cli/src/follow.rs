@@ -14,7 +14,7 @@ use bassclient::control::Client;
 use bassclient::format::State;
 use bassclient::{Error, Port};
 
-use super::exit::{self, Exit};
+use crate::exit::{self, Exit};
 
 /// After how long a waiting command says that it waits.
 pub const WAIT_NOTICE: Duration = Duration::from_secs(1);

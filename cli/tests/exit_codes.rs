@@ -1,12 +1,12 @@
-//! The exit-code table of `bass` (docs/broker.md, "Exit codes"; broker/src/cli/exit.rs),
+//! The exit-code table of `bass` (docs/broker.md, "Exit codes"; cli/src/exit.rs),
 //! held against real processes: every documented code is produced by a real `bass` against a
 //! real `bassd` (a real tmpfs for the full-port-directory case), and the documented table is
 //! the one the code defines (issue 21 item 9).
 
 use std::process::{Command, Output};
 
+use bass_cli::exit;
 use bass_test_support::*;
-use bassd::cli::exit;
 
 fn code(o: &Output) -> i32 {
     o.status.code().unwrap_or_else(|| panic!("bass was killed: {}", text(o)))
@@ -101,7 +101,7 @@ fn the_documented_exit_code_table_is_the_one_the_code_uses() {
             Some((n, cells.next()?.to_lowercase()))
         })
         .collect();
-    let src = include_str!("../src/cli/exit.rs");
+    let src = include_str!("../src/exit.rs");
     let mut consts: Vec<i32> = src
         .lines()
         .filter_map(|l| l.trim().strip_prefix("pub const ")?.split_once(": i32 = "))

@@ -141,7 +141,7 @@ pub fn patch_sizes(file: &File, format: Format, data_bytes: u64) -> io::Result<(
 /// counted, so a failed write (a full disk) leaves a known number of bytes behind.
 ///
 /// ```
-/// use bassd::cli::wav::{Format, Spec, Writer};
+/// use bass_cli::wav::{Format, Spec, Writer};
 /// let path = std::env::temp_dir().join(format!("bass-doc-wav-{}.wav", std::process::id()));
 /// let spec = Spec { channels: 2, sample_rate: 48000, bits: 24, format: Format::Pcm };
 /// let mut w = Writer::new(std::fs::File::create(&path)?, spec)?;

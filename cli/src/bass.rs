@@ -11,12 +11,12 @@ use bassclient::{Error, Port};
 use clap::{CommandFactory, Parser, Subcommand};
 use serde_json::json;
 
-use super::blocks::{self, BlocksArgs};
-use super::exit::{self, Exit};
-use super::meter::{self, MeterArgs};
-use super::plot::{self, PlotArgs};
-use super::record::{self, RecordArgs};
-use super::{parse_seconds, AcquireArgs};
+use crate::blocks::{self, BlocksArgs};
+use crate::exit::{self, Exit};
+use crate::meter::{self, MeterArgs};
+use crate::plot::{self, PlotArgs};
+use crate::record::{self, RecordArgs};
+use bassclient::args::{parse_seconds, AcquireArgs};
 
 const EXIT_CODES: &str = "\
 Exit codes: 0 success; 1 other failure; 2 usage error (or a request the broker refused as

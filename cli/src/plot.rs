@@ -10,9 +10,9 @@ use anyhow::{bail, Context, Result};
 use bassclient::format::chunk_flags;
 use plotters::prelude::*;
 
-use super::exit::{self, Exit};
-use super::follow::open_port;
-use crate::cli::parse_seconds;
+use crate::exit::{self, Exit};
+use crate::follow::open_port;
+use bassclient::args::parse_seconds;
 
 /// Width of the picture (pixels).
 const WIDTH: u32 = 1200;

@@ -1,0 +1,23 @@
+//! `bass`, the command-line tool of the bass broker, as a library (the binary and the
+//! integration tests are thin layers over it). It talks to `bassd` only through the control
+//! protocol and the port, both in `bassclient`; the Acquire options it shares with `bassd`
+//! are `bassclient::args::AcquireArgs`.
+//!
+//! - [`bass`]: the `bass` command line and its dispatch (devices, acquire, stop, status,
+//!   completions);
+//! - [`blocks`]: `bass blocks`, the BASC loop with one line (or JSON object) per block;
+//! - [`follow`]: opening a port and following it across acquisitions (new epochs);
+//! - [`meter`]: `bass meter`, the live level meter;
+//! - [`plot`]: `bass plot`, PNG pictures of a recording or of the port;
+//! - [`record`]: `bass record FILE.wav` with its timestamp sidecar, and `--check`;
+//! - [`wav`]: the WAV writer, header parser and repair of `bass record`;
+//! - [`exit`]: the documented exit codes and how errors map onto them.
+
+pub mod bass;
+pub mod blocks;
+pub mod exit;
+pub mod follow;
+pub mod meter;
+pub mod plot;
+pub mod record;
+pub mod wav;

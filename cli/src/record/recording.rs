@@ -1,0 +1,234 @@
+//! A recording in progress: the read loop's state, the rows, the losses, the end.
+
+use std::fs::File;
+use std::io::{self, Write};
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::Result;
+use bassclient::format::chunk_flags;
+use bassclient::{Error, Port};
+
+use crate::blocks::levels;
+use crate::wav;
+use bassclient::sidecar::{self, ChunkRow, Lost, Sidecar};
+
+use super::checkpoint::{stage, IN_PROGRESS};
+use super::convert;
+
+/// Why the loop ended in failure.
+pub(super) enum Ended {
+    /// Writing the WAV or the sidecar failed (a full disk): the file is kept, made consistent.
+    Disk(io::Error),
+    /// Anything else (the exit code is the error's).
+    Other(anyhow::Error),
+}
+
+/// What one step of the loop did instead of reading frames.
+pub(super) enum Step {
+    /// Nothing to read yet.
+    Idle,
+    /// The wait ended the acquisition's read (Stopped with nothing left, Restarted, ...).
+    Wait(Error),
+    /// A write failed.
+    Disk(io::Error),
+}
+
+/// A recording in progress.
+pub(super) struct Recording {
+    pub(super) file: PathBuf,
+    pub(super) side_path: PathBuf,
+    pub(super) acquisition: sidecar::Acquisition,
+    pub(super) channels: Vec<u32>,
+    /// The first frame asked for.
+    pub(super) requested: u64,
+    /// The file's first frame, once a frame is in it.
+    pub(super) first: Option<u64>,
+    /// The next frame to read.
+    pub(super) next: u64,
+    pub(super) rows: Vec<ChunkRow>,
+    /// Frames of GAP rows in the file (for the progress line; the sidecar's is computed).
+    pub(super) gap_count: u64,
+    pub(super) losses: Vec<Lost>,
+    pub(super) wav: wav::Writer,
+}
+
+impl Recording {
+    pub(super) fn nfpc(&self) -> u64 {
+        u64::from(self.acquisition.frames_per_chunk)
+    }
+
+    /// The last frame of the chunk holding `frame`.
+    pub(super) fn chunk_end(&self, frame: u64) -> u64 {
+        ((frame - 1) / self.nfpc() + 1) * self.nfpc()
+    }
+
+    /// Waits for the rest of the chunk holding the next frame, then reads up to 4 chunks
+    /// (never past the limit), so that every read but the first and the last ends on a chunk
+    /// boundary and a loss (which starts at the frame asked for) starts on a chunk.
+    pub(super) fn step(&mut self, port: &Port, limit: Option<u64>, peaks: &mut [f64]) -> Result<(), Step> {
+        let nfpc = self.nfpc();
+        let lfi = match port.wait(self.chunk_end(self.next), Duration::from_millis(200)) {
+            Ok(l) => l,
+            Err(Error::Timeout { .. } | Error::Interrupted) => return Err(Step::Idle),
+            Err(Error::Stopped { last }) if self.next <= last => last,
+            Err(e) => return Err(Step::Wait(e)),
+        };
+        if lfi < self.next {
+            return Err(Step::Idle);
+        }
+        let chunks = u64::from(self.acquisition.chunks_on_port / 2).clamp(1, 4);
+        let mut end = lfi.min(self.chunk_end(self.next) + (chunks - 1) * nfpc);
+        if let Some(l) = limit {
+            end = end.min(self.first.unwrap_or(self.next) + l - 1);
+        }
+        // The chunk rows, read before the frames: a chunk whose frames the read then returns
+        // intact had not been overwritten when its row was read, so its row is right.
+        let before = self.next;
+        let c0 = (before - 1) / nfpc;
+        let pre: Vec<Option<ChunkRow>> = (c0..=(end - 1) / nfpc)
+            .map(|c| {
+                port.chunk_info((c * nfpc + 1).max(before)).ok().map(|ci| ChunkRow {
+                    first_frame: ci.first_frame,
+                    frames: ci.frames,
+                    mono_ns: ci.mono_ns,
+                    realtime_ns: ci.realtime_ns,
+                    flags: ci.flags,
+                })
+            })
+            .collect();
+        let want = (end - before + 1) as usize;
+        let used = *self.channels.iter().max().expect("channels") as usize + 1;
+        let mut bufs = vec![vec![0i32; want]; used];
+        let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| &mut b[..]).collect();
+        let mut nfr = before;
+        let r = port.get_audio_data(want, &mut nfr, &mut outs).map_err(Step::Wait)?;
+        let got = before + r.loss; // the first frame delivered
+                                   // Frames delivered past `end` (after a loss) are read again by the next step.
+        let kept = if got <= end { (r.frames as u64).min(end - got + 1) } else { 0 };
+        self.next = got + kept;
+        if self.first.is_none() {
+            // Frames lost before the first one in the file: not in the file, not a loss in it.
+            if kept == 0 {
+                return Ok(());
+            }
+            self.first = Some(got);
+        } else if r.loss > 0 {
+            let room = limit.map_or(u64::MAX, |l| l - self.wav.frames());
+            let lost = r.loss.min(room);
+            match self.losses.last_mut() {
+                Some(l) if l.first_frame + l.frames == before => l.frames += lost,
+                _ => self.losses.push(Lost { first_frame: before, frames: lost }),
+            }
+            for _ in 0..lost * self.channels.len() as u64 {
+                self.wav.sample(0).map_err(Step::Disk)?;
+            }
+            if lost < r.loss {
+                return Ok(()); // the limit
+            }
+        }
+        let bits = self.wav.spec().bits;
+        #[allow(clippy::needless_range_loop)] // interleaving: frame i of every selected channel
+        for i in 0..kept as usize {
+            for &c in &self.channels {
+                self.wav.sample(convert(bufs[c as usize][i], bits)).map_err(Step::Disk)?;
+            }
+        }
+        let lv = levels(
+            &self.channels.iter().map(|&c| bufs[c as usize][..kept as usize].to_vec()).collect::<Vec<_>>(),
+        );
+        for (p, l) in peaks.iter_mut().zip(lv) {
+            *p = p.max(l.1);
+        }
+        if kept > 0 {
+            for c in (got - 1) / nfpc..=(got + kept - 2) / nfpc {
+                if let Some(row) = pre[(c - c0) as usize] {
+                    if row.first_frame == c * nfpc + 1
+                        && self.rows.last().map_or(true, |p| p.first_frame < row.first_frame)
+                    {
+                        if row.flags & chunk_flags::GAP != 0 {
+                            let from = row.first_frame.max(got);
+                            self.gap_count += (row.first_frame + nfpc).min(got + kept) - from;
+                        }
+                        self.rows.push(row);
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The sidecar of the first `frames` frames of the file.
+    pub(super) fn sidecar(&self, frames: u64, end: &str, in_progress: bool) -> Sidecar {
+        let first = self.first.unwrap_or(self.next);
+        let last = first + frames; // one past the file
+        let losses: Vec<Lost> = self
+            .losses
+            .iter()
+            .filter(|l| l.first_frame < last)
+            .map(|l| Lost { first_frame: l.first_frame, frames: l.frames.min(last - l.first_frame) })
+            .collect();
+        let chunks: Vec<ChunkRow> = if frames == 0 {
+            Vec::new()
+        } else {
+            self.rows.iter().filter(|r| r.first_frame < last).copied().collect()
+        };
+        let spec = self.wav.spec();
+        let data = frames * spec.frame_bytes();
+        let after = first - self.requested;
+        let mut s = Sidecar {
+            acquisition: self.acquisition.clone(),
+            recording: sidecar::Recording {
+                file: self.file.display().to_string(),
+                first_frame: first,
+                frames,
+                seconds: frames as f64 / f64::from(self.acquisition.sample_rate),
+                bytes: spec.format.header_len() + data + (data & 1),
+                bits: spec.bits,
+                channels: self.channels.clone(),
+                gap_frames: 0,
+                lost_frames: losses.iter().map(|l| l.frames).sum(),
+                end: end.into(),
+                requested_first_frame: (after > 0).then_some(self.requested),
+                started_after_requested: after,
+                wav_format: Some(spec.format.name().into()),
+                in_progress,
+            },
+            losses,
+            chunks,
+        };
+        s.recording.gap_frames = s.gap_frames_in_file();
+        s
+    }
+
+    /// The first checkpoint (no frames yet), written to the sidecar just created.
+    pub(super) fn write_first_checkpoint(&self, mut f: File) -> io::Result<()> {
+        f.write_all(&serde_json::to_vec_pretty(&self.sidecar(0, IN_PROGRESS, true))?)
+    }
+
+    /// Finalises the WAV and writes the final sidecar. If a write fails (a full disk), the
+    /// WAV is cut to the whole frames that reached it, and if the sidecar does not fit, cut
+    /// further by whole frames until it does. Returns the sidecar and the frames cut for it.
+    pub(super) fn finish(&mut self, end: &str) -> io::Result<(Sidecar, u64)> {
+        let fb = self.wav.spec().frame_bytes();
+        let mut frames = match self.wav.finalize() {
+            Ok(n) => n,
+            Err(_) => wav::repair(&self.file, fb, None)?,
+        };
+        let mut cut = 0;
+        loop {
+            let side = self.sidecar(frames, end, false);
+            match stage(&self.side_path, &side).and_then(|tmp| std::fs::rename(tmp, &self.side_path)) {
+                Ok(()) => return Ok((side, cut)),
+                Err(e) if e.raw_os_error() == Some(libc::ENOSPC) && frames > 0 => {
+                    // Free the sidecar's size and a few pages from the end of the WAV.
+                    let need = serde_json::to_vec_pretty(&side).map_or(0, |v| v.len() as u64) + 8192;
+                    let drop = need.div_ceil(fb).min(frames);
+                    frames = wav::repair(&self.file, fb, Some(frames - drop))?;
+                    cut += drop;
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+}
