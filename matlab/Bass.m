@@ -6,6 +6,7 @@
 %   bass.GetBlocks(1, 88200, 0)                 % the BASC client: prints the seed's lines
 %   [l, r, nfr, n, loss] = bass.getAudioData(12000, nfr)   % the formal getAudioData
 %   lfi = bass.Wait(frame, timeoutSeconds)      % blocks until frame is published (Ctrl-C safe)
+%   c = bass.ChunkInfo(frame)                   % the chunk holding frame: timestamps, c.gap, c.late, ...
 %   s = bass.Status()
 %   bass.Stop()
 %
@@ -74,7 +75,17 @@ classdef Bass < handle
     end
 
     function info = PortInfo(obj)
+      % A snapshot of the port: every field of bass_port_info (geometry, lastFrameIndex,
+      % state, xruns, gapFrames, lostUpstreamFrames, startedMonoNs, heartbeatMonoNs, ...).
       info = obj.call('Info');
+    end
+
+    function c = ChunkInfo(obj, frame)
+      % The chunk holding frame: firstFrame, frames, monoNs, realtimeNs, flags and one
+      % logical per flag (gap: zero-filled frames the device or the network did not deliver;
+      % discontinuity; timeEstimated; late: delivered in a catch-up burst). bass:lost if the
+      % frame left the window, bass:notYet if it is not published yet.
+      c = obj.call('ChunkInfo', frame);
     end
 
     function [l, r, nfr, n, loss] = getAudioData(obj, N, nfr)

@@ -7,7 +7,8 @@
  *   devices                = bass_mex('ListDevices' [, broker])       n x 2 cell {name, description}; printed if nargout = 0
  *   h                      = bass_mex('Open' [, name])                 port handle (uint64)
  *                            bass_mex('Close', h)
- *   info                   = bass_mex('Info', h)                       struct
+ *   info                   = bass_mex('Info', h)                       struct: every field of bass_port_info
+ *   ci                     = bass_mex('ChunkInfo', h, frame)           struct: the chunk holding frame
  *   [l, r, nfr, n, loss]   = bass_mex('GetAudioData', h, N, nfr [, noLoss])
  *   [x, nfr, n, loss]      = bass_mex('GetAudioDataMulti', h, N, nfr)   x: n x channels int32
  *   lfi                    = bass_mex('Wait', h, frame [, timeoutSeconds])
@@ -20,6 +21,11 @@
  * loss raises bass:lost instead. Wait blocks until `frame` is published, in slices of 100 ms
  * so that Ctrl-C returns to the prompt (error bass:interrupted); timeoutSeconds Inf (the
  * default) waits forever.
+ *
+ * ChunkInfo describes the chunk that holds `frame`: firstFrame, monoNs, realtimeNs (uint64),
+ * frames, flags (the BASS_CHUNK_* bits) and one logical per flag: gap (zero-filled frames the
+ * device or the network did not deliver), discontinuity, timeEstimated, late (delivered in a
+ * catch-up burst). A frame that left the window is bass:lost, one not yet published bass:notYet.
  *
  * GetAudioData and GetAudioDataMulti never block; when they return fewer frames than asked,
  * they ask the library whether the port was replaced by a new acquisition (bass:restarted:
@@ -39,6 +45,7 @@
 #define _POSIX_C_SOURCE 200809L
 #include <math.h>
 #include <stdbool.h>
+#include <stddef.h>
 #include <signal.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -63,17 +70,39 @@ static int interrupt_pending(void) {
     return 0;
 }
 
+/* The error identifier of every result code of bass.h, in the header's order.
+ * tests/clients/test_mex_drift.py fails when a code of the header is missing here. */
 static const char *const IDS[] = {
-    "bass:ok",          "bass:nullArgument", "bass:invalidArgument", "bass:invalidHandle", "bass:noPort",
-    "bass:notReady",    "bass:badMagic",     "bass:incompatible",    "bass:corrupt",       "bass:io",
-    "bass:timeout",     "bass:stopped",      "bass:device",          "bass:restarted",     "bass:writerGone",
-    "bass:lost",        "bass:notYet",       "bass:interrupted",     "bass:broker",        "bass:noBroker",
-    "bass:protocol",    "bass:panic",        "bass:bufferTooSmall",
+    [BASS_OK] = "bass:ok",
+    [BASS_ERR_NULL_ARGUMENT] = "bass:nullArgument",
+    [BASS_ERR_INVALID_ARGUMENT] = "bass:invalidArgument",
+    [BASS_ERR_INVALID_HANDLE] = "bass:invalidHandle",
+    [BASS_ERR_NOT_FOUND] = "bass:noPort",
+    [BASS_ERR_NOT_READY] = "bass:notReady",
+    [BASS_ERR_BAD_MAGIC] = "bass:badMagic",
+    [BASS_ERR_INCOMPATIBLE] = "bass:incompatible",
+    [BASS_ERR_CORRUPT] = "bass:corrupt",
+    [BASS_ERR_IO] = "bass:io",
+    [BASS_ERR_TIMEOUT] = "bass:timeout",
+    [BASS_ERR_STOPPED] = "bass:stopped",
+    [BASS_ERR_DEVICE] = "bass:device",
+    [BASS_ERR_RESTARTED] = "bass:restarted",
+    [BASS_ERR_WRITER_GONE] = "bass:writerGone",
+    [BASS_ERR_FRAME_LOST] = "bass:lost",
+    [BASS_ERR_FRAME_NOT_YET] = "bass:notYet",
+    [BASS_ERR_INTERRUPTED] = "bass:interrupted",
+    [BASS_ERR_BROKER] = "bass:broker",
+    [BASS_ERR_NO_BROKER] = "bass:noBroker",
+    [BASS_ERR_PROTOCOL] = "bass:protocol",
+    [BASS_ERR_PANIC] = "bass:panic",
+    [BASS_ERR_BUFFER_TOO_SMALL] = "bass:bufferTooSmall",
+    [BASS_ERR_WRONG_OWNER] = "bass:wrongOwner",
+    [BASS_ERR_NEVER_READY] = "bass:neverReady",
 };
 
 static const char *error_id(bass_result r) {
     unsigned i = (unsigned)r;
-    return i < sizeof IDS / sizeof IDS[0] ? IDS[i] : "bass:unknown";
+    return i < sizeof IDS / sizeof IDS[0] && IDS[i] ? IDS[i] : "bass:unknown";
 }
 
 /* Raises the Matlab error for a failed call (does not return). */
@@ -260,51 +289,148 @@ static void check_replaced(const char *call, bass_port *port, uint64_t nfr) {
  * against include/bass.h by the tests), so a new state is never shown as "unknown". */
 static const char *state_name(uint32_t s) { return bass_state_str(s); }
 
-static mxArray *info_struct(const bass_port_info *i) {
-    static const char *fields[] = {"channels", "sampleRate", "nFramesPerChunk", "nChunksOnPort", "nFramesOnPort",
-                                   "lastFrameIndex", "epoch", "state", "errorCode", "xruns", "gapFrames",
-                                   "chunksPublished", "rateEstimateHz", "writerPid", "writerAlive", "device",
-                                   "message"};
-    mxArray *s = mxCreateStructMatrix(1, 1, sizeof fields / sizeof fields[0], fields);
-    mxSetField(s, 0, "channels", mxCreateDoubleScalar(i->channels));
-    mxSetField(s, 0, "sampleRate", mxCreateDoubleScalar(i->sample_rate));
-    mxSetField(s, 0, "nFramesPerChunk", mxCreateDoubleScalar(i->frames_per_chunk));
-    mxSetField(s, 0, "nChunksOnPort", mxCreateDoubleScalar(i->chunks_on_port));
-    mxSetField(s, 0, "nFramesOnPort", mxCreateDoubleScalar((double)i->frames_on_port));
-    mxSetField(s, 0, "lastFrameIndex", u64_scalar(i->last_frame_index));
-    mxSetField(s, 0, "epoch", u64_scalar(i->epoch));
-    mxSetField(s, 0, "state", mxCreateString(state_name(i->state)));
-    mxSetField(s, 0, "errorCode", mxCreateDoubleScalar(i->error_code));
-    mxSetField(s, 0, "xruns", u64_scalar(i->xruns));
-    mxSetField(s, 0, "gapFrames", u64_scalar(i->gap_frames));
-    mxSetField(s, 0, "chunksPublished", u64_scalar(i->chunks_published));
-    mxSetField(s, 0, "rateEstimateHz", mxCreateDoubleScalar(i->rate_estimate_hz));
-    mxSetField(s, 0, "writerPid", mxCreateDoubleScalar(i->writer_pid));
-    mxSetField(s, 0, "writerAlive", mxCreateLogicalScalar(i->writer_alive != 0));
-    mxSetField(s, 0, "device", mxCreateString(i->device));
-    mxSetField(s, 0, "message", mxCreateString(i->message));
+/* How a C struct member becomes a Matlab value. */
+enum value_kind {
+    AS_DOUBLE_U32, /* uint32_t -> double */
+    AS_DOUBLE_U64, /* uint64_t -> double (sizes, exact below 2^53) */
+    AS_UINT64,     /* uint64_t -> uint64 (frame indices, counters, nanoseconds) */
+    AS_DOUBLE,     /* double -> double */
+    AS_LOGICAL,    /* uint32_t 0/1 -> logical */
+    AS_STATE,      /* uint32_t BASS_STATE_* -> its name */
+    AS_TEXT,       /* NUL-terminated char array -> string */
+};
+
+/* One Matlab struct field: its name, the C member (offsetof) and how it is converted. */
+struct field_map {
+    const char *name;
+    size_t offset;
+    enum value_kind kind;
+};
+
+#define FIELD(type, matlab, member, kind) {matlab, offsetof(type, member), kind}
+
+/* Every member of bass_port_info, in the header's order. tests/clients/test_mex_drift.py
+ * fails when a member of the header is missing here. */
+static const struct field_map INFO_FIELDS[] = {
+    FIELD(bass_port_info, "channels", channels, AS_DOUBLE_U32),
+    FIELD(bass_port_info, "sampleRate", sample_rate, AS_DOUBLE_U32),
+    FIELD(bass_port_info, "nFramesPerChunk", frames_per_chunk, AS_DOUBLE_U32),
+    FIELD(bass_port_info, "nChunksOnPort", chunks_on_port, AS_DOUBLE_U32),
+    FIELD(bass_port_info, "nFramesOnPort", frames_on_port, AS_DOUBLE_U64),
+    FIELD(bass_port_info, "lastFrameIndex", last_frame_index, AS_UINT64),
+    FIELD(bass_port_info, "epoch", epoch, AS_UINT64),
+    FIELD(bass_port_info, "state", state, AS_STATE),
+    FIELD(bass_port_info, "errorCode", error_code, AS_DOUBLE_U32),
+    FIELD(bass_port_info, "xruns", xruns, AS_UINT64),
+    FIELD(bass_port_info, "gapFrames", gap_frames, AS_UINT64),
+    FIELD(bass_port_info, "chunksPublished", chunks_published, AS_UINT64),
+    FIELD(bass_port_info, "rateEstimateHz", rate_estimate_hz, AS_DOUBLE),
+    FIELD(bass_port_info, "writerPid", writer_pid, AS_DOUBLE_U32),
+    FIELD(bass_port_info, "writerAlive", writer_alive, AS_LOGICAL),
+    FIELD(bass_port_info, "startedMonoNs", started_mono_ns, AS_UINT64),
+    FIELD(bass_port_info, "heartbeatMonoNs", heartbeat_mono_ns, AS_UINT64),
+    FIELD(bass_port_info, "device", device, AS_TEXT),
+    FIELD(bass_port_info, "message", message, AS_TEXT),
+    FIELD(bass_port_info, "lostUpstreamFrames", lost_upstream_frames, AS_UINT64),
+};
+
+/* Every member of bass_broker_status, in the header's order (checked like INFO_FIELDS). */
+static const struct field_map STATUS_FIELDS[] = {
+    FIELD(bass_broker_status, "state", state, AS_STATE),
+    FIELD(bass_broker_status, "errorCode", error_code, AS_DOUBLE_U32),
+    FIELD(bass_broker_status, "sampleRate", sample_rate, AS_DOUBLE_U32),
+    FIELD(bass_broker_status, "nFramesPerChunk", frames_per_chunk, AS_DOUBLE_U32),
+    FIELD(bass_broker_status, "nChunksOnPort", chunks_on_port, AS_DOUBLE_U32),
+    FIELD(bass_broker_status, "channels", channels, AS_DOUBLE_U32),
+    FIELD(bass_broker_status, "epoch", epoch, AS_UINT64),
+    FIELD(bass_broker_status, "lastFrameIndex", last_frame_index, AS_UINT64),
+    FIELD(bass_broker_status, "xruns", xruns, AS_UINT64),
+    FIELD(bass_broker_status, "gapFrames", gap_frames, AS_UINT64),
+    FIELD(bass_broker_status, "rateEstimateHz", rate_estimate_hz, AS_DOUBLE),
+    FIELD(bass_broker_status, "device", device, AS_TEXT),
+    FIELD(bass_broker_status, "message", message, AS_TEXT),
+};
+
+/* Every member of bass_chunk_info, in the header's order (checked like INFO_FIELDS). */
+static const struct field_map CHUNK_FIELDS[] = {
+    FIELD(bass_chunk_info, "firstFrame", first_frame, AS_UINT64),
+    FIELD(bass_chunk_info, "monoNs", mono_ns, AS_UINT64),
+    FIELD(bass_chunk_info, "realtimeNs", realtime_ns, AS_UINT64),
+    FIELD(bass_chunk_info, "frames", frames, AS_DOUBLE_U32),
+    FIELD(bass_chunk_info, "flags", flags, AS_DOUBLE_U32),
+};
+
+/* Every BASS_CHUNK_* flag of the header, in its order: ChunkInfo adds one logical field
+ * per flag (checked like INFO_FIELDS). */
+static const struct {
+    uint32_t bit;
+    const char *name;
+} CHUNK_FLAGS[] = {
+    {BASS_CHUNK_GAP, "gap"},
+    {BASS_CHUNK_DISCONTINUITY, "discontinuity"},
+    {BASS_CHUNK_TIME_ESTIMATED, "timeEstimated"},
+    {BASS_CHUNK_LATE, "late"},
+};
+
+#define COUNT(a) (sizeof(a) / sizeof((a)[0]))
+
+static mxArray *field_value(const char *base, const struct field_map *f) {
+    const char *p = base + f->offset;
+    uint32_t u32;
+    uint64_t u64;
+    double d;
+    switch (f->kind) {
+    case AS_DOUBLE_U32:
+        memcpy(&u32, p, sizeof u32);
+        return mxCreateDoubleScalar(u32);
+    case AS_DOUBLE_U64:
+        memcpy(&u64, p, sizeof u64);
+        return mxCreateDoubleScalar((double)u64);
+    case AS_UINT64:
+        memcpy(&u64, p, sizeof u64);
+        return u64_scalar(u64);
+    case AS_DOUBLE:
+        memcpy(&d, p, sizeof d);
+        return mxCreateDoubleScalar(d);
+    case AS_LOGICAL:
+        memcpy(&u32, p, sizeof u32);
+        return mxCreateLogicalScalar(u32 != 0);
+    case AS_STATE:
+        memcpy(&u32, p, sizeof u32);
+        return mxCreateString(state_name(u32));
+    case AS_TEXT:
+        return mxCreateString(p);
+    }
+    return mxCreateDoubleMatrix(0, 0, mxREAL); /* not reached */
+}
+
+/* A 1x1 struct with the `n` mapped fields of the C struct at `base`, and `extra` more
+ * fields (named in `extra_names`) left for the caller to fill. */
+static mxArray *mapped_struct(const void *base, const struct field_map *fields, size_t n, const char *const *extra_names,
+                              size_t extra) {
+    const char *names[32];
+    if (n + extra > COUNT(names)) mexErrMsgIdAndTxt("bass:panic", "bass_mex: too many struct fields");
+    for (size_t k = 0; k < n; k++) names[k] = fields[k].name;
+    for (size_t k = 0; k < extra; k++) names[n + k] = extra_names[k];
+    mxArray *s = mxCreateStructMatrix(1, 1, (int)(n + extra), names);
+    for (size_t k = 0; k < n; k++) mxSetFieldByNumber(s, 0, (int)k, field_value((const char *)base, &fields[k]));
+    return s;
+}
+
+static mxArray *info_struct(const bass_port_info *i) { return mapped_struct(i, INFO_FIELDS, COUNT(INFO_FIELDS), NULL, 0); }
+
+/* The chunk's members, then one logical per BASS_CHUNK_* flag (gap, late, ...). */
+static mxArray *chunk_struct(const bass_chunk_info *c) {
+    const char *names[COUNT(CHUNK_FLAGS)];
+    for (size_t k = 0; k < COUNT(CHUNK_FLAGS); k++) names[k] = CHUNK_FLAGS[k].name;
+    mxArray *s = mapped_struct(c, CHUNK_FIELDS, COUNT(CHUNK_FIELDS), names, COUNT(CHUNK_FLAGS));
+    for (size_t k = 0; k < COUNT(CHUNK_FLAGS); k++)
+        mxSetField(s, 0, CHUNK_FLAGS[k].name, mxCreateLogicalScalar((c->flags & CHUNK_FLAGS[k].bit) != 0));
     return s;
 }
 
 static mxArray *status_struct(const bass_broker_status *st) {
-    static const char *fields[] = {"state",  "errorCode", "sampleRate", "nFramesPerChunk", "nChunksOnPort",
-                                   "channels", "epoch",   "lastFrameIndex", "xruns",       "gapFrames",
-                                   "rateEstimateHz", "device", "message"};
-    mxArray *s = mxCreateStructMatrix(1, 1, sizeof fields / sizeof fields[0], fields);
-    mxSetField(s, 0, "state", mxCreateString(state_name(st->state)));
-    mxSetField(s, 0, "errorCode", mxCreateDoubleScalar(st->error_code));
-    mxSetField(s, 0, "sampleRate", mxCreateDoubleScalar(st->sample_rate));
-    mxSetField(s, 0, "nFramesPerChunk", mxCreateDoubleScalar(st->frames_per_chunk));
-    mxSetField(s, 0, "nChunksOnPort", mxCreateDoubleScalar(st->chunks_on_port));
-    mxSetField(s, 0, "channels", mxCreateDoubleScalar(st->channels));
-    mxSetField(s, 0, "epoch", u64_scalar(st->epoch));
-    mxSetField(s, 0, "lastFrameIndex", u64_scalar(st->last_frame_index));
-    mxSetField(s, 0, "xruns", u64_scalar(st->xruns));
-    mxSetField(s, 0, "gapFrames", u64_scalar(st->gap_frames));
-    mxSetField(s, 0, "rateEstimateHz", mxCreateDoubleScalar(st->rate_estimate_hz));
-    mxSetField(s, 0, "device", mxCreateString(st->device));
-    mxSetField(s, 0, "message", mxCreateString(st->message));
-    return s;
+    return mapped_struct(st, STATUS_FIELDS, COUNT(STATUS_FIELDS), NULL, 0);
 }
 
 static void cmd_acquire(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
@@ -495,6 +621,12 @@ void mexFunction(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
         bass_port_info info;
         check("Info", bass_port_get_info(port_arg(nrhs, prhs, 1), &info));
         plhs[0] = info_struct(&info);
+    } else if (!strcmp(cmd, "ChunkInfo")) {
+        if (nrhs < 3) usage("ChunkInfo needs a port handle and a frame index");
+        uint64_t frame = arg_u64(prhs[2], "frame");
+        bass_chunk_info ci;
+        check("ChunkInfo", bass_port_chunk_info(port_arg(nrhs, prhs, 1), frame, &ci));
+        plhs[0] = chunk_struct(&ci);
     } else if (!strcmp(cmd, "GetAudioData")) {
         cmd_get_audio_data(nlhs, plhs, nrhs, prhs);
     } else if (!strcmp(cmd, "GetAudioDataMulti")) {

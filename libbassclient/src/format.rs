@@ -1,4 +1,5 @@
-//! Port format v1: the one definition of the shared-memory layout.
+//! The port format (version 2.1: [`VERSION_MAJOR`], [`VERSION_MINOR`]): the one definition of
+//! the shared-memory layout.
 //!
 //! A port is one file (by default in `/dev/shm`) holding one acquisition.
 //! Its geometry never changes; a new acquisition gets a new file.

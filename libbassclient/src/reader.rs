@@ -152,6 +152,31 @@ impl Port {
     /// memfd`), the broker `name` is asked for its port's descriptor over its control socket
     /// (`open-port`, see docs/control-protocol.md); a broker that answers with a plain file,
     /// an older broker, or none at all leaves the path's answer (usually `NotFound`).
+    ///
+    /// Open a port, wait for a frame, read (here the port comes from a [`Writer`] in a
+    /// private runtime directory; in production the broker writes it):
+    ///
+    /// ```
+    /// use std::time::Duration;
+    /// use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+    /// # let dir = std::env::temp_dir().join(format!("bass-doc-open-{}", std::process::id()));
+    /// # std::fs::create_dir_all(&dir).unwrap();
+    /// # std::env::set_var("BASS_RUNTIME_DIR", &dir);
+    /// let geometry = Geometry { channels: 2, sample_rate: 48000, frames_per_chunk: 4, chunks_on_port: 8 };
+    /// let mut w = Writer::create("doc", &PortParams { geometry, device: "doc".into(), group: None })?;
+    ///
+    /// let port = Port::open("doc")?; // the broker's name: $BASS_RUNTIME_DIR/bass-doc.port
+    /// w.publish(Source::Interleaved(&[10, 20, 11, 21, 12, 22, 13, 23]), ChunkMeta::default())?;
+    /// let last = port.wait(4, Duration::from_secs(1))?; // frames are numbered from 1
+    /// assert_eq!(last, 4);
+    /// let (mut left, mut right, mut nfr) = (vec![0; 4], vec![0; 4], 1);
+    /// let r = port.get_audio_data(4, &mut nfr, &mut [&mut left, &mut right])?;
+    /// assert_eq!((r.frames, r.loss, nfr), (4, 0, 5));
+    /// assert_eq!((left, right), (vec![10, 11, 12, 13], vec![20, 21, 22, 23]));
+    /// # drop(port);
+    /// # w.remove()?;
+    /// # Ok::<(), bassclient::Error>(())
+    /// ```
     pub fn open(name: &str) -> Result<Port> {
         let path = paths::port_path(name)?;
         let by_path = Port::open_path_named(&path, name, Some(&paths::expected_port_owners()?));
@@ -184,6 +209,21 @@ impl Port {
     }
 
     /// Opens the port file at `path` (the caller chose the file: its owner is not checked).
+    ///
+    /// ```
+    /// use bassclient::{Error, Geometry, Port, PortParams, Writer};
+    /// # let dir = std::env::temp_dir().join(format!("bass-doc-open-path-{}", std::process::id()));
+    /// # std::fs::create_dir_all(&dir).unwrap();
+    /// let path = dir.join("bass-doc.port");
+    /// assert!(matches!(Port::open_path(&path), Err(Error::NotFound { .. })));
+    /// let geometry = Geometry { channels: 1, sample_rate: 8000, frames_per_chunk: 100, chunks_on_port: 10 };
+    /// let w = Writer::create_at(&path, &PortParams { geometry: geometry.clone(), device: "doc".into(), group: None })?;
+    /// let port = Port::open_path(&path)?;
+    /// assert_eq!((port.geometry(), port.frames_on_port()), (&geometry, 1000));
+    /// # drop(port);
+    /// # w.remove()?;
+    /// # Ok::<(), bassclient::Error>(())
+    /// ```
     pub fn open_path(path: &Path) -> Result<Port> {
         Port::open_path_named(path, &path.display().to_string(), None)
     }
@@ -350,6 +390,31 @@ impl Port {
     /// per channel (channels `0..out.len()`), and advances `*nfr`. Never blocks.
     ///
     /// Every `out` slice must hold at least `min(max, nFOP)` samples.
+    ///
+    /// `*nfr` beyond the newest frame gives 0 frames; frames that already left the window are
+    /// counted in [`Read::loss`] and the block starts at the oldest frame still there:
+    ///
+    /// ```
+    /// use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+    /// # let dir = std::env::temp_dir().join(format!("bass-doc-gad-{}", std::process::id()));
+    /// # std::fs::create_dir_all(&dir).unwrap();
+    /// # let path = dir.join("bass-doc.port");
+    /// // A mono port of 2 chunks of 2 frames: the window holds the newest 4 frames.
+    /// let geometry = Geometry { channels: 1, sample_rate: 8000, frames_per_chunk: 2, chunks_on_port: 2 };
+    /// let mut w = Writer::create_at(&path, &PortParams { geometry, device: "doc".into(), group: None })?;
+    /// let port = Port::open_path(&path)?;
+    /// for chunk in [[1, 2], [3, 4], [5, 6]] {
+    ///     w.publish(Source::Interleaved(&chunk), ChunkMeta::default())?;
+    /// }
+    /// let (mut out, mut nfr) = (vec![0; 4], 1);
+    /// let r = port.get_audio_data(4, &mut nfr, &mut [&mut out])?;
+    /// assert_eq!((r.frames, r.loss, nfr, &out[..]), (4, 2, 7, &[3, 4, 5, 6][..]));
+    /// let r = port.get_audio_data(4, &mut nfr, &mut [&mut out])?; // nothing new yet
+    /// assert_eq!((r.frames, r.loss, nfr), (0, 0, 7));
+    /// # drop(port);
+    /// # w.remove()?;
+    /// # Ok::<(), bassclient::Error>(())
+    /// ```
     pub fn get_audio_data(&self, max: usize, nfr: &mut u64, out: &mut [&mut [i32]]) -> Result<Read> {
         if out.is_empty() || out.len() > self.geometry.channels as usize {
             return Err(Error::InvalidArgument(format!(
@@ -412,6 +477,31 @@ impl Port {
     /// A futex wait on the header's futex word; the writer's liveness is checked at least
     /// every [`LIVENESS_SLICE`] while nothing is published: by its heartbeat while that is
     /// younger than the slice, else in /proc (a file read, so not on every call).
+    ///
+    /// ```
+    /// use std::time::Duration;
+    /// use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
+    /// # let dir = std::env::temp_dir().join(format!("bass-doc-wait-{}", std::process::id()));
+    /// # std::fs::create_dir_all(&dir).unwrap();
+    /// # let path = dir.join("bass-doc.port");
+    /// let geometry = Geometry { channels: 1, sample_rate: 8000, frames_per_chunk: 2, chunks_on_port: 4 };
+    /// let mut w = Writer::create_at(&path, &PortParams { geometry, device: "doc".into(), group: None })?;
+    /// let port = Port::open_path(&path)?;
+    /// let publisher = std::thread::spawn(move || {
+    ///     w.publish(Source::Interleaved(&[1, 2]), ChunkMeta::default()).unwrap();
+    ///     w
+    /// });
+    /// assert_eq!(port.wait(2, Duration::from_secs(10))?, 2); // woken by the publish
+    /// let w = publisher.join().unwrap();
+    /// // Frame 3 does not come: a timeout names the frame and the newest one.
+    /// let e = port.wait(3, Duration::from_millis(1)).unwrap_err();
+    /// assert!(matches!(e, Error::Timeout { frame: 3, last: 2 }));
+    /// w.stop(); // the acquisition ends: waiters are told, not left to time out
+    /// assert!(matches!(port.wait(3, Duration::from_secs(10)), Err(Error::Stopped { last: 2 })));
+    /// # drop(port);
+    /// # w.remove()?;
+    /// # Ok::<(), bassclient::Error>(())
+    /// ```
     pub fn wait(&self, frame: u64, timeout: Duration) -> Result<u64> {
         let timeout_ns = u64::try_from(timeout.as_nanos()).unwrap_or(u64::MAX);
         // CLOCK_MONOTONIC deadline (None: never), set on the first pass that would sleep. One
@@ -489,6 +579,25 @@ impl Port {
     }
 
     /// Timestamps and flags of the chunk that holds `frame`.
+    ///
+    /// ```
+    /// use bassclient::format::chunk_flags;
+    /// use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
+    /// # let dir = std::env::temp_dir().join(format!("bass-doc-chunk-{}", std::process::id()));
+    /// # std::fs::create_dir_all(&dir).unwrap();
+    /// # let path = dir.join("bass-doc.port");
+    /// let geometry = Geometry { channels: 1, sample_rate: 8000, frames_per_chunk: 2, chunks_on_port: 4 };
+    /// let mut w = Writer::create_at(&path, &PortParams { geometry, device: "doc".into(), group: None })?;
+    /// let late = ChunkMeta { mono_ns: 1_000, realtime_ns: 2_000, flags: chunk_flags::LATE };
+    /// w.publish(Source::Interleaved(&[1, 2]), late)?;
+    /// let port = Port::open_path(&path)?;
+    /// let c = port.chunk_info(2)?;
+    /// assert_eq!((c.first_frame, c.frames, c.mono_ns, c.flags), (1, 2, 1_000, chunk_flags::LATE));
+    /// assert!(matches!(port.chunk_info(3), Err(Error::FrameNotYet { frame: 3, last: 2 })));
+    /// # drop(port);
+    /// # w.remove()?;
+    /// # Ok::<(), bassclient::Error>(())
+    /// ```
     pub fn chunk_info(&self, frame: u64) -> Result<ChunkInfo> {
         self.check_size()?;
         let lfi = self.last_frame_index();

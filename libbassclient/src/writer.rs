@@ -78,6 +78,31 @@ impl Writer {
     ///
     /// The file is built under a temporary name and renamed into place, and its version is
     /// written last, so no reader ever sees a half-initialised header.
+    ///
+    /// Create a writer, publish (a simulator or test rig; the broker is the writer in
+    /// production):
+    ///
+    /// ```
+    /// use bassclient::format::chunk_flags;
+    /// use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, State, Writer};
+    /// # let dir = std::env::temp_dir().join(format!("bass-doc-create-{}", std::process::id()));
+    /// # std::fs::create_dir_all(&dir).unwrap();
+    /// let path = dir.join("bass-sim.port");
+    /// let geometry = Geometry { channels: 2, sample_rate: 48000, frames_per_chunk: 480, chunks_on_port: 10 };
+    /// let params = PortParams { geometry, device: "sim".into(), group: None };
+    /// let mut w = Writer::create_at(&path, &params)?;
+    /// assert_eq!((w.state(), w.last_frame_index(), w.epoch()), (State::Starting, 0, 1));
+    ///
+    /// let chunk = vec![7i32; 480 * 2]; // frame-interleaved: L R L R ...
+    /// assert_eq!(w.publish(Source::Interleaved(&chunk), ChunkMeta::default())?, 480);
+    /// let gap = ChunkMeta { flags: chunk_flags::GAP, ..ChunkMeta::default() };
+    /// assert_eq!(w.publish(Source::Interleaved(&vec![0; 960]), gap)?, 960);
+    ///
+    /// let info = Port::open_path(&path)?.info()?;
+    /// assert_eq!((info.state, info.last_frame_index, info.chunks_published), (Some(State::Capturing), 960, 2));
+    /// w.remove()?;
+    /// # Ok::<(), bassclient::Error>(())
+    /// ```
     pub fn create_at(path: &Path, params: &PortParams) -> Result<Writer> {
         Writer::prepare_at(path, params)?.commit()
     }
@@ -198,6 +223,32 @@ impl Writer {
     }
 
     /// Publishes one chunk of nFPC frames. Returns the new last frame index.
+    ///
+    /// The chunk comes frame-interleaved ([`Source::Interleaved`], nFPC × channels samples)
+    /// or as one slice of nFPC samples per channel ([`Source::Planar`]); `meta` carries its
+    /// timestamps (0: now) and [`format::chunk_flags`]. Readers waiting for its frames wake.
+    ///
+    /// ```
+    /// use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+    /// # let dir = std::env::temp_dir().join(format!("bass-doc-publish-{}", std::process::id()));
+    /// # std::fs::create_dir_all(&dir).unwrap();
+    /// # let path = dir.join("bass-doc.port");
+    /// let geometry = Geometry { channels: 2, sample_rate: 8000, frames_per_chunk: 2, chunks_on_port: 4 };
+    /// let mut w = Writer::create_at(&path, &PortParams { geometry, device: "doc".into(), group: None })?;
+    /// w.publish(Source::Interleaved(&[1, -1, 2, -2]), ChunkMeta::default())?;
+    /// let lfi = w.publish(Source::Planar(&[&[3, 4], &[-3, -4]]), ChunkMeta::default())?;
+    /// assert_eq!(lfi, 4);
+    /// // A chunk of the wrong size is refused, naming the sizes.
+    /// assert!(w.publish(Source::Interleaved(&[1, 2, 3]), ChunkMeta::default()).is_err());
+    ///
+    /// let port = Port::open_path(&path)?;
+    /// let (mut l, mut r, mut nfr) = (vec![0; 4], vec![0; 4], 1);
+    /// port.get_audio_data(4, &mut nfr, &mut [&mut l, &mut r])?;
+    /// assert_eq!((l, r), (vec![1, 2, 3, 4], vec![-1, -2, -3, -4]));
+    /// # drop(port);
+    /// # w.remove()?;
+    /// # Ok::<(), bassclient::Error>(())
+    /// ```
     pub fn publish(&mut self, src: Source<'_>, meta: ChunkMeta) -> Result<u64> {
         let nfpc = self.geometry.frames_per_chunk as usize;
         let channels = self.geometry.channels as usize;

@@ -9,6 +9,8 @@ Reading a port, in the vocabulary of the BASS documentation::
         d.left, d.right, d.nfr, d.n, d.loss              # int32 numpy arrays, next frame, ...
         for block in port.blocks(4410, start_offs=0):    # consecutive blocks (blocking)
             ...
+        c = port.chunk_info(frame)                       # the chunk holding a frame
+        "GAP" in c.flag_names, c.mono_ns                 # zero-filled? when was it captured?
 
 Frames are numbered from 1; frame 0 is the zero frame before the acquisition. Errors raise
 :class:`BassError` carrying the C result code, its name and the library's message.
@@ -26,8 +28,8 @@ from . import _lib
 from ._lib import BASS_WAIT_FOREVER, lib
 
 __all__ = [
-    "BassError", "Port", "Writer", "AudioData", "Block", "acquire", "stop", "status", "list_devices",
-    "version", "pattern_expected", "RESULT_NAMES", "STATE_NAMES",
+    "BassError", "Port", "Writer", "AudioData", "Block", "ChunkInfo", "acquire", "stop", "status",
+    "list_devices", "version", "pattern_expected", "RESULT_NAMES", "STATE_NAMES", "CHUNK_FLAGS",
 ]
 
 # Result codes of include/bass.h (stable, never renumbered).
@@ -42,6 +44,11 @@ for _code, _name in RESULT_NAMES.items():
     globals()["BASS_" + ("OK" if _code == 0 else "ERR_" + _name)] = _code
 
 STATE_NAMES = {0: "idle", 1: "capturing", 2: "stopped", 3: "error", 4: "superseded", 5: "starting"}
+
+# Chunk flags (bass.h's BASS_CHUNK_*), by name: CHUNK_GAP, CHUNK_DISCONTINUITY, ...
+CHUNK_FLAGS = dict(_lib.CHUNK_FLAGS)
+for _name, _bit in CHUNK_FLAGS.items():
+    globals()["CHUNK_" + _name] = _bit
 
 # Longest single wait inside the library, so that Ctrl-C (KeyboardInterrupt) is seen promptly.
 WAIT_SLICE_MS = 100
@@ -130,6 +137,25 @@ Block.__doc__ = ("A complete block: int32 arrays, the index of its first frame, 
                  "the frames lost while it was assembled (0: the block follows the previous one exactly).")
 
 
+class ChunkInfo(collections.namedtuple("ChunkInfo", "first_frame frames mono_ns realtime_ns flags")):
+    """Timestamps and flags of one chunk (bass_chunk_info): its first frame, its frames, the
+    CLOCK_MONOTONIC and CLOCK_REALTIME (ns) of its first frame, and its BASS_CHUNK_* flags."""
+
+    __slots__ = ()
+
+    @property
+    def flag_names(self):
+        """The names of the flags set, in bit order, e.g. ("GAP",) for zero-filled frames the
+        device (or the network) did not deliver, ("LATE",) for a chunk of a catch-up burst."""
+        return tuple(name for name, bit in CHUNK_FLAGS.items() if self.flags & bit)
+
+
+def _meta(flags, mono_ns, realtime_ns):
+    """A bass_chunk_meta (0 timestamps: now)."""
+    return _lib.ChunkMeta(_uint(mono_ns, "mono_ns"), _uint(realtime_ns, "realtime_ns"),
+                          _uint(flags, "flags", "uint32_t"))
+
+
 def _i32p(a, offset=0):
     return ctypes.cast(a.ctypes.data + 4 * offset, ctypes.POINTER(ctypes.c_int32))
 
@@ -183,6 +209,14 @@ class Port:
     @property
     def last_frame_index(self):
         return self.info()["last_frame_index"]
+
+    def chunk_info(self, frame):
+        """Timestamps and flags of the chunk holding `frame` (a :class:`ChunkInfo`). Raises
+        BassError FRAME_LOST if the frame left the window, FRAME_NOT_YET if it is not published."""
+        frame = _uint(frame, "frame")
+        c = _lib.ChunkInfo()
+        _check("bass_port_chunk_info", lib.bass_port_chunk_info(self._handle(), frame, ctypes.byref(c)))
+        return ChunkInfo(c.first_frame, c.frames, c.mono_ns, c.realtime_ns, c.flags)
 
     def get_audio_data(self, n_frames, nfr):
         """The formal getAudioData: up to `n_frames` frames from `nfr` (never blocks)."""
@@ -304,18 +338,36 @@ class Writer:
         self._h = h
         self.channels, self.frames_per_chunk = channels, frames_per_chunk
 
-    def publish(self, samples):
-        """Publishes one chunk: int32 samples, shape (frames_per_chunk, channels) or flat interleaved.
+    def publish(self, samples, flags=0, mono_ns=0, realtime_ns=0):
+        """Publishes one chunk: int32 samples, shape (frames_per_chunk, channels) or flat interleaved,
+        with its CHUNK_* `flags` and the timestamps of its first frame (0: now).
         Returns the new last frame index."""
         a = np.ascontiguousarray(samples, dtype=np.int32).reshape(-1)
+        meta = _meta(flags, mono_ns, realtime_ns)
         lfi = ctypes.c_uint64()
         _check("bass_writer_publish_interleaved", lib.bass_writer_publish_interleaved(
-            self._h, _i32p(a), a.size, None, ctypes.byref(lfi)))
+            self._h, _i32p(a), a.size, ctypes.byref(meta), ctypes.byref(lfi)))
         return lfi.value
 
-    def publish_gap(self):
+    def publish_gap(self, flags=0, mono_ns=0, realtime_ns=0):
+        """Publishes one zero-filled chunk flagged GAP (frames the device did not deliver)."""
+        meta = _meta(flags, mono_ns, realtime_ns)
         lfi = ctypes.c_uint64()
-        _check("bass_writer_publish_gap", lib.bass_writer_publish_gap(self._h, None, ctypes.byref(lfi)))
+        _check("bass_writer_publish_gap", lib.bass_writer_publish_gap(self._h, ctypes.byref(meta), ctypes.byref(lfi)))
+        return lfi.value
+
+    def start_at(self, first_frame):
+        """Starts a port that has published nothing at `first_frame` (which must start a chunk):
+        a replica following another port's frame indices; the frames before it are lost."""
+        _check("bass_writer_start_at", lib.bass_writer_start_at(self._h, _uint(first_frame, "first_frame")))
+
+    def publish_lost(self, n_frames, flags=0, mono_ns=0, realtime_ns=0):
+        """Publishes `n_frames` (whole chunks) zero-filled GAP frames standing for frames lost
+        upstream or on the network (counted in gap_frames and lost_upstream_frames)."""
+        meta = _meta(flags, mono_ns, realtime_ns)
+        lfi = ctypes.c_uint64()
+        _check("bass_writer_publish_lost", lib.bass_writer_publish_lost(
+            self._h, _uint(n_frames, "n_frames"), ctypes.byref(meta), ctypes.byref(lfi)))
         return lfi.value
 
     def set_state(self, state, error_code=0, message=None):

@@ -19,6 +19,10 @@ BASS_DEVICE_LEN = 128
 BASS_MESSAGE_LEN = 256
 BASS_WAIT_FOREVER = 0xFFFFFFFF
 
+# The BASS_CHUNK_* flags of include/bass.h, by name without the prefix, in the header's order
+# (python/tests/test_abi_layout.py fails when the header has another set or other values).
+CHUNK_FLAGS = {"GAP": 1, "DISCONTINUITY": 2, "TIME_ESTIMATED": 4, "LATE": 8}
+
 
 def _candidates():
     env = os.environ.get("BASS_LIB")
@@ -89,6 +93,18 @@ class PortInfo(ctypes.Structure):
     ]
 
 
+class ChunkInfo(ctypes.Structure):
+    """bass_chunk_info."""
+
+    _fields_ = [
+        ("first_frame", c_uint64),
+        ("mono_ns", c_uint64),
+        ("realtime_ns", c_uint64),
+        ("frames", c_uint32),
+        ("flags", c_uint32),
+    ]
+
+
 class ChunkMeta(ctypes.Structure):
     """bass_chunk_meta."""
 
@@ -136,6 +152,7 @@ _SIGNATURES = {
     ),
     "bass_port_get_info": (c_int, [_P, POINTER(PortInfo)]),
     "bass_port_wait": (c_int, [_P, c_uint64, c_uint32, POINTER(c_uint64)]),
+    "bass_port_chunk_info": (c_int, [_P, c_uint64, POINTER(ChunkInfo)]),
     # name, device, sample_rate, frames_per_chunk, chunks_on_port, channels, out_writer
     "bass_writer_create": (c_int, [c_char_p, c_char_p, c_uint32, c_uint32, c_uint32, c_uint32, POINTER(_P)]),
     "bass_writer_publish_interleaved": (c_int, [_P, _I32P, c_size_t, POINTER(ChunkMeta), POINTER(c_uint64)]),
@@ -144,6 +161,8 @@ _SIGNATURES = {
         [_P, POINTER(_I32P), c_size_t, c_size_t, POINTER(ChunkMeta), POINTER(c_uint64)],
     ),
     "bass_writer_publish_gap": (c_int, [_P, POINTER(ChunkMeta), POINTER(c_uint64)]),
+    "bass_writer_start_at": (c_int, [_P, c_uint64]),
+    "bass_writer_publish_lost": (c_int, [_P, c_uint64, POINTER(ChunkMeta), POINTER(c_uint64)]),
     "bass_writer_set_state": (c_int, [_P, c_uint32, c_uint32, c_char_p]),
     "bass_writer_close": (c_int, [_P]),
     # The control plane (present once the broker's client side is in the library).

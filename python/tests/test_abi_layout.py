@@ -120,6 +120,24 @@ def test_every_declared_function_exists_in_the_header_with_as_many_parameters():
         assert len(params) == len(args), f"{name}: header has {len(params)} parameters, _lib.py {len(args)}"
 
 
+def test_every_header_result_code_has_its_name_in_the_python_package():
+    enum = HEADER[:HEADER.index("} bass_result;")]
+    header = {int(v): n for n, v in re.findall(r"^\s*BASS_(?:ERR_)?(\w+) = (\d+),?$", enum, re.M)}
+    assert len(header) >= 25
+    assert bass.RESULT_NAMES == header
+    for code, name in header.items():
+        assert getattr(bass, "BASS_" + ("OK" if code == 0 else "ERR_" + name)) == code
+
+
+def test_the_chunk_flags_are_the_headers():
+    header = {k.removeprefix("BASS_CHUNK_"): v for k, v in header_defines("BASS_CHUNK_").items()}
+    assert {"GAP", "LATE"} <= set(header)
+    assert list(_lib.CHUNK_FLAGS.items()) == list(header.items())
+    for name, bit in header.items():
+        assert getattr(bass, "CHUNK_" + name) == bit
+        assert bass.ChunkInfo(1, 1, 0, 0, bit).flag_names == (name,)
+
+
 def test_every_header_result_code_has_a_library_text():
     enum = HEADER[:HEADER.index("} bass_result;")]
     header_codes = [int(v) for v in re.findall(r"^\s*BASS_\w+ = (\d+),?$", enum, re.M)]

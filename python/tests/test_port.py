@@ -167,3 +167,43 @@ def test_blocks_longer_than_the_window_are_assembled_with_exact_accounting():
                 frames = np.arange(b.first_frame, b.next_frame)
                 assert len(frames) == 1500
                 np.testing.assert_array_equal(b.left, bass.pattern_expected(frames, 0))
+
+
+def test_chunk_info_names_the_flags_and_carries_the_timestamps_the_writer_gave():
+    with bass.Writer("ci", frames_per_chunk=4, chunks_on_port=3) as w, bass.Port("ci") as port:
+        w.publish(pattern_chunk(1, 4), flags=bass.CHUNK_LATE | bass.CHUNK_TIME_ESTIMATED, mono_ns=111,
+                  realtime_ns=222)
+        w.publish_gap(flags=bass.CHUNK_DISCONTINUITY)
+        w.publish(pattern_chunk(9, 4))
+        late = port.chunk_info(4)
+        assert (late.first_frame, late.frames, late.mono_ns, late.realtime_ns) == (1, 4, 111, 222)
+        assert late.flag_names == ("TIME_ESTIMATED", "LATE")
+        gap = port.chunk_info(5)
+        assert gap.first_frame == 5 and gap.flag_names == ("GAP", "DISCONTINUITY")
+        assert gap.flags == bass.CHUNK_GAP | bass.CHUNK_DISCONTINUITY
+        plain = port.chunk_info(12)
+        assert plain.flag_names == () and plain.mono_ns > 0  # 0 given: stamped now
+        with pytest.raises(bass.BassError) as e:
+            port.chunk_info(13)
+        assert e.value.name == "FRAME_NOT_YET"
+        w.publish(pattern_chunk(13, 4))
+        with pytest.raises(bass.BassError) as e:
+            port.chunk_info(4)  # chunk 0 left the 3-chunk window
+        assert e.value.name == "FRAME_LOST"
+        with pytest.raises(ValueError):
+            port.chunk_info(-1)
+
+
+def test_info_has_every_field_and_a_replica_shows_what_was_lost_upstream():
+    with bass.Writer("rep", frames_per_chunk=4, chunks_on_port=3) as w, bass.Port("rep") as port:
+        w.start_at(9)
+        w.publish(pattern_chunk(9, 4))
+        assert w.publish_lost(8) == 20
+        i = port.info()
+        assert set(i) >= {name for name, _ in bass._lib.PortInfo._fields_}
+        assert (i["lost_upstream_frames"], i["gap_frames"], i["last_frame_index"]) == (8, 8, 20)
+        assert i["started_mono_ns"] > 0 and i["heartbeat_mono_ns"] >= i["started_mono_ns"]
+        assert port.chunk_info(20).flag_names == ("GAP",)
+        d = port.get_audio_data(12, 1)
+        assert (d.n, d.loss, d.nfr) == (12, 8, 21)  # frames 1..8 this port never had: lost
+        assert not d.left[4:].any()  # 13..20: zero-filled GAP frames

@@ -86,3 +86,47 @@ def test_cpp_example_acquires_through_the_broker_and_reads_from_its_first_frames
     assert re.search(r"acquired sim:pattern\S*: epoch \d+, state 1, 44100 Hz", p.stdout), p.stdout
     # startOffs reaching before frame 0 is clamped to 0: the first block starts with the zero frame
     assert "block 1: frames 0..2204, lost 0," in p.stdout
+
+
+def test_python_sees_the_gap_of_a_device_overrun_in_chunk_info_and_info(broker):
+    """sim:xrun at 8000 Hz loses 407 frames after frame 4000: with 100-frame chunks, frames
+    4001..4400 come as GAP chunks (timestamps estimated), 4401.. as the DISCONTINUITY after it."""
+    bass.acquire("sim:xrun", 8000, 100, 200, broker=broker)  # a 2.5 s window
+    with bass.Port(broker) as port:
+        port.wait(4600, timeout=10)
+        before, gaps, after = port.chunk_info(4000), [port.chunk_info(f) for f in (4001, 4200, 4400)], \
+            port.chunk_info(4401)
+        assert before.first_frame == 3901 and before.flag_names == ()
+        assert [c.first_frame for c in gaps] == [4001, 4101, 4301]
+        assert all(c.flag_names == ("GAP", "TIME_ESTIMATED") and c.frames == 100 for c in gaps)
+        assert after.first_frame == 4401 and "DISCONTINUITY" in after.flag_names and "GAP" not in after.flag_names
+        # Timestamps are the frames' due times: 100 frames at 8000 Hz = 12.5 ms per chunk.
+        assert gaps[0].mono_ns - before.mono_ns == 12_500_000
+        assert after.realtime_ns > gaps[-1].realtime_ns > 0
+        i = port.info()
+        assert set(i) >= {name for name, _ in bass._lib.PortInfo._fields_}
+        assert i["xruns"] >= 1 and i["gap_frames"] >= 407 and i["lost_upstream_frames"] == 0
+        assert 0 < i["started_mono_ns"] <= before.mono_ns <= i["heartbeat_mono_ns"]
+        d = port.get_audio_data(400, 4001)
+        assert d.n == 400 and not d.left.any() and not d.right.any()  # GAP frames are zeros
+    bass.stop(broker=broker)
+
+
+def test_python_opening_a_port_file_that_never_became_valid_is_never_ready(clients_env):
+    rt = clients_env["BASS_RUNTIME_DIR"]
+    path = os.path.join(rt, "bass-py-stale.port")
+    with open(path, "wb") as f:
+        f.write(bytes(8192))  # format version 0: nobody is writing a header
+    try:
+        seen = []
+        deadline = time.monotonic() + 30
+        while not seen or seen[-1] == "NOT_READY":  # NOT_READY while the file is young (2 s)
+            assert time.monotonic() < deadline, seen
+            with pytest.raises(bass.BassError) as e:
+                bass.Port("py-stale")
+            seen.append(e.value.name)
+            time.sleep(0.05)
+        assert seen[-1] == "NEVER_READY" and e.value.code == bass.BASS_ERR_NEVER_READY, seen
+        assert "py-stale" in e.value.message
+    finally:
+        os.unlink(path)

@@ -8,6 +8,7 @@ import shutil
 import subprocess
 import time
 
+import numpy as np
 import pytest
 
 from conftest import ROOT, TARGET, broker_available
@@ -247,3 +248,112 @@ def test_info_shows_every_header_state_by_its_name(mexdir, clients_env):
                                        "printf('state=%s\\n', i.state); bass_mex('Close', h);")
             assert rc == 0, out + err
             assert f"state={name}\n" in out, (name, out, err)
+
+
+def header_fields(struct):
+    header = open(os.path.join(ROOT, "include", "bass.h")).read()
+    end = header.index("} " + struct + ";")
+    body = re.sub(r"//[^\n]*", "", header[header.rindex("{", 0, end) + 1:end])
+    return re.findall(r"(\w+)\s*(?:\[[^\]]*\])?\s*;", body)
+
+
+def test_octave_info_has_every_field_and_chunk_info_shows_late_gap_and_upstream_loss(mexdir, clients_env):
+    """A replica-like port made by the Python writer (a start at frame 9, a LATE chunk, 8 frames
+    lost upstream, a GAP chunk): Info has one field per bass_port_info member and shows
+    lostUpstreamFrames; ChunkInfo gives the timestamps and one logical per flag."""
+    import bass
+
+    n_info, n_chunk = len(header_fields("bass_port_info")), len(header_fields("bass_chunk_info"))
+    n_flags = len(re.findall(r"#define BASS_CHUNK_\w+ \d+", open(os.path.join(ROOT, "include", "bass.h")).read()))
+    with bass.Writer("mex-flags", sample_rate=8000, frames_per_chunk=4, chunks_on_port=8) as w:
+        w.start_at(9)
+        w.publish(np.zeros((4, 2), dtype=np.int32), flags=bass.CHUNK_LATE, mono_ns=5_000_000_123,
+                  realtime_ns=2**62 + 7)
+        w.publish_lost(8)
+        w.publish_gap(flags=bass.CHUNK_DISCONTINUITY)
+        code = f"""
+        h = bass_mex('Open', 'mex-flags');
+        i = bass_mex('Info', h);
+        assert(numel(fieldnames(i)) == {n_info});
+        assert(i.lostUpstreamFrames == 8 && isa(i.lostUpstreamFrames, 'uint64'));
+        assert(i.gapFrames == 12 && i.lastFrameIndex == 24 && strcmp(i.state, 'capturing'));
+        assert(i.startedMonoNs > 0 && i.heartbeatMonoNs >= i.startedMonoNs && isa(i.heartbeatMonoNs, 'uint64'));
+        c = bass_mex('ChunkInfo', h, 10);
+        assert(numel(fieldnames(c)) == {n_chunk} + {n_flags});
+        assert(c.firstFrame == 9 && c.frames == 4 && c.late && ~c.gap && ~c.discontinuity && ~c.timeEstimated);
+        assert(c.monoNs == uint64(5000000123) && c.realtimeNs == uint64(2)^62 + 7 && isa(c.realtimeNs, 'uint64'));
+        c = bass_mex('ChunkInfo', h, uint64(20));
+        assert(c.firstFrame == 17 && c.gap && ~c.late && c.flags == {bass.CHUNK_GAP});
+        c = bass_mex('ChunkInfo', h, 24);
+        assert(c.gap && c.discontinuity && c.flags == {bass.CHUNK_GAP | bass.CHUNK_DISCONTINUITY});
+        expect_error('bass:lost', @() bass_mex('ChunkInfo', h, 8));
+        expect_error('bass:notYet', @() bass_mex('ChunkInfo', h, 25));
+        expect_error('bass:badArgument', @() bass_mex('ChunkInfo', h, -1));
+        expect_error('bass:usage', @() bass_mex('ChunkInfo', h));
+        bass_mex('Close', h);
+        disp('chunk info ok');
+        """
+        rc, out, err = octave(clients_env, code)
+    assert rc == 0, out + err
+    assert "chunk info ok" in out
+
+
+def test_octave_sees_the_gap_chunks_of_a_device_overrun(mexdir, clients_env, broker):
+    """sim:xrun at 8000 Hz, 100-frame chunks: frames 4001..4400 are GAP chunks, 4401 starts the
+    DISCONTINUITY chunk; Info counts the overrun."""
+    code = f"""
+    b = Bass('{broker}');
+    b.Acquire('sim:xrun', 8000, 100, 200);
+    b.Wait(uint64(4600), 10);
+    h = bass_mex('Open', '{broker}');
+    before = bass_mex('ChunkInfo', h, 4000);
+    assert(before.firstFrame == 3901 && ~before.gap && ~before.discontinuity);
+    for f = [4001 4200 4400]
+      c = bass_mex('ChunkInfo', h, f);
+      assert(c.gap && c.timeEstimated && c.frames == 100);
+    end
+    after = b.ChunkInfo(4401);  % the Bass class
+    assert(after.firstFrame == 4401 && after.discontinuity && ~after.gap);
+    assert(after.monoNs - before.monoNs == uint64(5 * 12500000));
+    i = b.PortInfo();
+    assert(i.xruns >= 1 && i.gapFrames >= 407 && i.lostUpstreamFrames == 0);
+    bass_mex('Close', h);
+    b.Stop();
+    disp('xrun ok');
+    """
+    rc, out, err = octave(clients_env, code)
+    assert rc == 0, out + err
+    assert "xrun ok" in out
+
+
+def test_octave_names_the_never_ready_and_wrong_owner_errors(mexdir, clients_env, tmp_path):
+    """The two result codes the gateway once reported as bass:unknown: a port file whose header
+    never became valid (bass:neverReady) and, when this test may chown, one owned by a user the
+    reader does not trust (bass:wrongOwner)."""
+    import bass
+
+    os.chmod(tmp_path, 0o700)  # only its owner can create files here: a foreign owner is wrong
+    env = dict(clients_env, BASS_RUNTIME_DIR=str(tmp_path))
+    stale = tmp_path / "bass-stale.port"
+    stale.write_bytes(bytes(8192))
+    foreign = None
+    if os.geteuid() == 0:
+        foreign = tmp_path / "bass-foreign.port"
+        foreign.write_bytes(bytes(8192))
+        os.chown(foreign, 65534, 65534)
+    elif os.environ.get("BASS_TESTS_NO_SKIP", "0") != "0":
+        pytest.fail("BASS_TESTS_NO_SKIP: the wrong-owner case needs root (chown)")
+    # Wait (for the condition) until the stale file is past the library's 2 s grace.
+    deadline = time.monotonic() + 30
+    while True:
+        rc, out, err = octave(env, "try; bass_mex('Open', 'stale'); catch e; disp(e.identifier); end")
+        if "bass:neverReady" in out or time.monotonic() > deadline:
+            break
+        assert "bass:notReady" in out, out + err
+        time.sleep(0.2)
+    code = "expect_error('bass:neverReady', @() bass_mex('Open', 'stale'));"
+    if foreign:
+        code += " expect_error('bass:wrongOwner', @() bass_mex('Open', 'foreign'));"
+    rc, out, err = octave(env, code + " disp('ids ok');")
+    assert rc == 0, out + err
+    assert "ids ok" in out

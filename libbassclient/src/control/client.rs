@@ -25,6 +25,37 @@ fn closed_without_reply() -> Error {
 }
 
 /// A connection to a broker's control socket.
+///
+/// Acquire through the broker, then read its port (needs a running `bassd`):
+///
+/// ```no_run
+/// use std::time::Duration;
+/// use bassclient::control::{AcquireRequest, Client};
+/// use bassclient::Port;
+///
+/// let mut broker = Client::connect("default")?;
+/// let req = AcquireRequest { device: "sim:pattern".into(), sample_rate: 48000, ..Default::default() };
+/// let acquired = broker.acquire(&req)?;
+/// let port = Port::open("default")?;
+/// assert_eq!(port.epoch(), acquired.epoch);
+/// port.wait(4800, Duration::from_secs(5))?;
+/// let (mut left, mut right, mut nfr) = (vec![0; 4800], vec![0; 4800], 1);
+/// let read = port.get_audio_data(4800, &mut nfr, &mut [&mut left, &mut right])?;
+/// println!("{} frames, {} lost; broker state {}", read.frames, read.loss, broker.status()?.state);
+/// broker.stop()?;
+/// # Ok::<(), bassclient::Error>(())
+/// ```
+///
+/// No broker of that name is an error naming it (runs without a broker):
+///
+/// ```
+/// # let dir = std::env::temp_dir().join(format!("bass-doc-client-{}", std::process::id()));
+/// # std::fs::create_dir_all(&dir).unwrap();
+/// # std::env::set_var("BASS_RUNTIME_DIR", &dir);
+/// use bassclient::{control::Client, Error};
+/// let e = Client::connect("nobody-here").err().unwrap();
+/// assert!(matches!(e, Error::NoBroker { ref name, .. } if name == "nobody-here"));
+/// ```
 pub struct Client {
     fd: OwnedFd,
     name: String,

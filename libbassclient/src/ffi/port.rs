@@ -61,7 +61,7 @@ pub struct bass_port_info {
     pub message: [c_char; BASS_MESSAGE_LEN],
     /// Frames lost upstream of this port or on the network (a replica port written by
     /// `bass-bridge mirror`), published as zero-filled GAP frames and also counted in
-    /// `gap_frames`; 0 for a local broker's port. Added at the end in port format 1.1.
+    /// `gap_frames`; 0 for a local broker's port. Added at the end in port format 2.1.
     pub lost_upstream_frames: u64,
 }
 
