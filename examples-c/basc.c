@@ -296,9 +296,7 @@ int main(int argc, char **argv) {
             }
             if (now.state != BASS_STATE_CAPTURING && now.state != BASS_STATE_IDLE &&
                 now.state != BASS_STATE_STARTING && nfr > now.last_frame_index) {
-                static const char *const names[] = {"idle", "capturing", "stopped", "ended on a device error",
-                                                    "replaced by a new acquisition"};
-                fprintf(stderr, "basc: the acquisition was %s%s%s\n", now.state < 5 ? names[now.state] : "ended",
+                fprintf(stderr, "basc: the acquisition ended (state %s)%s%s\n", bass_state_str(now.state),
                         now.message[0] ? ": " : "", now.message);
                 status = 1;
                 break;

@@ -111,11 +111,9 @@ impl Broker {
             let now = monotonic_ns();
             let port = match self.current.as_ref().map(|a| a.port.info()) {
                 None => "no port yet".to_owned(),
-                Some(_) => format!(
-                    "until it opens, the port (epoch {}) is {}",
-                    s.epoch,
-                    State::from_u32(s.state).map_or("unknown".into(), |st| format!("{st:?}").to_lowercase())
-                ),
+                Some(_) => {
+                    format!("until it opens, the port (epoch {}) is {}", s.epoch, State::name_of(s.state))
+                }
             };
             s.state = State::Starting as u32;
             s.error_code = error_code::NONE;

@@ -210,7 +210,7 @@ fn open_reported(path: &std::path::Path, name: &str) -> bassclient::Result<Port>
 
 fn status(name: &str, json: bool, timeout: Duration) -> Result<()> {
     let s = connect(name, timeout)?.status().map_err(|e| explain(e, name, None))?;
-    let state = s.state().map_or("unknown".to_string(), |st| format!("{st:?}").to_lowercase());
+    let state = s.state_name();
     // Frames a replica (bass-bridge mirror) never received, from the port itself.
     let lost_upstream = (s.epoch > 0)
         .then(|| open_reported(std::path::Path::new(&s.port), name).and_then(|p| p.info()).ok())

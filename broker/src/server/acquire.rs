@@ -9,7 +9,7 @@
 use std::sync::atomic::Ordering;
 
 use bassclient::control::{AcquireRequest, Acquired, ErrorKind, Reply};
-use bassclient::format::error_code;
+use bassclient::format::{error_code, State};
 use bassclient::portfile::mib;
 use bassclient::sys::monotonic_ns;
 use bassclient::PortParams;
@@ -29,7 +29,7 @@ impl Broker {
             Some(Ok(i)) => format!(
                 "the port is unchanged (epoch {}, {}, last frame {})",
                 i.epoch,
-                i.state.map_or("unknown state".into(), |s| format!("{s:?}").to_lowercase()),
+                i.state.map_or("unknown state", State::name),
                 i.last_frame_index
             ),
             Some(Err(e)) => format!("the port was not touched (it cannot be read: {e})"),

@@ -149,6 +149,13 @@ impl Status {
     pub fn state(&self) -> Option<State> {
         State::from_u32(self.state)
     }
+
+    /// The port state's name (`"capturing"`; "unknown" for a value this library does not know,
+    /// e.g. from a newer broker). `state` stays a number on the wire, as in the C
+    /// `bass_broker_status`, so any broker's Status decodes; the names are [`State::name`]'s.
+    pub fn state_name(&self) -> &'static str {
+        State::name_of(self.state)
+    }
 }
 
 /// Why the broker refused a request (`kind` of an `error` reply).
