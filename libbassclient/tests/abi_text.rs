@@ -3,11 +3,11 @@
 //! and `bass_last_error` can be called from a thread-local destructor (thread teardown)
 //! without a panic reaching the C ABI.
 
+mod common;
+
 use std::cell::RefCell;
 use std::collections::BTreeMap;
 use std::ffi::{c_int, CStr};
-use std::path::PathBuf;
-use std::process::Command;
 
 use bassclient::ffi::{
     bass_last_error, bass_port_open, bass_result, bass_result_str, bass_state_str, bass_version,
@@ -20,30 +20,14 @@ fn text(p: *const std::ffi::c_char) -> String {
 }
 
 fn header() -> String {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../include/bass.h");
-    std::fs::read_to_string(&path).expect("include/bass.h")
-}
-
-/// `NAME = value` members of the header's `bass_result` enum.
-fn header_results() -> BTreeMap<String, c_int> {
-    let header = header();
-    let end = header.find("} bass_result;").expect("the header declares bass_result");
-    let body = &header[header[..end].rfind('{').expect("enum body") + 1..end];
-    body.lines()
-        .map(str::trim)
-        .filter(|l| l.starts_with("BASS_"))
-        .map(|l| {
-            let (name, value) = l.trim_end_matches(',').split_once('=').expect("explicit values");
-            (name.trim().to_string(), value.trim().parse().expect("numeric value"))
-        })
-        .collect()
+    common::read_repo_file("include/bass.h")
 }
 
 #[test]
 fn the_code_list_is_the_headers_enum_and_every_code_has_its_own_text() {
     let ours: BTreeMap<String, c_int> =
         bass_result::all().iter().map(|r| (format!("{r:?}"), *r as c_int)).collect();
-    assert_eq!(ours, header_results());
+    assert_eq!(ours, common::header_results(&header()));
     let unknown = text(bass_result_str(-1));
     assert_eq!(unknown, "unknown result code");
     let mut seen = BTreeMap::new();
@@ -103,12 +87,11 @@ thread_local! {
     static TEARDOWN: CallsAtTeardown = const { CallsAtTeardown(RefCell::new(Vec::new())) };
 }
 
-/// Runs only in the child process started by `text_exports_survive_thread_teardown`.
+/// The child process of `text_exports_survive_thread_teardown` (fails if run on its own).
 #[test]
+#[ignore = "child process of text_exports_survive_thread_teardown, which runs it"]
 fn teardown_child() {
-    if std::env::var_os("BASS_TEARDOWN_CHILD").is_none() {
-        return;
-    }
+    common::child_entry("BASS_TEARDOWN_CHILD");
     std::thread::spawn(|| {
         // Registered first, so destroyed after the library's thread-local, which the
         // failing call below creates.
@@ -126,11 +109,8 @@ fn teardown_child() {
 #[test]
 fn text_exports_survive_thread_teardown() {
     // A panic in an `extern "C"` function aborts the process, so the calls run in a child.
-    let out = Command::new(std::env::current_exe().expect("test binary"))
-        .args(["--exact", "teardown_child", "--nocapture", "--test-threads", "1"])
-        .env("BASS_TEARDOWN_CHILD", "1")
-        .output()
-        .expect("run the child");
+    let out =
+        common::child_command("teardown_child", "BASS_TEARDOWN_CHILD", "1").output().expect("run the child");
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "child failed: {:?}\n{stdout}\n{stderr}", out.status);

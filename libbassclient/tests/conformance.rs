@@ -125,7 +125,7 @@ fn replaying_the_seed_model_vectors_through_the_c_abi_gives_the_model_results() 
     std::fs::create_dir_all(&dir).unwrap();
     std::env::set_var("BASS_RUNTIME_DIR", &dir);
     let out = replay(&vectors, "conf-rust");
-    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::remove_dir_all(&dir).unwrap();
     if let Some(path) = std::env::var_os("BASS_CONFORMANCE_OUT") {
         std::fs::write(path, &out).expect("write BASS_CONFORMANCE_OUT");
     }

@@ -1,11 +1,17 @@
 //! Header validation under arbitrary bytes: opening a port whose header (or whole file) is
 //! random or mutated never panics and never reads out of bounds; when it opens, every read
 //! call stays within the mapping and returns a result.
+//!
+//! Random headers that keep the magic and the current version (`format::VERSION_MAJOR`, not a
+//! literal: a header of another major is refused before any other field is read) reach the
+//! deeper checks; [`random_headers_reach_every_check_past_the_version`] counts which.
 
 mod common;
 
-use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+use bassclient::format::{self, HEADER_SIZE, VERSION_MAJOR, VERSION_MINOR};
+use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
 use proptest::prelude::*;
+use std::collections::BTreeMap;
 use std::time::Duration;
 
 fn valid_port_bytes() -> Vec<u8> {
@@ -21,11 +27,13 @@ fn valid_port_bytes() -> Vec<u8> {
     bytes
 }
 
-/// Opens `bytes` as a port file and exercises every read path; must not panic.
-fn exercise(bytes: &[u8]) {
+/// Opens `bytes` as a port file and exercises every read path; must not panic. Returns how
+/// the open ended.
+fn exercise(bytes: &[u8]) -> Result<(), Error> {
     let path = common::temp_port_path("fuzz");
     std::fs::write(&path, bytes).unwrap();
-    if let Ok(port) = Port::open_path(&path) {
+    let opened = Port::open_path(&path);
+    if let Ok(port) = &opened {
         let mut l = vec![0; 256];
         let mut r = vec![0; 256];
         for start in [0u64, 1, 50, 95, 96, 97, u64::MAX / 2, u64::MAX] {
@@ -53,7 +61,73 @@ fn exercise(bytes: &[u8]) {
         let _ = port.info();
         let _ = port.wait(u64::MAX, Duration::ZERO);
     }
-    let _ = std::fs::remove_file(&path);
+    std::fs::remove_file(&path).unwrap();
+    opened.map(drop)
+}
+
+/// How much of a valid header a random one keeps, field group by field group in the order
+/// `format::validate` checks them: each level gets one check further.
+const KEEP_NOTHING: u8 = 0;
+/// Magic and the current version: past the version check, refused by `header_size`.
+const KEEP_VERSION: u8 = 1;
+/// ... and `header_size`, `sample_format`: refused by the geometry.
+const KEEP_FORMAT: u8 = 2;
+/// ... and the geometry: refused by the stored offsets.
+const KEEP_GEOMETRY: u8 = 3;
+/// ... and the offsets: a valid header with random state, indices and counters, which opens.
+const KEEP_LAYOUT: u8 = 4;
+
+/// A valid port whose first bytes are replaced by `header`, then the fields of `keep`
+/// restored from the valid port.
+fn random_header(header: &[u8], keep: u8) -> Vec<u8> {
+    let valid = valid_port_bytes_cached();
+    let mut bytes = valid.clone();
+    let n = header.len().min(bytes.len());
+    bytes[..n].copy_from_slice(&header[..n]);
+    let restore = |bytes: &mut Vec<u8>, range: std::ops::Range<usize>| {
+        if bytes.len() >= range.end {
+            bytes[range.clone()].copy_from_slice(&valid[range]);
+        }
+    };
+    if keep >= KEEP_VERSION {
+        bytes[..8].copy_from_slice(&format::MAGIC.to_ne_bytes());
+        bytes[8..12].copy_from_slice(&VERSION_MAJOR.to_ne_bytes());
+        bytes[12..16].copy_from_slice(&VERSION_MINOR.to_ne_bytes());
+    }
+    if keep >= KEEP_FORMAT {
+        restore(&mut bytes, 16..20); // header_size
+        restore(&mut bytes, 24..28); // sample_format
+    }
+    if keep >= KEEP_GEOMETRY {
+        restore(&mut bytes, 20..24); // channels
+        restore(&mut bytes, 28..40); // sample rate, nFPC, nCOP
+    }
+    if keep >= KEEP_LAYOUT {
+        restore(&mut bytes, 40..64); // chunk table, samples, total size
+    }
+    bytes
+}
+
+/// Which check refused a header kept to level `keep` (or "opened"); panics on a refusal that
+/// a header with the magic and the current version must never get.
+fn refused_by(outcome: &Result<(), Error>, keep: u8) -> &'static str {
+    match outcome {
+        Ok(()) => "opened",
+        Err(Error::Corrupt(m)) if m.starts_with("header_size") => "header_size",
+        Err(Error::Corrupt(m)) if m.starts_with("sample_format") => "sample_format",
+        Err(Error::Corrupt(m)) if m.starts_with("geometry") => "geometry",
+        Err(Error::Corrupt(m)) if m.starts_with("offsets") => "offsets",
+        Err(Error::Corrupt(m)) if m.contains("truncated") => "file length",
+        Err(
+            e @ (Error::Incompatible { .. }
+            | Error::BadMagic { .. }
+            | Error::NotReady
+            | Error::NeverReady { .. }),
+        ) if keep >= KEEP_VERSION => {
+            panic!("a header with the magic and version {VERSION_MAJOR}.{VERSION_MINOR} was refused before the version check passed: {e}")
+        }
+        Err(_) => "before the version",
+    }
 }
 
 proptest! {
@@ -69,19 +143,15 @@ proptest! {
         if let Some(cut) = len_cut {
             bytes.truncate(cut.min(bytes.len()));
         }
-        exercise(&bytes);
+        // Any outcome but a panic: mutations anywhere in the file may leave it valid.
+        drop(exercise(&bytes));
     }
 
     #[test]
-    fn random_headers_never_panic(header in proptest::collection::vec(any::<u8>(), 0..4200), keep_magic in any::<bool>()) {
-        let mut bytes = valid_port_bytes_cached().clone();
-        let n = header.len().min(bytes.len());
-        bytes[..n].copy_from_slice(&header[..n]);
-        if keep_magic && bytes.len() >= 16 {
-            bytes[..8].copy_from_slice(b"BASSPORT");
-            bytes[8..12].copy_from_slice(&1u32.to_ne_bytes());
-        }
-        exercise(&bytes);
+    fn random_headers_never_panic(header in proptest::collection::vec(any::<u8>(), 0..4200),
+                                  keep in KEEP_NOTHING..=KEEP_LAYOUT) {
+        // Kept to the version or further, it is judged on its fields (refused_by panics if not).
+        refused_by(&exercise(&random_header(&header, keep)), keep);
     }
 
     #[test]
@@ -93,7 +163,8 @@ proptest! {
         } else {
             bytes[off..off + 4].copy_from_slice(&(v as u32).to_ne_bytes());
         }
-        exercise(&bytes);
+        // Any outcome but a panic: mutations anywhere in the file may leave it valid.
+        drop(exercise(&bytes));
     }
 }
 
@@ -110,5 +181,39 @@ fn a_header_describing_more_than_the_file_is_refused() {
     std::fs::write(&path, &bytes).unwrap();
     let err = Port::open_path(&path).err().expect("must refuse a short file");
     assert!(matches!(err, bassclient::Error::Corrupt(_)), "{err}");
-    let _ = std::fs::remove_file(&path);
+    std::fs::remove_file(&path).unwrap();
+}
+
+#[test]
+fn random_headers_reach_every_check_past_the_version() {
+    // 200 random headers (whole 4096-byte pages) per level: each level reaches the check
+    // after the fields it keeps. Were the kept version not the current one, every level
+    // would stop at the version check.
+    let mut rng = fastrand::Rng::with_seed(22);
+    let mut seen: BTreeMap<(u8, &str), u32> = BTreeMap::new();
+    for keep in KEEP_VERSION..=KEEP_LAYOUT {
+        for _ in 0..200 {
+            let header: Vec<u8> = (0..HEADER_SIZE).map(|_| rng.u8(..)).collect();
+            let outcome = exercise(&random_header(&header, keep));
+            *seen.entry((keep, refused_by(&outcome, keep))).or_default() += 1;
+        }
+    }
+    eprintln!("outcomes by level kept: {seen:?}");
+    let expect = [
+        (KEEP_VERSION, "header_size"),
+        (KEEP_FORMAT, "geometry"),
+        (KEEP_GEOMETRY, "offsets"),
+        (KEEP_LAYOUT, "opened"),
+    ];
+    for (keep, check) in expect {
+        assert_eq!(
+            seen.get(&(keep, check)),
+            Some(&200),
+            "level {keep}: not all refused by {check}: {seen:?}"
+        );
+    }
+    // And the last check, the file length, on a valid header over a short file.
+    let mut short = random_header(&[], KEEP_LAYOUT);
+    short.truncate(short.len() - 4096);
+    assert_eq!(refused_by(&exercise(&short), KEEP_LAYOUT), "file length");
 }

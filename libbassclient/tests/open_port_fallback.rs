@@ -88,6 +88,7 @@ fn socket(dir: &Path, name: &str) -> PathBuf {
 #[test]
 fn open_by_name_takes_the_broker_s_memfd_only_when_there_is_no_file_and_falls_back_otherwise() {
     let dir = std::env::temp_dir().join(format!("bass-open-fallback-{}", std::process::id()));
+    // A leftover of an earlier run with this pid, if any.
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     std::env::set_var(bassclient::paths::RUNTIME_DIR_ENV, &dir);
@@ -138,7 +139,7 @@ fn open_by_name_takes_the_broker_s_memfd_only_when_there_is_no_file_and_falls_ba
 
     let fds_after = open_fds();
     assert_eq!(fds_after, fds_before, "no descriptor left open by the hand-overs");
-    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 fn file_port_params() -> PortParams {

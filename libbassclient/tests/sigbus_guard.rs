@@ -3,13 +3,13 @@
 //! handled it before (or kills the process, as without the guard).
 //!
 //! The cases that must end a process run in a child: this test binary started again with
-//! `BASS_SIGBUS_CHILD` naming the case (the `child_*` tests do nothing otherwise).
+//! `BASS_SIGBUS_CHILD` naming the case (the `child_*` tests are `#[ignore]`d and fail if run
+//! any other way).
 
 mod common;
 
 use std::fs::OpenOptions;
 use std::os::unix::process::ExitStatusExt;
-use std::process::Command;
 use std::time::{Duration, Instant};
 
 use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
@@ -27,48 +27,49 @@ fn port_with_chunks(tag: &str) -> (std::path::PathBuf, Writer) {
 
 #[test]
 fn a_port_file_truncated_while_a_reader_sleeps_in_wait_is_an_error_of_the_wait() {
-    // The reader waits for a frame that never comes; while it sleeps the file is cut to 0
-    // bytes. A wake-up reads the header without a size check (the guard makes it safe): the
-    // wait must end with Corrupt within its 400 ms timeout, not with SIGBUS.
+    // The reader waits for a frame that never comes; while it sleeps in futex(2) the file is
+    // cut to 0 bytes. A wake-up reads the header without a size check (the guard makes it
+    // safe): the wait must end with Corrupt well before its timeout, not with SIGBUS.
     let (path, w) = port_with_chunks("sigbus-wait");
     let port = Port::open_path(&path).unwrap();
     let lfi = w.last_frame_index();
+    let timeout = Duration::from_secs(10);
+    let (tid_tx, tid_rx) = std::sync::mpsc::channel();
     let waiter = std::thread::spawn(move || {
+        tid_tx.send(common::thread_id()).expect("the test waits for the thread id");
         let started = Instant::now();
-        let r = port.wait(lfi + 1_000_000, Duration::from_millis(400));
+        let r = port.wait(lfi + 1_000_000, timeout);
         // Every later call on this handle is refused the same way.
         let mut nfr = 1;
         let (mut l, mut r2) = (vec![0; 64], vec![0; 64]);
         let again = port.get_audio_data(64, &mut nfr, &mut [&mut l, &mut r2]);
         (r, started.elapsed(), again, port.info().map(drop))
     });
-    std::thread::sleep(Duration::from_millis(100));
+    common::wait_blocked_in_futex(tid_rx.recv().expect("the waiter's thread id"));
     OpenOptions::new().write(true).open(&path).unwrap().set_len(0).unwrap();
     let (r, took, again, info) = waiter.join().unwrap();
     match r {
         Err(Error::Corrupt(m)) => assert!(m.contains("shrank"), "message: {m}"),
         other => panic!("wait on a port truncated during the sleep gave {other:?}, expected Corrupt"),
     }
-    assert!(took < Duration::from_secs(2), "the wait took {took:?}");
+    // Noticed at a wake-up (every liveness slice), not when the timeout ran out.
+    assert!(took < timeout / 2, "the wait took {took:?}");
     assert!(matches!(again, Err(Error::Corrupt(_))), "a read afterwards gave {again:?}");
     assert!(matches!(info, Err(Error::Corrupt(_))), "info afterwards gave {info:?}");
     // The writer's own mapping is not guarded: leave it untouched (no Drop, which would
     // write its state into the vanished page).
     std::mem::forget(w);
-    let _ = std::fs::remove_file(&path);
+    std::fs::remove_file(&path).unwrap();
 }
 
 /// Runs this test binary's `child_NAME` test in a child process; its exit status.
 fn run_child(name: &str) -> std::process::ExitStatus {
-    Command::new(std::env::current_exe().unwrap())
-        .args([&format!("child_{name}"), "--exact", "--nocapture", "--test-threads=1"])
-        .env("BASS_SIGBUS_CHILD", name)
-        .status()
-        .unwrap()
+    common::child_command(&format!("child_{name}"), "BASS_SIGBUS_CHILD", name).status().unwrap()
 }
 
-fn is_child(name: &str) -> bool {
-    std::env::var("BASS_SIGBUS_CHILD").is_ok_and(|v| v == name)
+/// The start of child `name`: fails unless run by [`run_child`] for this very case.
+fn child(name: &str) {
+    assert_eq!(common::child_entry("BASS_SIGBUS_CHILD"), name, "started for another case");
 }
 
 /// Maps `len` bytes of a new file shared, shrinks the file to 0 and reads the first byte:
@@ -90,7 +91,7 @@ fn touch_a_truncated_foreign_mapping() -> u8 {
     };
     assert_ne!(p, libc::MAP_FAILED);
     f.set_len(0).unwrap();
-    let _ = std::fs::remove_file(&path);
+    std::fs::remove_file(&path).unwrap();
     // SAFETY: `p` is a live mapping; the read raises SIGBUS (the page is past the end of the
     // file), which is the point of the test.
     unsafe { std::ptr::read_volatile(p as *const u8) }
@@ -103,13 +104,18 @@ fn a_sigbus_outside_any_port_still_kills_the_process() {
 }
 
 #[test]
+#[ignore = "child process of a_sigbus_outside_any_port_still_kills_the_process, which runs it"]
 fn child_foreign_default() {
-    if !is_child("foreign_default") {
-        return;
-    }
-    let (path, w) = port_with_chunks("sigbus-child-a");
-    let _port = Port::open_path(&path).unwrap(); // installs the guard
-    let _ = std::fs::remove_file(&path);
+    child("foreign_default");
+    foreign_sigbus_with_a_port_open("sigbus-child-a");
+}
+
+/// Opens a port (which installs the guard), then raises a SIGBUS elsewhere; the process
+/// must not survive it (exits 0 only if it did: the parent then fails).
+fn foreign_sigbus_with_a_port_open(tag: &str) -> ! {
+    let (path, w) = port_with_chunks(tag);
+    let _port = Port::open_path(&path).unwrap();
+    std::fs::remove_file(&path).unwrap();
     let v = touch_a_truncated_foreign_mapping();
     drop(w);
     println!("survived a foreign SIGBUS, read {v}");
@@ -132,10 +138,9 @@ extern "C" fn exit_42(_sig: libc::c_int, _info: *mut libc::siginfo_t, _ctx: *mut
 }
 
 #[test]
+#[ignore = "child process of a_sigbus_outside_any_port_reaches_the_handler_installed_before, which runs it"]
 fn child_foreign_chained() {
-    if !is_child("foreign_chained") {
-        return;
-    }
+    child("foreign_chained");
     // The host's own SIGBUS handler, installed before bass is used.
     // SAFETY: a zeroed sigaction with a valid SA_SIGINFO handler; a valid out-pointer.
     unsafe {
@@ -145,22 +150,14 @@ fn child_foreign_chained() {
         libc::sigemptyset(&mut sa.sa_mask);
         assert_eq!(libc::sigaction(libc::SIGBUS, &sa, std::ptr::null_mut()), 0);
     }
-    let (path, w) = port_with_chunks("sigbus-child-b");
-    let _port = Port::open_path(&path).unwrap();
-    let _ = std::fs::remove_file(&path);
-    let v = touch_a_truncated_foreign_mapping();
-    drop(w);
-    println!("survived a foreign SIGBUS, read {v}");
-    std::process::exit(0);
+    foreign_sigbus_with_a_port_open("sigbus-child-b");
 }
 
 #[test]
 fn the_guard_can_be_turned_off() {
     // BASS_SIGBUS_GUARD=0: no handler; a port truncated during a wait kills the reader, as
     // before the guard (hosts that must own SIGBUS themselves choose this).
-    let status = Command::new(std::env::current_exe().unwrap())
-        .args(["child_guard_off", "--exact", "--nocapture", "--test-threads=1"])
-        .env("BASS_SIGBUS_CHILD", "guard_off")
+    let status = common::child_command("child_guard_off", "BASS_SIGBUS_CHILD", "guard_off")
         .env("BASS_SIGBUS_GUARD", "0")
         .status()
         .unwrap();
@@ -168,14 +165,13 @@ fn the_guard_can_be_turned_off() {
 }
 
 #[test]
+#[ignore = "child process of the_guard_can_be_turned_off, which runs it"]
 fn child_guard_off() {
-    if !is_child("guard_off") {
-        return;
-    }
+    child("guard_off");
     let (path, w) = port_with_chunks("sigbus-child-c");
     let port = Port::open_path(&path).unwrap();
     OpenOptions::new().write(true).open(&path).unwrap().set_len(0).unwrap();
-    let _ = std::fs::remove_file(&path);
+    std::fs::remove_file(&path).unwrap();
     // The first pass checks the size (Corrupt); the next wake-up would too without the guard,
     // so reach the unguarded access through the in-place view of a channel ring instead.
     let ring = port.channel_ring(0).unwrap();
@@ -205,5 +201,5 @@ fn a_port_file_truncated_under_an_in_place_view_reads_zeros_and_the_view_is_repo
     assert_eq!(port.view_overwritten(&view), 512, "a view over a shrunk file is all lost");
     assert!(matches!(port.chunk_info(1), Err(Error::Corrupt(_))));
     std::mem::forget(w);
-    let _ = std::fs::remove_file(&path);
+    std::fs::remove_file(&path).unwrap();
 }

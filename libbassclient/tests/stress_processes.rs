@@ -9,10 +9,10 @@
 mod common;
 
 use std::io::{BufRead, BufReader, Write};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Stdio};
 use std::time::Duration;
 
-use bassclient::testsignal::{fill_pattern_interleaved, pattern_expected};
+use bassclient::testsignal::fill_pattern_interleaved;
 use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
 
 const CHANNELS: u32 = 2;
@@ -29,11 +29,8 @@ const STOPPED_READER: usize = 4;
 #[test]
 fn readers_at_any_speed_never_see_torn_frames_and_account_every_frame() {
     let path = common::temp_port_path("stress");
-    let exe = std::env::current_exe().unwrap();
     let spawn = |role: &str, arg: &str| -> Child {
-        Command::new(&exe)
-            .args(["--exact", "stress_child_entry", "--ignored", "--nocapture", "--test-threads=1"])
-            .env("BASS_STRESS_ROLE", role)
+        common::child_command("stress_child_entry", "BASS_STRESS_ROLE", role)
             .env("BASS_STRESS_ARG", arg)
             .env("BASS_STRESS_PORT", &path)
             .stdin(Stdio::piped())
@@ -99,14 +96,14 @@ fn readers_at_any_speed_never_see_torn_frames_and_account_every_frame() {
     eprintln!(
         "stress: {published} frames published, {total_checked} frames x {CHANNELS} channels checked, reader {STOPPED_READER} stopped {stops} times"
     );
-    let _ = std::fs::remove_file(&path);
+    std::fs::remove_file(&path).unwrap();
 }
 
 /// Child-process entry point (ignored in normal runs; the stress test runs it).
 #[test]
-#[ignore]
+#[ignore = "child process of readers_at_any_speed_never_see_torn_frames_and_account_every_frame, which runs it"]
 fn stress_child_entry() {
-    let Ok(role) = std::env::var("BASS_STRESS_ROLE") else { return };
+    let role = common::child_entry("BASS_STRESS_ROLE");
     let path = std::path::PathBuf::from(std::env::var("BASS_STRESS_PORT").unwrap());
     match role.as_str() {
         "writer" => run_writer(&path),
@@ -162,14 +159,7 @@ fn run_reader(path: &std::path::Path, kind: usize) {
         let before = nfr;
         let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| b.as_mut_slice()).collect();
         let r = port.get_audio_data(n, &mut nfr, &mut outs).unwrap();
-        let first = before + r.loss;
-        for (c, buf) in bufs.iter().enumerate() {
-            for (i, &s) in buf[..r.frames].iter().enumerate() {
-                if s != pattern_expected(first + i as u64, c as u32) {
-                    corrupted += 1;
-                }
-            }
-        }
+        corrupted += common::count_not_pattern(before + r.loss, r.frames, &bufs);
         delivered += r.frames as u64;
         lost += r.loss;
         if r.frames == 0 && r.loss == 0 {

@@ -4,7 +4,7 @@
 
 mod common;
 
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::Duration;
 
 use bassclient::format::error_code;
@@ -17,16 +17,17 @@ fn params() -> PortParams {
     PortParams { geometry, device: "wait-test".into(), group: None }
 }
 
-/// Runs `act` on the writer in another thread once the reader is (about to be) waiting.
+/// Runs `act` on the writer in another thread once the reader sleeps in its wait (futex(2)).
 fn wait_while(
     writer: Writer,
     frame: u64,
     act: impl FnOnce(&mut Writer) + Send + 'static,
 ) -> (Result<u64, Error>, Writer) {
     let port = Port::open_path(writer.path()).unwrap();
+    let reader = common::thread_id();
     let t = std::thread::spawn(move || {
         let mut w = writer;
-        std::thread::sleep(Duration::from_millis(20));
+        common::wait_blocked_in_futex(reader);
         act(&mut w);
         w
     });
@@ -102,10 +103,7 @@ fn a_new_acquisition_ends_the_wait_as_restarted_with_the_next_epoch() {
 #[test]
 fn a_killed_writer_process_ends_the_wait_as_writer_gone() {
     let path = common::temp_port_path("killed");
-    let exe = std::env::current_exe().unwrap();
-    let mut child = Command::new(exe)
-        .args(["--exact", "writer_child_entry", "--ignored", "--nocapture", "--test-threads=1"])
-        .env("BASS_WAIT_CHILD_PORT", &path)
+    let mut child = common::child_command("writer_child_entry", "BASS_WAIT_CHILD_PORT", &path)
         .stdout(Stdio::piped())
         .spawn()
         .unwrap();
@@ -117,8 +115,9 @@ fn a_killed_writer_process_ends_the_wait_as_writer_gone() {
     }
     let port = Port::open_path(&path).unwrap();
     let pid = child.id();
+    let reader = common::thread_id();
     let killer = std::thread::spawn(move || {
-        std::thread::sleep(Duration::from_millis(50));
+        common::wait_blocked_in_futex(reader);
         // SAFETY: signalling our own child.
         unsafe { libc::kill(pid as libc::pid_t, libc::SIGKILL) };
     });
@@ -130,11 +129,12 @@ fn a_killed_writer_process_ends_the_wait_as_writer_gone() {
     std::fs::remove_file(&path).unwrap();
 }
 
-/// Child process for the test above: creates a port, publishes one chunk, then sleeps.
+/// Child process for the test above: creates a port, publishes one chunk, then stays alive
+/// (the sleep is the condition: a live writer) until it is killed.
 #[test]
-#[ignore]
+#[ignore = "child process of a_killed_writer_process_ends_the_wait_as_writer_gone, which runs it"]
 fn writer_child_entry() {
-    let Some(path) = std::env::var_os("BASS_WAIT_CHILD_PORT") else { return };
+    let path = common::child_entry("BASS_WAIT_CHILD_PORT");
     let mut w = Writer::create_at(std::path::Path::new(&path), &params()).unwrap();
     w.publish(Source::Zeros, ChunkMeta::default()).unwrap();
     println!("ready");

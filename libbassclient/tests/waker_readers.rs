@@ -10,7 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use bassclient::testsignal::{fill_pattern_interleaved, pattern_expected};
+use bassclient::testsignal::fill_pattern_interleaved;
 use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
 
 const NFPC: u32 = 64;
@@ -40,14 +40,7 @@ fn many_waiting_readers_get_every_frame_through_the_wake_thread_and_few_get_dire
                     let before = nfr;
                     let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| b.as_mut_slice()).collect();
                     let r = port.get_audio_data(NFPC as usize, &mut nfr, &mut outs).unwrap();
-                    let first = before + r.loss;
-                    for (c, b) in bufs.iter().enumerate() {
-                        for (i, &v) in b[..r.frames].iter().enumerate() {
-                            if v != pattern_expected(first + i as u64, c as u32) {
-                                wrong += 1;
-                            }
-                        }
-                    }
+                    wrong += common::count_not_pattern(before + r.loss, r.frames, &bufs);
                     delivered += r.frames as u64;
                     lost += r.loss;
                 }

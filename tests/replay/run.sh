@@ -48,11 +48,15 @@ wait_sidecar() {
   echo "no sidecar for $1"; return 1
 }
 
-# replay CASE WAV [--renumber]: replays WAV, dumps what a client reads, compares.
+# replay CASE WAV [--renumber]: checks the recording (bass record --check), replays it, dumps
+# what a client reads, compares.
 replay() {
   local case=$1 wav=$2 extra=${3:-}
   local flag=()
   [[ -n "$extra" ]] && flag=(--renumbered)
+  if ! out=$(bass record --check "$wav" 2>&1); then
+    bad "$case: bass record --check: $out"; return
+  fi
   if ! out=$(bass acquire "sim:file:$wav" -r 8000 --frames 100 --chunks 400 -c 2 $extra 2>&1); then
     bad "$case: the replay was refused: $out"; return
   fi

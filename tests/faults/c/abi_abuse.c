@@ -25,6 +25,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
+#include <sys/syscall.h>
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
@@ -290,17 +291,24 @@ struct closer {
     bass_port *port;
     atomic_int phase; /* 0 running ok, 1 saw INVALID_HANDLE */
     atomic_ulong ok_calls, other_codes;
+    atomic_int readers_running; /* reader threads that made a successful call */
+    atomic_int waiter_tid;      /* thread id of the waiting thread, once it is about to wait */
 };
 
 static void *use_until_closed(void *arg) {
     struct closer *c = arg;
     int32_t l[NFOP], r[NFOP];
+    int counted = 0;
     for (;;) {
         uint64_t nfr = 0, loss;
         size_t n;
         bass_result res = bass_get_audio_data(c->port, NFOP, &nfr, l, r, &n, &loss);
         if (res == BASS_OK) {
             atomic_fetch_add(&c->ok_calls, 1);
+            if (!counted) {
+                atomic_fetch_add(&c->readers_running, 1);
+                counted = 1;
+            }
         } else if (res == BASS_ERR_INVALID_HANDLE) {
             atomic_store(&c->phase, 1);
             return NULL;
@@ -315,14 +323,28 @@ static void *wait_while_closed(void *arg) {
     struct closer *c = arg;
     uint64_t lfi;
     /* Blocks in the library while the main thread closes the handle: must end normally. */
-    bass_result res = bass_port_wait(c->port, UINT64_MAX / 2, 300, &lfi);
+    atomic_store(&c->waiter_tid, (int)syscall(SYS_gettid));
+    bass_result res = bass_port_wait(c->port, UINT64_MAX / 2, 2000, &lfi);
     if (res != BASS_ERR_TIMEOUT) atomic_fetch_add(&c->other_codes, 1);
     return NULL;
 }
 
-static void sleep_ms(long ms) {
-    struct timespec ts = {ms / 1000, (ms % 1000) * 1000000L};
+static void sleep_us(long us) {
+    struct timespec ts = {us / 1000000, (us % 1000000) * 1000L};
     nanosleep(&ts, NULL);
+}
+
+/* Whether thread `tid` of this process sleeps in futex(2) now: the first field of
+ * /proc/self/task/TID/syscall is the number of the call it is blocked in. */
+static int blocked_in_futex(int tid) {
+    char path[64];
+    snprintf(path, sizeof path, "/proc/self/task/%d/syscall", tid);
+    FILE *f = fopen(path, "r");
+    if (!f) return 0;
+    long nr = -1;
+    int ok = fscanf(f, "%ld", &nr) == 1;
+    fclose(f);
+    return ok && nr == SYS_futex;
 }
 
 static void test_threads(void) {
@@ -368,7 +390,15 @@ static void test_threads(void) {
     pthread_create(&ct[0], NULL, use_until_closed, &c);
     pthread_create(&ct[1], NULL, use_until_closed, &c);
     pthread_create(&ct[2], NULL, wait_while_closed, &c);
-    sleep_ms(50);
+    /* Close once both readers are reading and the waiter sleeps inside bass_port_wait (its
+     * 2 s timeout far beyond this 1 s bound, which only guards against a hang). */
+    int in_use = 0;
+    for (int i = 0; i < 10000 && !in_use; i++) {
+        int tid = atomic_load(&c.waiter_tid);
+        in_use = atomic_load(&c.readers_running) == 2 && tid != 0 && blocked_in_futex(tid);
+        if (!in_use) sleep_us(100);
+    }
+    CHECK(in_use);
     EXPECT(bass_port_close(c.port), BASS_OK);
     for (int i = 0; i < 3; i++) pthread_join(ct[i], NULL);
     CHECK(atomic_load(&c.phase) == 1);

@@ -9,7 +9,7 @@
 
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, Write};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdout, Command, Stdio};
 use std::time::Duration;
 
@@ -30,8 +30,7 @@ pub fn agent_path() -> PathBuf {
 
 /// Whether the suite runs as root (the other-uid checks need setpriv as root).
 pub fn is_root() -> bool {
-    // SAFETY: geteuid cannot fail.
-    unsafe { libc::geteuid() == 0 }
+    bass_test_support::is_root()
 }
 
 /// The group the permission tests configure: 4242 as root (any gid may be given), else the
@@ -171,6 +170,24 @@ impl Drop for Agent {
             let _ = self.child.wait();
         }
     }
+}
+
+/// Runs `setpriv OPTIONS bass-fault-agent try-open PORT_ARGS` (root only: the permission
+/// probe as another user, e.g. [`bass_test_support::NOBODY`]) with extra environment; the
+/// fields of its `RESULT` line (panics if it printed none).
+pub fn try_open_as<S: AsRef<str>>(options: &[S], port_args: &[&str], env: &[(&str, &Path)]) -> Fields {
+    let out = bass_test_support::setpriv(options, agent_path())
+        .arg("try-open")
+        .args(port_args)
+        .envs(env.iter().copied())
+        .output()
+        .expect("run setpriv");
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text.lines().find(|l| l.starts_with("RESULT")).unwrap_or_else(|| {
+        let opts: Vec<&str> = options.iter().map(AsRef::as_ref).collect();
+        panic!("no RESULT from try-open as {opts:?}: {text} {}", String::from_utf8_lossy(&out.stderr))
+    });
+    Fields::parse(line)
 }
 
 /// `key=value` fields of a result line.

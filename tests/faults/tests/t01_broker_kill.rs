@@ -14,6 +14,7 @@
 //! read of the whole window delivers only intact pattern frames (the frames the dying
 //! writer may have been overwriting are reported as loss).
 
+use std::os::unix::process::ExitStatusExt;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -165,7 +166,8 @@ fn writer_killed_mid_chunk_leaves_only_intact_frames_readable() {
         let delay = Duration::from_micros(rng.u64(..30_000));
         outcomes.push(run(&path, delay, || {
             w.signal(libc::SIGKILL);
-            let _ = w.child.wait();
+            let st = w.child.wait().expect("wait for the writer");
+            assert_eq!(st.signal(), Some(libc::SIGKILL), "the writer ended with {st} before its kill");
         }));
     }
     report("unpaced writer (64 Ki-frame chunks)", &outcomes, seed);

@@ -25,6 +25,27 @@ fn proc_state(pid: u32) -> char {
     bassclient::sys::process_start(pid).map(|(_, s)| s).unwrap_or('?')
 }
 
+/// Ends a `--log-loss` reader (it must exit cleanly); its RESULT fields and LOSS lines, each
+/// loss checked against the window around its read (`nfpc` frames per chunk, `nfop` on the
+/// port): the frames lost are exactly those that left the window.
+fn reader_losses(r: Agent, nfpc: u64, nfop: u64) -> (Fields, Vec<Fields>) {
+    let (status, lines) = r.finish();
+    assert!(status.success(), "reader failed: {lines:?}");
+    let rf = Fields::parse(lines.iter().rev().find(|l| l.starts_with("RESULT")).expect("RESULT"));
+    let losses: Vec<Fields> =
+        lines.iter().filter(|l| l.starts_with("LOSS")).map(|l| Fields::parse(l)).collect();
+    for l in &losses {
+        let first = l.u("nfr_before") + l.u("loss");
+        let lo = (l.u("lfi_before") + 1).saturating_sub(nfop);
+        let hi = (l.u("lfi_after") + nfpc + 1).saturating_sub(nfop);
+        assert!(
+            lo <= first && first <= hi,
+            "loss does not match the window around the read: {l:?} (bounds {lo}..={hi})"
+        );
+    }
+    (rf, losses)
+}
+
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn stopped_reader_reports_exactly_the_frames_that_left_the_window_and_no_stale_sample() {
@@ -106,20 +127,7 @@ fn live_writer_is_not_delayed_by_a_stopped_reader_whose_losses_are_exact() {
         std::thread::sleep(Duration::from_millis(250));
     }
     let wf = w.result();
-    let (status, lines) = r.finish();
-    assert!(status.success(), "reader failed: {lines:?}");
-    let rf = Fields::parse(lines.iter().rev().find(|l| l.starts_with("RESULT")).expect("RESULT"));
-    let losses: Vec<Fields> =
-        lines.iter().filter(|l| l.starts_with("LOSS")).map(|l| Fields::parse(l)).collect();
-    for l in &losses {
-        let first = l.u("nfr_before") + l.u("loss");
-        let lo = (l.u("lfi_before") + 1).saturating_sub(nfop);
-        let hi = (l.u("lfi_after") + nfpc + 1).saturating_sub(nfop);
-        assert!(
-            lo <= first && first <= hi,
-            "loss does not match the window around the read: {l:?} (bounds {lo}..={hi})"
-        );
-    }
+    let (rf, losses) = reader_losses(r, nfpc, nfop);
     let published = wf.u("last");
     figure!(
         2,
@@ -177,17 +185,7 @@ fn broker_shows_no_xrun_while_a_reader_is_stopped_longer_than_the_window() {
     let s = c.status().unwrap();
     let elapsed = t0.elapsed().as_secs_f64();
     c.stop().unwrap();
-    let (status, lines) = r.finish();
-    assert!(status.success(), "reader failed: {lines:?}");
-    let rf = Fields::parse(lines.iter().rev().find(|l| l.starts_with("RESULT")).expect("RESULT"));
-    let losses: Vec<Fields> =
-        lines.iter().filter(|l| l.starts_with("LOSS")).map(|l| Fields::parse(l)).collect();
-    for l in &losses {
-        let first = l.u("nfr_before") + l.u("loss");
-        let lo = (l.u("lfi_before") + 1).saturating_sub(nfop);
-        let hi = (l.u("lfi_after") + nfpc + 1).saturating_sub(nfop);
-        assert!(lo <= first && first <= hi, "loss does not match the window around the read: {l:?}");
-    }
+    let (rf, losses) = reader_losses(r, nfpc, nfop);
     let rate = (s.last_frame_index - lfi0) as f64 / elapsed;
     figure!(
         2,

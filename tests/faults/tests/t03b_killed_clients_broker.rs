@@ -26,7 +26,12 @@ fn killed_readers_and_control_clients_leak_nothing_in_bassd() {
     let p = port.to_str().unwrap();
     let mut steady = Agent::spawn(&["reader", "--port", p, "--mode", "wait", "--n", "480"]);
     steady.expect_line("ready");
-    std::thread::sleep(Duration::from_millis(100));
+    // The acquisition runs (device and capture thread up) before the broker's fds are counted.
+    bass_test_support::eventually("the first chunks", || {
+        c.status()
+            .ok()
+            .filter(|s| s.state() == Some(bassclient::State::Capturing) && s.last_frame_index >= 4800)
+    });
     let fds_before = fd_count(b.pid());
     let entries_before = dir.entries();
     let sock = b.socket();

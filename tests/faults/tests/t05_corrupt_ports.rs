@@ -170,7 +170,7 @@ fn exercise(dir: &TempDir, bytes: &[u8], case: &str, t: &mut Tally) -> Option<Er
     let path = dir.join("bass-case.port");
     std::fs::write(&path, bytes).unwrap();
     let r = exercise_path(&path, case, t);
-    let _ = std::fs::remove_file(&path);
+    std::fs::remove_file(&path).expect("remove the case's port file");
     r
 }
 

@@ -15,7 +15,9 @@ use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::time::{Duration, Instant};
 
 use bass_faults::{fd_count, figure, median_max, Agent};
-use bass_test_support::{acquire_req, Bassd, TempDir};
+use bass_test_support::{
+    acquire_req, eventually, impersonation_missing, nobody_in_group, skip, Bassd, TempDir, NOBODY,
+};
 use bassclient::control;
 
 fn connect(path: &std::path::Path) -> OwnedFd {
@@ -73,11 +75,8 @@ impl FdRef for OwnedFd {
     }
 }
 
-fn run_bass_as(b: &Bassd, setpriv: &[&str]) -> (bool, String) {
-    let bass = bass_test_support::bin_path("bass", "BASS_CLI");
-    let out = std::process::Command::new("setpriv")
-        .args(setpriv)
-        .arg(&bass)
+fn run_bass_as<S: AsRef<str>>(b: &Bassd, setpriv: &[S]) -> (bool, String) {
+    let out = bass_test_support::setpriv(setpriv, bass_test_support::bass_bin())
         .args(["--name", &b.name, "status"])
         .env("BASS_RUNTIME_DIR", &b.dir)
         .output()
@@ -104,7 +103,12 @@ fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
     let mut reader =
         Agent::spawn(&["reader", "--port", b.port_path().to_str().unwrap(), "--mode", "wait", "--n", "480"]);
     reader.expect_line("ready");
-    std::thread::sleep(Duration::from_millis(100));
+    // The acquisition has published (its device and capture thread are up) before the count.
+    eventually("the first chunks", || {
+        good.status()
+            .ok()
+            .filter(|s| s.state() == Some(bassclient::State::Capturing) && s.last_frame_index >= 4800)
+    });
     let fds_before = fd_count(b.pid());
 
     // Malformed, truncated, unknown, wrong version.
@@ -212,13 +216,12 @@ fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
 
     // Peers of another uid.
     let mut uid_results = Vec::new();
-    if bass_faults::is_root() && std::process::Command::new("setpriv").arg("--version").output().is_ok() {
-        let outsider = ["--reuid=65534", "--regid=65534", "--clear-groups"];
+    if !skip(impersonation_missing()) {
+        let outsider = NOBODY;
         let (ok, text) = run_bass_as(&b, &outsider);
         assert!(!ok, "uid 65534 outside the group was served: {text}");
         uid_results.push(format!("outsider: refused ({})", text.trim().lines().last().unwrap_or("")));
-        let member = ["--reuid=65534", "--regid=65534", &format!("--groups={group}")];
-        let (ok, text) = run_bass_as(&b, &member);
+        let (ok, text) = run_bass_as(&b, &nobody_in_group(group));
         assert!(ok, "uid 65534 in the broker's group was refused: {text}");
         uid_results.push("group member: served".into());
         // Socket opened to everyone by mistake: the peer-credential check still refuses.

@@ -15,8 +15,17 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use bass_faults::{count_corrupted, figure, Rng};
-use bass_test_support::{acquire_req, Bassd, TempDir};
+use bass_test_support::{acquire_req, eventually, Bassd, TempDir};
 use bassclient::{Error, Port};
+
+/// Waits until the broker captures in `epoch` (its first chunk is out); the status then.
+fn capturing(c: &mut bassclient::control::Client, epoch: u64) -> bassclient::control::Status {
+    eventually(&format!("capture in epoch {epoch}"), || {
+        let s = c.status().expect("status");
+        (s.epoch == epoch && s.state() == Some(bassclient::State::Capturing) && s.last_frame_index > 0)
+            .then_some(s)
+    })
+}
 
 /// A descriptor of a port file that was replaced (unlinked).
 fn is_superseded_port(target: &str) -> bool {
@@ -92,7 +101,8 @@ fn bad_acquires_are_refused_clearly_and_the_last_valid_one_wins() {
     // The storm: 100 Acquires in a row, every 5th invalid, with a reader following.
     let valid = c.acquire(&acquire_req("sim:pattern", 48000, 480, 20, 2)).unwrap();
     assert!(valid.epoch > first.epoch);
-    std::thread::sleep(Duration::from_millis(50));
+    // Counted once the acquisition runs (its capture thread and device are open).
+    capturing(&mut c, valid.epoch);
     let fds_before = fds_but_superseded(b.pid());
     let entries_before = dir.entries();
     let stop = Arc::new(AtomicBool::new(false));
@@ -169,11 +179,10 @@ fn bad_acquires_are_refused_clearly_and_the_last_valid_one_wins() {
         }
     }
     let (req, a) = last_valid.expect("some Acquire succeeded");
-    std::thread::sleep(Duration::from_millis(300));
-    let s = c.status().unwrap();
-    assert_eq!(s.epoch, a.epoch, "the last valid Acquire must win");
+    // The last valid Acquire wins: no later one replaced it (the epoch), and it captures.
+    assert_eq!(c.status().unwrap().epoch, a.epoch, "the last valid Acquire must win");
+    let s = capturing(&mut c, a.epoch);
     assert_eq!((s.frames_per_chunk, s.chunks_on_port), (req.frames_per_chunk, req.chunks_on_port));
-    assert_eq!(s.state(), Some(bassclient::State::Capturing));
     let port = Port::open_path(&b.port_path()).unwrap();
     assert_eq!(port.epoch(), a.epoch);
     assert_eq!(port.geometry().frames_per_chunk, req.frames_per_chunk);

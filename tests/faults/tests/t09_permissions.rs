@@ -67,32 +67,16 @@ fn port_is_0640_with_the_configured_group_and_readers_map_it_read_only() {
     assert_eq!(status.signal(), Some(libc::SIGSEGV), "the write must fault: {status}");
 }
 
-fn setpriv_available() -> bool {
-    std::process::Command::new("setpriv").arg("--version").output().map(|o| o.status.success()).unwrap_or(false)
-        // SAFETY: geteuid cannot fail.
-        && unsafe { libc::geteuid() } == 0
-}
-
-fn try_open_as(path: &std::path::Path, setpriv: &[&str]) -> Fields {
-    let agent = bass_faults::agent_path();
-    let out = std::process::Command::new("setpriv")
-        .args(setpriv)
-        .arg(&agent)
-        .args(["try-open", "--port", path.to_str().unwrap()])
-        .output()
-        .expect("run setpriv");
-    let text = String::from_utf8_lossy(&out.stdout);
-    let line = text.lines().find(|l| l.starts_with("RESULT")).unwrap_or_else(|| {
-        panic!("no RESULT from try-open as {setpriv:?}: {text} {}", String::from_utf8_lossy(&out.stderr))
-    });
-    Fields::parse(line)
+/// The permission probe on port file `path` as the user `setpriv` options name.
+fn try_open_as<S: AsRef<str>>(path: &std::path::Path, setpriv: &[S]) -> Fields {
+    bass_faults::try_open_as(setpriv, &["--port", path.to_str().unwrap()], &[])
 }
 
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn another_uid_reads_only_through_the_group_and_never_writes() {
     let group = bass_faults::test_group();
-    if !setpriv_available() {
+    if bass_test_support::skip(bass_test_support::impersonation_missing()) {
         figure!(9, "SKIPPED other-uid check: needs root and setpriv");
         return;
     }
@@ -105,8 +89,8 @@ fn another_uid_reads_only_through_the_group_and_never_writes() {
     )
     .unwrap();
     w.publish(Source::Zeros, ChunkMeta::default()).unwrap();
-    let outsider = try_open_as(&path, &["--reuid=65534", "--regid=65534", "--clear-groups"]);
-    let member = try_open_as(&path, &["--reuid=65534", "--regid=65534", &format!("--groups={group}")]);
+    let outsider = try_open_as(&path, &bass_test_support::NOBODY);
+    let member = try_open_as(&path, &bass_test_support::nobody_in_group(group));
     figure!(
         9,
         "uid 65534 outside the group: read={} write={}; in group {group}: read={} write={}",

@@ -15,15 +15,17 @@
 
 use std::io::{BufRead, BufReader};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
-use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::os::unix::process::ExitStatusExt;
+use std::path::Path;
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use bass_faults::{figure, is_root};
-use bass_test_support::{acquire_req, wait_until, Bassd, TempDir};
+use bass_faults::figure;
+use bass_test_support::{
+    acquire_req, as_nobody, impersonation_missing, root_missing, setpriv, skip, wait_until, Bassd, TempDir,
+    Tmpfs, NOBODY,
+};
 use bassclient::{Error, Port, State};
-
-const NOBODY: &str = "65534";
 
 /// Every frame on the port (oldest to newest), per channel, with epoch and last frame.
 fn window(path: &Path) -> (u64, u64, Vec<Vec<i32>>) {
@@ -59,34 +61,10 @@ fn broker_error(r: bassclient::Result<bassclient::control::Acquired>) -> String 
     }
 }
 
-/// A tmpfs mounted for the test, unmounted on drop.
-struct Tmpfs(PathBuf);
-
-impl Tmpfs {
-    fn mount(dir: &Path, size: &str) -> Tmpfs {
-        std::fs::create_dir_all(dir).unwrap();
-        let st = Command::new("mount")
-            .args(["-t", "tmpfs", "-o", &format!("size={size},mode=1777"), "tmpfs"])
-            .arg(dir)
-            .status()
-            .expect("run mount");
-        assert!(st.success(), "mount -t tmpfs failed");
-        Tmpfs(dir.to_owned())
-    }
-}
-
-impl Drop for Tmpfs {
-    fn drop(&mut self) {
-        let _ = Command::new("umount").arg("-l").arg(&self.0).status();
-        let _ = std::fs::remove_dir(&self.0);
-    }
-}
-
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_port_that_does_not_fit_is_refused_up_front_and_the_broker_lives() {
-    if !is_root() {
-        println!("skipped: mounting a tmpfs needs root");
+    if skip(root_missing().map(|why| format!("mounting a tmpfs {why}"))) {
         return;
     }
     let base = TempDir::shm("fullfs");
@@ -227,19 +205,10 @@ fn a_zero_filled_port_gives_up_with_never_ready_after_a_bounded_time() {
     assert!(e.to_string().contains("never became ready"));
 }
 
-fn as_nobody(cmd: &str, args: &[&str]) -> std::process::Output {
-    Command::new("setpriv")
-        .args(["--reuid", NOBODY, "--regid", NOBODY, "--clear-groups", cmd])
-        .args(args)
-        .output()
-        .expect("setpriv")
-}
-
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_planted_symlink_or_foreign_file_is_refused_and_its_target_untouched() {
-    if !is_root() {
-        println!("skipped: needs root (setpriv to another uid)");
+    if skip(impersonation_missing()) {
         return;
     }
     let dir = TempDir::shm("plant");
@@ -285,16 +254,13 @@ fn a_planted_symlink_or_foreign_file_is_refused_and_its_target_untouched() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_root_reader_refuses_a_port_squatted_by_another_user() {
-    if !is_root() {
-        println!("skipped: needs root (setpriv to another uid)");
+    if skip(impersonation_missing()) {
         return;
     }
     let dir = TempDir::shm("squat");
     std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o1777)).unwrap();
     let port = dir.join("bass-default.port");
-    let mut squatter = Command::new("setpriv")
-        .args(["--reuid", NOBODY, "--regid", NOBODY, "--clear-groups"])
-        .arg(bass_faults::agent_path())
+    let mut squatter = setpriv(&NOBODY, bass_faults::agent_path())
         .args(["writer", "--port", port.to_str().unwrap(), "--seconds", "60", "--pace-us", "10000"])
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
@@ -310,7 +276,7 @@ fn a_root_reader_refuses_a_port_squatted_by_another_user() {
     assert!(matches!(e, Error::WrongOwner { .. }), "{e:?}");
     assert!(e.to_string().contains("uid 65534 (nobody)"), "{e}");
     // The operator can name the broker's uid explicitly.
-    std::env::set_var("BASS_BROKER_UID", NOBODY);
+    std::env::set_var("BASS_BROKER_UID", "65534");
     assert!(Port::open("default").is_ok(), "BASS_BROKER_UID=65534 accepts nobody's port");
     std::env::remove_var("BASS_BROKER_UID");
     // A runtime directory only its owner can write vouches for its owner's ports.
@@ -320,8 +286,10 @@ fn a_root_reader_refuses_a_port_squatted_by_another_user() {
     std::os::unix::fs::chown(dir.path(), Some(0), Some(0)).unwrap();
     std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o1777)).unwrap();
     drop(squatter.stdin.take());
-    let _ = squatter.kill();
-    let _ = squatter.wait();
+    squatter.kill().expect("SIGKILL the squatter");
+    let st = squatter.wait().expect("wait for the squatter");
+    // Killed, or ended cleanly when its stdin closed: never a crash of the writer.
+    assert!(st.success() || st.signal() == Some(libc::SIGKILL), "the squatting writer ended with {st}");
     // A link at the port's name, even to a root port, is not followed by a reader.
     let real = dir.join("bass-real.port");
     let g = bassclient::Geometry { channels: 1, sample_rate: 8000, frames_per_chunk: 80, chunks_on_port: 4 };
@@ -354,8 +322,7 @@ fn mapped_port_bytes(pid: u32) -> (u64, usize) {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_group_member_cannot_pin_more_than_the_stated_bound_of_superseded_ports() {
-    if !is_root() {
-        println!("skipped: needs root (setpriv to another uid)");
+    if skip(impersonation_missing()) {
         return;
     }
     let gid = bass_faults::test_group().to_string();
@@ -366,9 +333,7 @@ fn a_group_member_cannot_pin_more_than_the_stated_bound_of_superseded_ports() {
         Bassd::start_stock(dir.path(), "pin", &["--group", &gid, "--max-port-bytes", &cap.to_string()], &[]);
     // The loop: ten Acquires of a ~28.6 MiB port, each new port opened and kept.
     let member = |rounds: &str| {
-        Command::new("setpriv")
-            .args(["--reuid", NOBODY, "--regid", &gid, "--clear-groups"])
-            .arg(bass_faults::agent_path())
+        setpriv(&["--reuid=65534", &format!("--regid={gid}"), "--clear-groups"], bass_faults::agent_path())
             .args(["pin-loop", "--socket", b.socket().to_str().unwrap(), "--name", "pin", "--rounds", rounds])
             .args(["--rate", "48000", "--nfpc", "48000", "--ncop", "78", "--channels", "2"])
             .stdin(Stdio::piped())
@@ -477,6 +442,8 @@ fn a_port_file_cut_under_the_broker_ends_the_acquisition_not_the_broker() {
     let first = b.client().acquire(&req).expect("acquire");
     let port = Port::open_path(&b.port_path()).unwrap();
     port.wait(4096, Duration::from_secs(10)).expect("frames before the cut");
+    let (following, followed) = std::sync::mpsc::channel();
+    let mut following = Some(following);
     let reader = std::thread::spawn(move || {
         let mut nfr = port.info().unwrap().last_frame_index + 1;
         loop {
@@ -484,9 +451,13 @@ fn a_port_file_cut_under_the_broker_ends_the_acquisition_not_the_broker() {
                 Ok(lfi) => nfr = lfi + 1,
                 other => return other,
             }
+            // Woken by a publish once: the reader follows the live port.
+            if let Some(tx) = following.take() {
+                tx.send(()).expect("the test waits for the reader");
+            }
         }
     });
-    std::thread::sleep(Duration::from_millis(50));
+    followed.recv_timeout(Duration::from_secs(10)).expect("the reader follows the port");
     OpenOptions::new().write(true).open(b.port_path()).unwrap().set_len(0).unwrap();
     let ended = reader.join().unwrap();
     assert!(matches!(ended, Err(Error::Corrupt(_))), "the reader of the cut port got {ended:?}");

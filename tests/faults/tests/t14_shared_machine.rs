@@ -8,27 +8,19 @@
 //!   uid unless BASS_BROKER_UID names it; the lock's text is never echoed;
 //! - item 5: members of --group cannot take the connections kept for root.
 //!
-//! Each test skips (and says so) when not run as root with setpriv available.
+//! Each test skips (and says so) when not run as root with setpriv available; with
+//! `BASS_TESTS_NO_SKIP=1` (CI as root) it fails instead.
 
-use std::io::Write;
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use bass_faults::{figure, is_root, test_group, Agent};
-use bass_test_support::{bin_path, wait_until, Bassd, TempDir};
-
-const NOBODY: [&str; 3] = ["--reuid=65534", "--regid=65534", "--clear-groups"];
-
-fn can_impersonate() -> bool {
-    is_root() && Command::new("setpriv").arg("--version").output().is_ok_and(|o| o.status.success())
-}
-
-/// Runs `cmd ARGS` as uid 65534.
-fn as_nobody(cmd: &str, args: &[&str]) -> Output {
-    Command::new("setpriv").args(NOBODY).arg(cmd).args(args).output().expect("setpriv")
-}
+use bass_faults::{figure, test_group, Agent};
+use bass_test_support::{
+    as_nobody, bin_path, impersonation_missing, nobody_in_group, setpriv, skip, wait_until, Bassd, TempDir,
+    NOBODY,
+};
 
 /// A world-writable (1777) runtime directory, like /dev/shm.
 fn sticky_dir(tag: &str) -> TempDir {
@@ -62,7 +54,7 @@ fn bassd_refuses(dir: &Path, name: &str) -> String {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn files_planted_in_the_runtime_directory_are_refused_not_followed() {
-    if !can_impersonate() {
+    if skip(impersonation_missing()) {
         figure!("14.1", "SKIPPED: needs root and setpriv");
         return;
     }
@@ -125,15 +117,13 @@ fn the_lock_holders_text_is_never_echoed() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn clients_refuse_a_control_socket_served_by_another_user() {
-    if !can_impersonate() {
+    if skip(impersonation_missing()) {
         figure!("14.2", "SKIPPED socket owner check: needs root and setpriv");
         return;
     }
     let d = sticky_dir("squat");
     let bassd = bin_path("bassd", "BASS_BASSD");
-    let mut impostor = Command::new("setpriv")
-        .args(NOBODY)
-        .arg(&bassd)
+    let mut impostor = setpriv(&NOBODY, &bassd)
         .args(["--name", "imp", "--rt-priority", "0"])
         .env("BASS_RUNTIME_DIR", d.path())
         .env("BASS_LOG", "error")
@@ -155,9 +145,10 @@ fn clients_refuse_a_control_socket_served_by_another_user() {
     let refused = status(&[]);
     let err = String::from_utf8_lossy(&refused.stderr).into_owned();
     let trusted = status(&[("BASS_BROKER_UID", "65534")]);
-    // SAFETY: kill(2) on our own child (setpriv exec'd bassd in place).
-    unsafe { libc::kill(impostor.id() as libc::pid_t, libc::SIGTERM) };
-    let _ = impostor.wait();
+    // setpriv exec'd bassd in place: the child is the impostor broker.
+    bass_test_support::send_signal(impostor.id(), libc::SIGTERM);
+    let st = impostor.wait().expect("wait for the impostor");
+    assert!(st.success(), "the impostor bassd ended with {st} on SIGTERM");
     assert!(!refused.status.success(), "root's client talked to uid 65534's broker");
     assert!(err.contains("served by uid 65534") && err.contains("BASS_BROKER_UID"), "{err}");
     assert!(trusted.status.success(), "BASS_BROKER_UID=65534: {}", String::from_utf8_lossy(&trusted.stderr));
@@ -167,7 +158,7 @@ fn clients_refuse_a_control_socket_served_by_another_user() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_root_broker_lives_in_run_bass_and_clients_find_it_before_dev_shm() {
-    if !can_impersonate() {
+    if skip(impersonation_missing()) {
         figure!("14.2", "SKIPPED /run/bass: needs root and setpriv");
         return;
     }
@@ -189,20 +180,19 @@ fn a_root_broker_lives_in_run_bass_and_clients_find_it_before_dev_shm() {
     let sock = sys.join(format!("bass-{name}.sock"));
     let up = wait_until(Duration::from_secs(20), || sock.exists());
     let meta = std::fs::symlink_metadata(&sys);
-    let member = Command::new("setpriv")
-        .args(["--reuid=65534", "--regid=65534", &format!("--groups={group}")])
-        .arg(bin_path("bass", "BASS_CLI"))
+    let member = setpriv(&nobody_in_group(test_group()), bin_path("bass", "BASS_CLI"))
         .args(["--name", &name, "acquire", "sim:pattern", "--rate", "8000", "--frames", "80"])
         .env_remove("BASS_RUNTIME_DIR")
         .output()
         .unwrap();
-    // SAFETY: kill(2) on our own child.
-    unsafe { libc::kill(b.id() as libc::pid_t, libc::SIGTERM) };
-    let _ = b.wait();
+    bass_test_support::send_signal(b.id(), libc::SIGTERM);
+    let st = b.wait().expect("wait for bassd");
+    // What bassd left behind (its port; the lock and socket it removes itself), if anything.
     for ext in ["port", "lock", "sock"] {
         let _ = std::fs::remove_file(sys.join(format!("bass-{name}.{ext}")));
     }
-    let _ = std::fs::remove_file(&squat);
+    std::fs::remove_file(&squat).expect("remove the squatter's file");
+    assert!(st.success(), "the root bassd ended with {st} on SIGTERM");
     assert!(up, "no control socket appeared in {}", sys.display());
     let meta = meta.unwrap();
     assert!(meta.is_dir() && meta.uid() == 0 && meta.mode() & 0o022 == 0, "{}: {meta:?}", sys.display());
@@ -223,7 +213,7 @@ fn a_root_broker_lives_in_run_bass_and_clients_find_it_before_dev_shm() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn group_members_cannot_take_the_connections_kept_for_root() {
-    if !can_impersonate() {
+    if skip(impersonation_missing()) {
         figure!("14.5", "SKIPPED: needs root and setpriv");
         return;
     }
@@ -232,7 +222,8 @@ fn group_members_cannot_take_the_connections_kept_for_root() {
     let group = test_group().to_string();
     let b = Bassd::start_stock(d.path(), "res", &["--group", &group], &[]);
     let sock = b.socket();
-    let member = ["--reuid=65534", "--regid=65534", &format!("--groups={group}")];
+    let member = nobody_in_group(test_group());
+    let member: Vec<&str> = member.iter().map(String::as_str).collect();
     let mut agent = Agent::spawn_setpriv(
         &member,
         &["hold-connections", "--socket", sock.to_str().unwrap(), "--name", "res", "--n", "130"],
@@ -254,9 +245,9 @@ fn group_members_cannot_take_the_connections_kept_for_root() {
     let over = b.try_client().and_then(|mut c| c.status());
     assert!(over.is_err(), "more than {max} connections were served");
     agent.close_stdin();
-    let _ = agent.finish();
-    let mut stdout = std::io::stdout();
-    let _ = stdout.flush();
+    // The member's agent let go of every connection and exited cleanly, with the same count.
+    let done = agent.result();
+    assert_eq!((done.u("held") as usize, done.u("refused") as usize), (held, refused), "{}", done.1);
     figure!(
         "14.5",
         "a group member opening 130 connections holds {held} ({refused} refused: too many); root then opens the {reserved} kept connections, all served; the {}th is refused",

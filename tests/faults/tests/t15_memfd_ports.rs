@@ -12,7 +12,9 @@
 use std::time::{Duration, Instant};
 
 use bass_faults::{figure, Agent, Fields};
-use bass_test_support::{acquire_req, bin_path, wait_until, Bassd, TempDir};
+use bass_test_support::{
+    acquire_req, bin_path, impersonation_missing, nobody_in_group, skip, wait_until, Bassd, TempDir, NOBODY,
+};
 use bassclient::control::OpenedPort;
 use bassclient::testsignal::pattern_expected;
 use bassclient::{Error, Port, State};
@@ -63,32 +65,20 @@ fn a_reader_opened_by_name_reads_the_memfd_port_through_the_broker() {
     // Other users: the socket is 0660 with --group; a member gets the sealed port, an
     // outsider neither a descriptor nor a port.
     let as_uid = |setpriv: &[&str]| -> Fields {
-        let out = std::process::Command::new("setpriv")
-            .args(setpriv)
-            .arg(bass_faults::agent_path())
-            .args(["try-open", "--name", "mfd"])
-            .env("BASS_RUNTIME_DIR", dir.path())
-            .output()
-            .expect("setpriv");
-        let text = String::from_utf8_lossy(&out.stdout).into_owned();
-        let line = text.lines().find(|l| l.starts_with("RESULT")).map(str::to_owned);
-        Fields::parse(&line.unwrap_or_else(|| {
-            panic!("no RESULT as {setpriv:?}: {text} {}", String::from_utf8_lossy(&out.stderr))
-        }))
+        bass_faults::try_open_as(setpriv, &["--name", "mfd"], &[("BASS_RUNTIME_DIR", dir.path())])
     };
-    let root = bass_faults::is_root()
-        && std::process::Command::new("setpriv").arg("--version").output().is_ok_and(|o| o.status.success());
     let (mut member_read, mut outsider_read) = ("skipped (not root)".to_owned(), "skipped".to_owned());
-    if root {
-        let member = as_uid(&["--reuid=65534", "--regid=65534", &format!("--groups={group}")]);
-        let outsider = as_uid(&["--reuid=65534", "--regid=65534", "--clear-groups"]);
+    if !skip(impersonation_missing()) {
+        let member = nobody_in_group(group);
+        let member = as_uid(&member.iter().map(String::as_str).collect::<Vec<_>>());
+        let outsider = as_uid(&NOBODY);
         assert!(member.s("read") == "ok" && member.s("sealed") == "true", "{member:?}");
         assert!(!outsider.s("read").starts_with("ok"), "an outsider must not get the port: {outsider:?}");
         // Past the socket's mode (opened to everybody here), the broker's own peer check
         // refuses the outsider before any request is answered: still no descriptor.
         use std::os::unix::fs::PermissionsExt;
         std::fs::set_permissions(b.socket(), std::fs::Permissions::from_mode(0o666)).unwrap();
-        let past_mode = as_uid(&["--reuid=65534", "--regid=65534", "--clear-groups"]);
+        let past_mode = as_uid(&NOBODY);
         std::fs::set_permissions(b.socket(), std::fs::Permissions::from_mode(0o660)).unwrap();
         assert!(
             past_mode.s("read").starts_with("error:") && past_mode.1.contains("[permission]"),

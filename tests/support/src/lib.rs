@@ -1,7 +1,9 @@
 //! The one test rig of bass's Rust suites (the broker's integration tests in `broker/tests`
 //! and the fault suite in `tests/faults`): private temporary directories, a real `bassd`
 //! per test with its own runtime directory, a `jackd -d dummy` server behind ALSA's `jack`
-//! plugin, the `bass` command line bound to a broker, and bounded waits.
+//! plugin, the `bass` command line bound to a broker, bounded waits, and the rule for tests
+//! that need root, `setpriv` or jackd ([`skip`]: in CI, with `BASS_TESTS_NO_SKIP=1`, a skip
+//! is a failure).
 //!
 //! Nothing here mocks the thing under test: every helper starts real processes and uses real
 //! shared memory. Every wait is bounded (a guard against a hanging test, never a pass/fail on

@@ -46,7 +46,7 @@ fn running_out_of_descriptors_refuses_connections_and_recovers_while_capture_goe
                 Err(e) => refusals.push(e.to_string()),
             }
         }
-        let _ = tx.send((held, refusals));
+        tx.send((held, refusals)).expect("the test waits for the connections");
     });
     let (held, refusals) = rx.recv_timeout(Duration::from_secs(60)).expect("the 60 connections hung");
     assert!(b.is_running(), "bassd exited when descriptors ran out");
