@@ -10,49 +10,78 @@
 //! run.sh runs this file twice: in release and in a debug build (overflow checks on).
 
 use std::fs::OpenOptions;
+use std::mem::{offset_of, size_of};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use bass_faults::{figure, Agent, Rng};
 use bass_test_support::TempDir;
-use bassclient::format::HEADER_SIZE;
+use bassclient::format::{Header, HEADER_SIZE};
 use bassclient::testsignal::fill_pattern_interleaved;
 use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
 
 const NFPC: u32 = 16;
 const NCOP: u32 = 4;
 
-/// Every header field: (name, offset, width in bytes).
-const FIELDS: [(&str, usize, usize); 27] = [
-    ("magic", 0, 8),
-    ("version_major", 8, 4),
-    ("version_minor", 12, 4),
-    ("header_size", 16, 4),
-    ("channels", 20, 4),
-    ("sample_format", 24, 4),
-    ("sample_rate", 28, 4),
-    ("frames_per_chunk", 32, 4),
-    ("chunks_on_port", 36, 4),
-    ("chunk_table_offset", 40, 8),
-    ("samples_offset", 48, 8),
-    ("total_size", 56, 8),
-    ("epoch", 64, 8),
-    ("writer_pid", 72, 4),
-    ("state", 76, 4),
-    ("writer_start_time", 80, 8),
-    ("created_realtime_ns", 88, 8),
-    ("error_code", 96, 4),
-    ("futex", 100, 4),
-    ("last_frame_index", 128, 8),
-    ("write_intent", 136, 8),
-    ("heartbeat_mono_ns", 144, 8),
-    ("xruns", 152, 8),
-    ("gap_frames", 160, 8),
-    ("chunks_published", 168, 8),
-    ("rate_estimate_mhz", 176, 8),
-    ("started_mono_ns", 184, 8),
-];
+/// Width in bytes of the header field `f` points at.
+fn width<T>(_: fn(&Header) -> &T) -> usize {
+    size_of::<T>()
+}
+
+/// Every header field as (name, offset, width in bytes), from the one definition of the
+/// layout (`bassclient::format::Header`), not typed in: a field added there is fuzzed here.
+macro_rules! fields {
+    ($($f:ident),* $(,)?) => { [$((stringify!($f), offset_of!(Header, $f), width(|h| &h.$f))),*] };
+}
+
+fn fields() -> [(&'static str, usize, usize); 28] {
+    fields![
+        magic,
+        version_major,
+        version_minor,
+        header_size,
+        channels,
+        sample_format,
+        sample_rate,
+        frames_per_chunk,
+        chunks_on_port,
+        chunk_table_offset,
+        samples_offset,
+        total_size,
+        epoch,
+        writer_pid,
+        state,
+        writer_start_time,
+        created_realtime_ns,
+        error_code,
+        futex,
+        last_frame_index,
+        write_intent,
+        heartbeat_mono_ns,
+        xruns,
+        gap_frames,
+        chunks_published,
+        rate_estimate_mhz,
+        started_mono_ns,
+        lost_upstream_frames,
+    ]
+}
+
+/// The list above names every numeric field of `Header` (the text fields `message` and
+/// `device` are left out): a field added to format.rs and not here fails this test.
+#[test]
+fn the_fuzzed_fields_are_every_numeric_field_of_the_header() {
+    let src = include_str!("../../../libbassclient/src/format.rs");
+    let body = src.split("pub struct Header {").nth(1).and_then(|b| b.split("\n}").next()).expect("Header");
+    let declared: Vec<&str> = body
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix("pub ")?.split(':').next())
+        .filter(|name| !matches!(*name, "message" | "device"))
+        .collect();
+    let fuzzed: Vec<&str> = fields().iter().map(|f| f.0).collect();
+    assert_eq!(fuzzed, declared, "t05's fields against format.rs's Header");
+}
 
 fn valid_port(dir: &TempDir) -> Vec<u8> {
     let path = dir.join("bass-src.port");
@@ -216,7 +245,7 @@ fn truncation_at_every_boundary_is_corrupt() {
     let total = good.len();
     let samples = 8192usize; // 4096 + 32 * 4, rounded up to 4096
     let mut cuts: Vec<usize> = (0..=64).collect();
-    for (_, off, width) in FIELDS {
+    for (_, off, width) in fields() {
         cuts.extend([off, off + 1, off + width - 1, off + width]);
     }
     cuts.extend([
@@ -270,7 +299,7 @@ fn every_header_field_at_extreme_values_is_handled() {
     let good = valid_port(&dir);
     let mut t = Tally::default();
     let mut summary = Vec::new();
-    for (name, off, width) in FIELDS {
+    for (name, off, width) in fields() {
         let max = if width == 8 { u64::MAX } else { u64::from(u32::MAX) };
         let high = 1u64 << (width * 8 - 1);
         let mut values = vec![0, 1, 2, 3, 4, 64, 65, max, max - 1, high, high - 1];
