@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The rate estimate under CPU load (issue 15, item 7): a standalone measurement, ~30 s.
+"""The rate estimate under CPU load: a standalone measurement, ~30 s.
 
 Starts a private bassd without real-time priority, acquires sim:pattern at exactly 48 kHz in
 32-frame chunks, runs four busy loops, samples Status.rate_estimate_hz every 0.25 s for 20 s,

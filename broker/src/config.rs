@@ -24,7 +24,7 @@ pub struct Config {
     pub stall_ms: u64,
     /// An Acquire to run at start-up.
     pub acquire: Option<AcquireRequest>,
-    // --- issue 9/14 hardening (h-server): device policy, bounds, connection limits ---
+    // --- hardening: device policy, bounds, connection limits ---
     /// Which devices clients may name (default policy + `--allow-device` patterns).
     pub policy: DevicePolicy,
     /// Operator bounds on Acquire requests (`--min-chunk-us`, `--max-rate`, ...).

@@ -313,7 +313,7 @@ mod tests {
         }
     }
 
-    /// Issue 15 item 7: 48 kHz exactly, 32-frame chunks, jitter bursts throughout (the first
+    /// 48 kHz exactly, 32-frame chunks, jitter bursts throughout (the first
     /// stamps 4 ms late), a 2 s stall at 20 s. After the lock (5 s of device time) the
     /// estimate stays within ±20 ppm, and within
     /// 2 s of the stall's end it is within ±20 ppm again (it never leaves). Simulated time:

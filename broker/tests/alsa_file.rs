@@ -151,7 +151,7 @@ fn the_broker_prefers_s32_when_the_device_offers_every_format() {
     capture_through_file_plugin(None, "S32_LE");
 }
 
-/// Issue 9 item 3: ALSA plugin strings from a control client are refused by the device
+/// ALSA plugin strings from a control client are refused by the device
 /// policy before `snd_pcm_open` sees them: the `file` plugin's pipe (`|cmd`, a command run as
 /// the broker's user) and its output file are never touched; an operator's
 /// `--allow-device` pattern is what lets a PCM that ListDevices does not show through.

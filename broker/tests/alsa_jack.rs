@@ -109,7 +109,7 @@ fn jack_refuses_what_the_device_cannot_do_with_clear_messages() {
             Err(Error::Broker(m)) => assert!(m.contains(want), "{m:?} does not say {want:?}"),
             other => panic!("{r:?} was not refused: {other:?}"),
         }
-        // Refused before anything was touched: no port was created (issue 9 item 4).
+        // Refused before anything was touched: no port was created.
         assert!(!b.port_path().exists(), "a refused Acquire created a port");
         assert_eq!(c.status().unwrap().state, State::Idle as u32);
     }

@@ -102,8 +102,8 @@ fn bad_requests_are_refused_and_the_running_acquisition_continues() {
     assert_eq!((s.state, s.epoch), (State::Capturing as u32, 1));
 }
 
-/// A device that fails to open is refused before the running acquisition is touched
-/// (issue 9 item 4): the old port keeps capturing in its epoch, and a later Acquire works.
+/// A device that fails to open is refused before the running acquisition is touched: the
+/// old port keeps capturing in its epoch, and a later Acquire works.
 #[test]
 fn an_unknown_alsa_device_leaves_the_running_port_untouched_and_a_later_acquire_works() {
     let dir = TempDir::new("nodev");
@@ -287,7 +287,7 @@ fn members_of_the_configured_group_are_served() {
     assert_eq!(b.client().status().unwrap().epoch, 1);
 }
 
-/// Issue 14 item 3: the request that starved a core (768 kHz, 1-frame chunks, 64 channels)
+/// The request that starved a core (768 kHz, 1-frame chunks, 64 channels)
 /// is refused by the default bounds, each bound named with the option that widens it; a
 /// broker started with wider bounds accepts it. Nothing changes on a refusal.
 #[test]
@@ -329,7 +329,7 @@ fn operator_bounds_refuse_a_starving_request_until_widened() {
     c.stop().unwrap();
 }
 
-/// Issue 9 item 2: a control connection with no request for the idle timeout is closed
+/// A control connection with no request for the idle timeout is closed
 /// (128 idle connections no longer lock everyone out), and the library's client reconnects
 /// transparently when its own idle connection was closed.
 #[test]

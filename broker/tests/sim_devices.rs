@@ -164,7 +164,7 @@ fn the_rate_estimate_is_published() {
     assert!(r > 24_000.0 && r < 96_000.0, "rate estimate {r}");
 }
 
-/// Issue 15 item 8: a simulated device whose thread is stopped (SIGSTOP of bassd) catches up
+/// A simulated device whose thread is stopped (SIGSTOP of bassd) catches up
 /// in a burst when it runs again; the burst's chunks are flagged LATE, their frames and
 /// timestamps are still exact, and nothing is counted as a gap.
 #[test]
@@ -205,7 +205,7 @@ fn a_device_that_falls_behind_flags_its_catch_up_chunks_late() {
     assert_eq!((info.xruns, info.gap_frames), (0, 0));
 }
 
-/// Issue 15 item 7 end to end: `sim:latestamps` feeds the estimator, through the capture
+/// `sim:latestamps` feeds the estimator, through the capture
 /// path, stamps as a starved thread sees them (catch-up bursts every 100 ms, a 500 ms stall
 /// at 2 s, 6 s, ...), made up from the device clock so they are the same on any machine.
 /// The published estimate stays within ±20 ppm of the exact 48 kHz from 4 s of device time

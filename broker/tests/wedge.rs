@@ -1,6 +1,6 @@
-//! No device path can wedge bassd, and a port cut under it is an error in Status (issue 21
-//! items 6 and 7): real brokers, a real FIFO, a real jackd stopped with SIGSTOP behind ALSA's
-//! `jack` plugin, a real port file truncated under the broker.
+//! No device path can wedge bassd, and a port cut under it is an error in Status: real
+//! brokers, a real FIFO, a real jackd stopped with SIGSTOP behind ALSA's `jack` plugin, a real
+//! port file truncated under the broker.
 //!
 //! Timing appears only as bounds with a wide margin over what was measured (docs/broker.md,
 //! "Bounded device opens"); the measured numbers are printed for the record.

@@ -1,7 +1,7 @@
 //! The exit-code table of `bass` (docs/broker.md, "Exit codes"; cli/src/exit.rs),
 //! held against real processes: every documented code is produced by a real `bass` against a
 //! real `bassd` (a real tmpfs for the full-port-directory case), and the documented table is
-//! the one the code defines (issue 21 item 9).
+//! the one the code defines.
 
 use std::process::{Command, Output};
 

@@ -98,7 +98,7 @@ fn model_rejects_a_reader_without_the_recheck() {
 /// Frame at which the started model's window begins (`start_at`): frames 1 and 2 never exist.
 const START: u64 = 3;
 
-/// A replica window started at `START` (issue 20 item 5): the writer starts it and publishes
+/// A replica window started at `START`: the writer starts it and publishes
 /// `START..START + FRAMES` while a reader reads from frame 1. Frames before `START` must
 /// never be delivered (they would be zeros presented as audio): only counted as lost.
 fn started_model(publish: fn(&Ring<'_>, u64, &[i32])) -> usize {

@@ -63,7 +63,7 @@ fn nln(r: (usize, u64, u64, Vec<i32>)) -> (usize, u64, u64) {
     (r.0, r.1, r.2)
 }
 
-/// Issue 20 item 5: a replica started at frame F never presents frames 1..F-1 (which it never
+/// A replica started at frame F never presents frames 1..F-1 (which it never
 /// had) as zero audio; every read path counts them as lost until the window has passed F.
 #[test]
 fn frames_before_a_replica_start_are_lost_not_zeros() {

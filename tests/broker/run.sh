@@ -74,7 +74,7 @@ if [[ $n == 3 ]]; then ok "bass blocks"; else bad "bass blocks: $out"; fi
 if out=$(bass acquire sim:pattern --frames 0 2>&1); then bad "bass acquire --frames 0 succeeded"; else
   if grep -q "'--frames <N>': 0 is not in 1\.\." <<<"$out"; then ok "bass refuses a bad request"; else bad "bad request message: $out"; fi
 fi
-# The device policy: an ALSA plugin string runs nothing and writes nothing (issue 9 item 3).
+# The device policy: an ALSA plugin string runs nothing and writes nothing.
 if out=$(bass acquire "file:'|touch $d/pwned',raw" 2>&1); then bad "a pipe plugin string was accepted"; else
   if grep -q 'device policy' <<<"$out" && [[ ! -e "$d/pwned" ]]; then ok "bass refuses a plugin string"; else
     bad "plugin string: $out"; fi

@@ -1,5 +1,5 @@
 """basc in periodic mode reports a broker that was killed (the port still says "capturing")
-and exits non-zero (issue 9, item 6). Before the fix it printed "got 0" forever."""
+and exits non-zero. Before the fix it printed "got 0" forever."""
 
 import os
 import signal

@@ -1,4 +1,4 @@
-"""Port.blocks() reads every channel of a port, 1 to 64 (issue 12, part 6): 1 channel used to
+"""Port.blocks() reads every channel of a port, 1 to 64: 1 channel used to
 raise a C-function-name error, 4 channels silently dropped two."""
 
 import numpy as np

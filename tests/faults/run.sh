@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The fault and abuse suite (issue 5; docs/reliability.md). Run by `make test-faults` after
+# The fault and abuse suite (docs/reliability.md). Run by `make test-faults` after
 # `cargo build --release --workspace`. Honours $CARGO_TARGET_DIR (default target/).
 #
 #   1. the Rust fault tests (tests/faults/tests/t*.rs, #[ignore]d in plain `cargo test`),

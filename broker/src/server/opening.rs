@@ -1,5 +1,5 @@
 //! A device open in progress: the Acquire's device is opened and configured on a worker
-//! thread, so that no device can wedge the control loop (issue 21 item 6).
+//! thread, so that no device can wedge the control loop.
 //!
 //! ```text
 //!  control loop                          worker "bassd-open"

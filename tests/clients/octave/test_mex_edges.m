@@ -1,4 +1,4 @@
-% Edge cases of the MEX gateway (issue 15, items 3-5), against ports made with its own writer
+% Edge cases of the MEX gateway, against ports made with its own writer
 % commands (no broker): timeouts that are not whole milliseconds, range checks of every numeric
 % argument, text where a number goes, and handles across `clear bass_mex` (an unload, as
 % `clear functions` / Matlab's `clear mex`). Any failed assertion is an error (exit status 1).

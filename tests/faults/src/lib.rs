@@ -1,4 +1,4 @@
-//! Helpers shared by the fault and abuse suite (issue 5): spawning the fault agent
+//! Helpers shared by the fault and abuse suite: spawning the fault agent
 //! (`bass-fault-agent`, the child processes the tests kill, stop and starve), reading
 //! their result lines, counting file descriptors and resident memory through /proc, and
 //! the pattern check every delivered sample goes through. The rig the suite shares with the

@@ -1,5 +1,4 @@
-//! Issue 9 (items 1, 4, 9, 11) and issue 14 (items 1, 2b for the port file): the port
-//! file's life — allocated whole and refused up front on a full file system, prepared
+//! The port file's life — allocated whole and refused up front on a full file system, prepared
 //! before the old acquisition is touched, never opened through a link or from another
 //! owner, and the states that say what is true.
 //!
@@ -70,7 +69,7 @@ fn a_port_that_does_not_fit_is_refused_up_front_and_the_broker_lives() {
     let base = TempDir::shm("fullfs");
     let mnt = base.join("s");
     let _fs = Tmpfs::mount(&mnt, "8m");
-    // The issue's repro asks for 768 kHz: above the default --max-rate (issue 14 item 3), so
+    // The issue's repro asks for 768 kHz: above the default --max-rate, so
     // the operator widens it here; what is tested is the space check.
     let mut b = Bassd::start_stock(&mnt, "default", &["--max-rate", "768000"], &[]);
     let mut c = b.client();

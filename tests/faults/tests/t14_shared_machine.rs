@@ -1,4 +1,4 @@
-//! Issue 14 — a root broker on a shared machine, against a hostile normal user (uid 65534,
+//! A root broker on a shared machine, against a hostile normal user (uid 65534,
 //! through setpriv; the group is the numeric test gid 4242, so no user or group is created).
 //!
 //! - item 1: symlinks and foreign files planted in a world-writable runtime directory are

@@ -1,4 +1,4 @@
-//! Issue 13 part 2 — `bassd --port-backing memfd`: the port is a sealed memfd that the broker
+//! `bassd --port-backing memfd`: the port is a sealed memfd that the broker
 //! hands to readers over the control socket (`open-port`, SCM_RIGHTS).
 //!
 //! Pass: no port file appears in the runtime directory; a reader process that opens the

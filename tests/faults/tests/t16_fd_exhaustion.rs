@@ -1,4 +1,4 @@
-//! Issue 9 item 2 — bassd out of file descriptors. With RLIMIT_NOFILE lowered to 40 (prlimit
+//! bassd out of file descriptors. With RLIMIT_NOFILE lowered to 40 (prlimit
 //! on the running broker) and 60 control connections opened, `accept` fails with EMFILE.
 //!
 //! Pass: bassd stays alive and keeps capturing (lastFrameIndex advances), every connection is

@@ -674,7 +674,7 @@ fn control_victim(a: &BrokerArgs) {
     }
 }
 
-/// Issue 14 item 4: Acquire, open the new port and keep it mapped, `--rounds` times; prints
+/// Acquire, open the new port and keep it mapped, `--rounds` times; prints
 /// one line per round (`ROUND i ok epoch=E` or `ROUND i refused ...`), then `RESULT` and
 /// holds every mapping until stdin closes.
 fn pin_loop(a: &PinArgs) {
