@@ -70,13 +70,3 @@ function test_mex()
   expect_error('bass:badArgument', @() bass_mex('GetAudioData', uint64(1), -1, 0));
   disp('test_mex: all assertions passed');
 end
-
-function expect_error(id, fn)
-  try
-    fn();
-  catch e
-    assert(strcmp(e.identifier, id), sprintf('expected %s, got %s: %s', id, e.identifier, e.message));
-    return;
-  end
-  error('test:fail', 'expected error %s', id);
-end
