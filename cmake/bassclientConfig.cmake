@@ -22,9 +22,9 @@ if(NOT TARGET bassclient::bassclient)
   add_library(bassclient::bassclient SHARED IMPORTED)
   set_target_properties(bassclient::bassclient PROPERTIES
     IMPORTED_LOCATION "${_bassclient_libdir}/libbassclient.so"
-    # The Rust cdylib has no SONAME: link it as -lbassclient so the executable records
-    # "libbassclient.so" (found through the rpath CMake adds, or the loader's path).
-    IMPORTED_NO_SONAME TRUE
+    # The library's SONAME (set in libbassclient/build.rs): an executable records
+    # "libbassclient.so.0", found through the rpath CMake adds, or the loader's path.
+    IMPORTED_SONAME "libbassclient.so.0"
     INTERFACE_INCLUDE_DIRECTORIES "${bassclient_INCLUDE_DIRS}")
 endif()
 

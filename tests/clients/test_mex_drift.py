@@ -14,7 +14,7 @@ import re
 from conftest import ROOT
 
 HEADER = open(os.path.join(ROOT, "include", "bass.h")).read()
-MEX = open(os.path.join(ROOT, "matlab", "bass_mex.c")).read()
+MEX = "".join(open(os.path.join(ROOT, "matlab", f)).read() for f in ("bass_mex_tables.h", "bass_mex.c"))
 
 # Matlab names that are not the C member in camelCase (the BASS documentation's vocabulary).
 LEGACY_NAMES = {
