@@ -19,6 +19,9 @@
 #   peer and through a Zenoh router (BENCH_NET_ROUTER=0 skips the router rows), in namespaces
 #   of its own: scripts/bench-net-fanout.sh.
 # BENCH_NET_BIN=DIR runs the binaries in DIR without building.
+# BENCH_NET_BASELINE=DIR also measures DIR/bass-bridge (an earlier build: serve and mirror
+# both from DIR) in each row, right after the current one, labelled "(baseline)": before and
+# after a change in one run, against one floor.
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd); cd "$ROOT"
 BIN=${CARGO_TARGET_DIR:-$ROOT/target}/release
@@ -62,15 +65,17 @@ OUT=bench/network-results.md
 echo "| chunk | local p50/p99 (us) | replica p50/p99 (us) | serve CPU | mirror CPU | wire / raw | abs clock offset p50/p99 (us) |"
 echo "|---:|---:|---:|---:|---:|---:|---:|"
 } > "$WORK/table"
-for ROW in ${BENCH_NET_CHUNKS:-64:1 64:4 256:1 2205:1}; do
+BRIDGES=("$BIN/bass-bridge"); [ -n "${BENCH_NET_BASELINE:-}" ] && BRIDGES+=("$BENCH_NET_BASELINE/bass-bridge")
+for ROW in ${BENCH_NET_CHUNKS:-64:1 64:4 256:1 2205:1}; do for BRIDGE in "${BRIDGES[@]}"; do
   NFPC=${ROW%:*}; PER_MSG=${ROW#*:}
+  LABEL=""; [ "$BRIDGE" != "$BIN/bass-bridge" ] && LABEL=" (baseline)"
   NCOP=$(( (48000 / 2 + NFPC - 1) / NFPC ))   # half a second on the port
   "${IN_A[@]}" "$BIN/bassd" --name src --rt-priority 0 --acquire sim:pattern --rate 48000 --frames $NFPC \
     --chunks $NCOP --channels 2 >"$WORK/bassd.log" 2>&1 & BASSD=$!; PIDS+=($BASSD)
-  "${IN_A[@]}" "$BIN/bass-bridge" serve "${SERVE_X[@]}" --name src --listen "$EP" --no-scouting \
+  "${IN_A[@]}" "$BRIDGE" serve "${SERVE_X[@]}" --name src --listen "$EP" --no-scouting \
     --chunks-per-message "$PER_MSG" >"$WORK/serve.log" 2>&1 & SERVE=$!; PIDS+=($SERVE)
   sleep 0.5
-  "${IN_B[@]}" "$BIN/bass-bridge" mirror "${MIRROR_X[@]}" --source src --name rep --connect "$EP" --no-scouting \
+  "${IN_B[@]}" "$BRIDGE" mirror "${MIRROR_X[@]}" --source src --name rep --connect "$EP" --no-scouting \
     --status-file "$WORK/status.json" >"$WORK/mirror.log" 2>&1 & MIRROR=$!; PIDS+=($MIRROR)
   sleep 3
   T0=$(now); S0=$(ticks $SERVE); M0=$(ticks $MIRROR); B0=$(ip netns exec "$NS_B" cat /sys/class/net/vB/statistics/rx_bytes)
@@ -82,22 +87,22 @@ for ROW in ${BENCH_NET_CHUNKS:-64:1 64:4 256:1 2205:1}; do
   "${IN_B[@]}" "$BIN/examples/delay_reader" rep "$SECS" >"$WORK/remote.json"
   wait $L $O || true
   S1=$(ticks $SERVE); M1=$(ticks $MIRROR); B1=$(ip netns exec "$NS_B" cat /sys/class/net/vB/statistics/rx_bytes); T1=$(now)
-  python3 - "$WORK" "$NFPC" "$PER_MSG" "$T0" "$T1" "$HZ" "$S0" "$S1" "$M0" "$M1" "$B0" "$B1" >>"$WORK/table" <<'PY'
+  python3 - "$WORK" "$LABEL" "$NFPC" "$PER_MSG" "$T0" "$T1" "$HZ" "$S0" "$S1" "$M0" "$M1" "$B0" "$B1" >>"$WORK/table" <<'PY'
 import json, sys
-w, nfpc, per_msg, t0, t1, hz, s0, s1, m0, m1, b0, b1 = sys.argv[1], *map(float, sys.argv[2:])
+w, label, (nfpc, per_msg, t0, t1, hz, s0, s1, m0, m1, b0, b1) = sys.argv[1], sys.argv[2], map(float, sys.argv[3:])
 secs = t1 - t0   # the measured interval (~1.1 x SECONDS), not SECONDS
 loc, rem = json.load(open(f"{w}/local.json")), json.load(open(f"{w}/remote.json"))
 offs = sorted(float(x) / 1e3 for x in open(f"{w}/offsets").read().split())
 q = lambda v, p: v[round((len(v) - 1) * p)] if v else float("nan")
 raw = 48000 * 2 * 4 * secs
-row = f"{int(nfpc)}" if per_msg == 1 else f"{int(nfpc)}, {int(per_msg)} per message"
+row = (f"{int(nfpc)}" if per_msg == 1 else f"{int(nfpc)}, {int(per_msg)} per message") + label
 print(f"| {row} | {loc['p50_us']:.0f} / {loc['p99_us']:.0f} | {rem['p50_us']:.0f} / {rem['p99_us']:.0f} "
       f"| {100 * (s1 - s0) / hz / secs:.1f} % | {100 * (m1 - m0) / hz / secs:.1f} % | {(b1 - b0) / raw:.3f} "
       f"| {q(offs, 0.5):.1f} / {q(offs, 0.99):.1f} |")
 print(f"row {row}: measured over {secs:.2f} s", file=sys.stderr)
 PY
   stop $MIRROR $SERVE $BASSD
-done
+done; done
 # The floor: bare Zenoh (bridge/examples/zenoh_floor.rs, no bass) sending one message of a
 # 64-frame chunk's size (96-byte header + 512 bytes of samples) 750 times a second over the
 # same veth, with the same scouting and congestion control: what one message per chunk costs

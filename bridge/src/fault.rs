@@ -63,6 +63,9 @@ impl Faults {
 
     /// The messages to put now for message `seq`, in order.
     pub fn apply(&mut self, seq: u64, bytes: Vec<u8>) -> Vec<Vec<u8>> {
+        if self.plan.is_empty() && self.held.is_empty() {
+            return vec![bytes]; // the installed binary: no faults
+        }
         let action = self.plan.iter().find(|(s, _)| *s == seq).map(|(_, a)| *a);
         let mut out = Vec::new();
         match action {

@@ -34,9 +34,10 @@ pub struct ChunkHeader {
     pub send_mono_ns: u64,
     /// Frames serve could not send on the network so far.
     pub source_lost: u64,
-    /// Header version (1).
+    /// Header version: 2 since the flags are the wire format 2's (the port's chunk flags,
+    /// SOURCE_LOSS 16); 1 had the wire format 1's numbering.
     pub version: u32,
-    /// `wire::flags`.
+    /// [`wire::flags`].
     pub flags: u32,
     /// Frames in the chunk.
     pub frames: u32,
@@ -49,6 +50,9 @@ pub struct ChunkHeader {
 }
 
 const _: () = assert!(core::mem::size_of::<ChunkHeader>() == 88);
+
+/// [`ChunkHeader::version`].
+pub const VERSION: u32 = 2;
 
 /// The iceoryx2 node, service and publisher (dropped in reverse order of creation).
 pub struct Exporter {
@@ -100,7 +104,7 @@ impl Exporter {
                 realtime_ns: h.realtime_ns,
                 send_mono_ns: h.send_mono_ns,
                 source_lost: h.source_lost,
-                version: 1,
+                version: VERSION,
                 flags: h.flags,
                 frames: h.frames,
                 channels: u32::from(h.channels),

@@ -177,11 +177,47 @@ impl NetOpts {
     }
 }
 
+/// A port's state as the bridge publishes it (serve's [`SourceState`], the mirror's status
+/// file): the port's own states, and `gone`. In JSON the lowercase name (`"capturing"`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BridgeState {
+    /// No acquisition.
+    Idle,
+    /// Acquire accepted, no chunk published yet.
+    Starting,
+    /// Chunks are being published.
+    Capturing,
+    /// Stopped by request.
+    Stopped,
+    /// The acquisition ended on an error.
+    Error,
+    /// No port, its writer died, or a newer acquisition replaced it.
+    #[default]
+    Gone,
+}
+
+impl BridgeState {
+    /// The state of a port whose header says `s` (`None`: a value this version does not know).
+    pub fn of_port(s: Option<bassclient::State>) -> BridgeState {
+        use bassclient::State;
+        match s {
+            Some(State::Idle) => BridgeState::Idle,
+            Some(State::Starting) => BridgeState::Starting,
+            Some(State::Capturing) => BridgeState::Capturing,
+            Some(State::Stopped) => BridgeState::Stopped,
+            Some(State::Error) => BridgeState::Error,
+            Some(State::Superseded) | None => BridgeState::Gone,
+        }
+    }
+}
+
 /// The source port's state as `serve` sees it.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct SourceState {
-    /// `capturing`, `stopped`, `error`, `idle`, `gone` (no port or its writer died).
-    pub state: String,
+    /// `idle`, `starting`, `capturing`, `stopped`, `error`, `gone` (no port, or its writer
+    /// died).
+    pub state: BridgeState,
     /// Error code (port format error code) when `state` is error.
     pub error_code: u32,
     /// Message.
@@ -238,17 +274,20 @@ pub const SHUTDOWN_DEADLINE: std::time::Duration = std::time::Duration::from_mil
 /// thread ends the process [`SHUTDOWN_DEADLINE`] after the signal whatever the main loop is
 /// doing, so SIGTERM ends bass-bridge within a second in every state.
 pub fn termination_flag() -> Result<std::sync::Arc<std::sync::atomic::AtomicBool>> {
-    use std::sync::atomic::Ordering;
     let flag = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
         signal_hook::flag::register(sig, flag.clone()).context("install a signal handler")?;
     }
-    let seen = flag.clone();
+    // The watchdog blocks on the signals themselves (signal-hook's self-pipe): no polling,
+    // no wake-up at all while the process runs (it polled the flag 50 times a second).
+    let mut signals =
+        signal_hook::iterator::Signals::new([signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT])
+            .context("install the shutdown watchdog's signal handler")?;
     std::thread::Builder::new()
         .name("shutdown-deadline".into())
         .spawn(move || {
-            while !seen.load(Ordering::Relaxed) {
-                std::thread::sleep(std::time::Duration::from_millis(20));
+            if signals.forever().next().is_none() {
+                return;
             }
             std::thread::sleep(SHUTDOWN_DEADLINE);
             tracing::warn!(

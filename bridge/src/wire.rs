@@ -1,12 +1,14 @@
-//! The network chunk message, version 1: the one definition of what `serve` puts on Zenoh
-//! and `mirror` takes off it. One message carries one source chunk.
+//! The network chunk message, version 2: the one definition of what `serve` puts on Zenoh
+//! and `mirror` takes off it. One message carries one source chunk; a Zenoh message carries
+//! one or more of them laid end to end ([`Batch`], [`decode_batch`]).
 //!
 //! ```text
 //!  offset  size  field            (all integers little-endian)
 //!  0       8     magic            b"BASSNET\0"
-//!  8       2     version          1 (a decoder refuses any other)
+//!  8       2     version          2 (a decoder refuses any other)
 //!  10      2     header_len       96; samples start here (a later version may grow it)
-//!  12      4     flags            GAP | SOURCE_LOSS | DISCONTINUITY | TIME_ESTIMATED
+//!  12      4     flags            the port's chunk flags, same bits (GAP 1, DISCONTINUITY 2,
+//!                                 TIME_ESTIMATED 4, LATE 8), and the bridge's SOURCE_LOSS 16
 //!  16      8     instance         random id of the sending `serve` process
 //!  24      8     epoch            the source port's acquisition epoch
 //!  32      8     sequence         chunks read by this instance, from 0, +1 per chunk,
@@ -21,20 +23,27 @@
 //!  72      8     realtime_ns      source CLOCK_REALTIME of the first frame
 //!  80      8     send_mono_ns     source CLOCK_MONOTONIC when the message was queued
 //!  88      8     source_lost      frames this instance could not send so far (cumulative)
-//!  96      4*frames*channels      samples, frame-interleaved i32; empty when GAP is set
+//!  96      4*frames*channels      samples, planar i32: channel 0's frames, then channel
+//!                                 1's, ... (the port's own layout); empty when GAP is set
 //! ```
+//!
+//! Version 1 (until 2026-12) numbered the flags differently (SOURCE_LOSS 2, DISCONTINUITY 4,
+//! TIME_ESTIMATED 8, no LATE) and interleaved the samples; it is refused by name.
 //!
 //! The layout is the [`Header`] struct (`repr(C)`, no padding); the offsets above are
 //! asserted at compile time against it. [`decode`] validates every field before a value is
-//! used. docs/network.md shows the same diagram.
+//! used and borrows the samples from the message ([`Chunk`]): no allocation per chunk.
+//! docs/network.md shows the same diagram.
 
 use std::mem::{offset_of, size_of};
+
+use bassclient::format::chunk_flags;
 
 /// `b"BASSNET\0"`.
 pub const MAGIC: [u8; 8] = *b"BASSNET\0";
 /// Wire format version.
-pub const VERSION: u16 = 1;
-/// Bytes of the version-1 header.
+pub const VERSION: u16 = 2;
+/// Bytes of the header.
 pub const HEADER_LEN: usize = 96;
 /// Sample format code: signed 32-bit.
 pub const SAMPLE_FORMAT_S32: u16 = 1;
@@ -43,16 +52,42 @@ pub const MAX_FRAMES: u32 = 1 << 20;
 /// Most channels.
 pub const MAX_CHANNELS: u16 = 64;
 
-/// Message flags.
+/// Message flags: the port's chunk flags with their own bits, then the bridge's.
 pub mod flags {
+    use super::chunk_flags;
     /// Zero-filled frames (a device gap at the source); no samples follow.
-    pub const GAP: u32 = 1;
-    /// Chunks before this one were read but not sent (bridge queue full or reader lapped).
-    pub const SOURCE_LOSS: u32 = 2;
+    pub const GAP: u32 = chunk_flags::GAP;
     /// The source marked this chunk as the first after an overrun.
-    pub const DISCONTINUITY: u32 = 4;
+    pub const DISCONTINUITY: u32 = chunk_flags::DISCONTINUITY;
     /// The source's timestamps are estimated.
-    pub const TIME_ESTIMATED: u32 = 8;
+    pub const TIME_ESTIMATED: u32 = chunk_flags::TIME_ESTIMATED;
+    /// The source's capture delivered this chunk late, in a catch-up burst.
+    pub const LATE: u32 = chunk_flags::LATE;
+    /// Chunks before this one were read but not sent (bridge queue full or reader lapped).
+    pub const SOURCE_LOSS: u32 = 16;
+    /// The bits that are the port's chunk flags.
+    pub const PORT: u32 = GAP | DISCONTINUITY | TIME_ESTIMATED | LATE;
+    /// Every bit of this version; a message with another one set is refused.
+    pub const ALL: u32 = PORT | SOURCE_LOSS;
+}
+
+const _: () = assert!(flags::SOURCE_LOSS & flags::PORT == 0 && flags::SOURCE_LOSS > flags::PORT);
+const _: () = assert!(flags::ALL == 31);
+
+/// The message flags of a source chunk: its port chunk flags, bit for bit, and
+/// [`flags::SOURCE_LOSS`] when chunks before it were not sent.
+pub fn flags_of_port(port_flags: u32, source_loss: bool) -> u32 {
+    (port_flags & flags::PORT) | if source_loss { flags::SOURCE_LOSS } else { 0 }
+}
+
+/// The port chunk flags a message stands for (the other way): the source's, bit for bit,
+/// with DISCONTINUITY added after a [`flags::SOURCE_LOSS`] (the chunks between were lost).
+pub fn port_flags(wire_flags: u32) -> u32 {
+    let mut f = wire_flags & flags::PORT;
+    if wire_flags & flags::SOURCE_LOSS != 0 {
+        f |= chunk_flags::DISCONTINUITY;
+    }
+    f
 }
 
 /// The fixed header, in wire order.
@@ -123,7 +158,7 @@ pub enum DecodeError {
     #[error("bad magic {0:02x?}")]
     Magic([u8; 8]),
     /// Another wire version.
-    #[error("wire version {found}, this bridge speaks {VERSION}")]
+    #[error("wire version {found}, this bridge speaks version {VERSION} (update serve and mirror together)")]
     Version {
         /// Version found.
         found: u16,
@@ -146,13 +181,35 @@ pub enum DecodeError {
     },
 }
 
-/// A decoded, validated message.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Chunk {
+/// A decoded, validated message; its samples are borrowed from the message's bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Chunk<'a> {
     /// The header.
     pub header: Header,
-    /// Interleaved samples, `frames * channels` of them; empty for a GAP chunk.
-    pub samples: Vec<i32>,
+    /// The samples as they lie on the wire: `frames * channels` little-endian i32, planar;
+    /// empty for a GAP chunk. Not aligned: read with [`Chunk::planar_into`].
+    pub sample_bytes: &'a [u8],
+}
+
+impl Chunk<'_> {
+    /// Whether the chunk is a GAP (no samples).
+    pub fn is_gap(&self) -> bool {
+        self.header.flags & flags::GAP != 0
+    }
+
+    /// The samples into `out` (reused: resized to `frames * channels`, no allocation once it
+    /// has grown): channel 0's frames, then channel 1's, ... Empty for a GAP chunk.
+    pub fn planar_into(&self, out: &mut Vec<i32>) {
+        out.clear();
+        out.extend(self.sample_bytes.chunks_exact(4).map(|s| i32::from_le_bytes(get(s, 0))));
+    }
+
+    /// The samples, planar, in a new vector (tests and tools).
+    pub fn planar(&self) -> Vec<i32> {
+        let mut v = Vec::new();
+        self.planar_into(&mut v);
+        v
+    }
 }
 
 fn put<const N: usize>(out: &mut [u8], at: usize, bytes: [u8; N]) {
@@ -165,34 +222,45 @@ fn get<const N: usize>(b: &[u8], at: usize) -> [u8; N] {
     a
 }
 
-/// Encodes a header and its samples (empty for GAP) into one message.
-pub fn encode(h: &Header, samples: &[i32]) -> Vec<u8> {
-    let mut out = vec![0u8; HEADER_LEN + samples.len() * 4];
-    put(&mut out, offset_of!(Header, magic), MAGIC);
-    put(&mut out, offset_of!(Header, version), VERSION.to_le_bytes());
-    put(&mut out, offset_of!(Header, header_len), (HEADER_LEN as u16).to_le_bytes());
-    put(&mut out, offset_of!(Header, flags), h.flags.to_le_bytes());
-    put(&mut out, offset_of!(Header, instance), h.instance.to_le_bytes());
-    put(&mut out, offset_of!(Header, epoch), h.epoch.to_le_bytes());
-    put(&mut out, offset_of!(Header, sequence), h.sequence.to_le_bytes());
-    put(&mut out, offset_of!(Header, first_frame), h.first_frame.to_le_bytes());
-    put(&mut out, offset_of!(Header, frames), h.frames.to_le_bytes());
-    put(&mut out, offset_of!(Header, channels), h.channels.to_le_bytes());
-    put(&mut out, offset_of!(Header, sample_format), SAMPLE_FORMAT_S32.to_le_bytes());
-    put(&mut out, offset_of!(Header, sample_rate), h.sample_rate.to_le_bytes());
-    put(&mut out, offset_of!(Header, chunks_on_port), h.chunks_on_port.to_le_bytes());
-    put(&mut out, offset_of!(Header, mono_ns), h.mono_ns.to_le_bytes());
-    put(&mut out, offset_of!(Header, realtime_ns), h.realtime_ns.to_le_bytes());
-    put(&mut out, offset_of!(Header, send_mono_ns), h.send_mono_ns.to_le_bytes());
-    put(&mut out, offset_of!(Header, source_lost), h.source_lost.to_le_bytes());
-    for (d, s) in out[HEADER_LEN..].chunks_exact_mut(4).zip(samples) {
-        d.copy_from_slice(&s.to_le_bytes());
+/// Appends one message to `out`: the header (`magic`, `version`, `header_len` and
+/// `sample_format` are this version's whatever `h` says) and the samples, planar
+/// (`frames * channels` of them, channel after channel; empty for GAP).
+pub fn encode_into(out: &mut Vec<u8>, h: &Header, planar: &[i32]) {
+    let at = out.len();
+    out.resize(at + HEADER_LEN, 0);
+    let head = &mut out[at..];
+    put(head, offset_of!(Header, magic), MAGIC);
+    put(head, offset_of!(Header, version), VERSION.to_le_bytes());
+    put(head, offset_of!(Header, header_len), (HEADER_LEN as u16).to_le_bytes());
+    put(head, offset_of!(Header, flags), h.flags.to_le_bytes());
+    put(head, offset_of!(Header, instance), h.instance.to_le_bytes());
+    put(head, offset_of!(Header, epoch), h.epoch.to_le_bytes());
+    put(head, offset_of!(Header, sequence), h.sequence.to_le_bytes());
+    put(head, offset_of!(Header, first_frame), h.first_frame.to_le_bytes());
+    put(head, offset_of!(Header, frames), h.frames.to_le_bytes());
+    put(head, offset_of!(Header, channels), h.channels.to_le_bytes());
+    put(head, offset_of!(Header, sample_format), SAMPLE_FORMAT_S32.to_le_bytes());
+    put(head, offset_of!(Header, sample_rate), h.sample_rate.to_le_bytes());
+    put(head, offset_of!(Header, chunks_on_port), h.chunks_on_port.to_le_bytes());
+    put(head, offset_of!(Header, mono_ns), h.mono_ns.to_le_bytes());
+    put(head, offset_of!(Header, realtime_ns), h.realtime_ns.to_le_bytes());
+    put(head, offset_of!(Header, send_mono_ns), h.send_mono_ns.to_le_bytes());
+    put(head, offset_of!(Header, source_lost), h.source_lost.to_le_bytes());
+    out.reserve(planar.len() * 4);
+    for s in planar {
+        out.extend_from_slice(&s.to_le_bytes());
     }
+}
+
+/// One message in a new buffer (see [`encode_into`]).
+pub fn encode(h: &Header, planar: &[i32]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(HEADER_LEN + planar.len() * 4);
+    encode_into(&mut out, h, planar);
     out
 }
 
 /// Decodes and validates one message. Never panics, whatever the bytes.
-pub fn decode(b: &[u8]) -> Result<Chunk, DecodeError> {
+pub fn decode(b: &[u8]) -> Result<Chunk<'_>, DecodeError> {
     if b.len() < HEADER_LEN {
         return Err(DecodeError::Short(b.len()));
     }
@@ -231,6 +299,9 @@ pub fn decode(b: &[u8]) -> Result<Chunk, DecodeError> {
     if hl < HEADER_LEN || hl > b.len() {
         return field("header_len", hl as u64);
     }
+    if h.flags & !flags::ALL != 0 {
+        return field("flags", h.flags.into());
+    }
     if h.frames == 0 || h.frames > MAX_FRAMES {
         return field("frames", h.frames.into());
     }
@@ -263,26 +334,53 @@ pub fn decode(b: &[u8]) -> Result<Chunk, DecodeError> {
     if payload.len() != expected {
         return Err(DecodeError::Payload { found: payload.len(), expected });
     }
-    let samples = payload.chunks_exact(4).map(|s| i32::from_le_bytes(get(s, 0))).collect();
-    Ok(Chunk { header: h, samples })
+    Ok(Chunk { header: h, sample_bytes: payload })
 }
 
 /// Decodes a message of one or more chunk messages laid end to end (`serve
 /// --chunks-per-message N` sends N in one Zenoh message; N = 1 is a plain message). Each is
-/// validated as by [`decode`]; a truncated or malformed part refuses the whole message.
-pub fn decode_batch(b: &[u8]) -> Result<Vec<Chunk>, DecodeError> {
-    let mut out = Vec::new();
+/// validated as by [`decode`] before any is returned: a truncated or malformed part refuses
+/// the whole message. The chunks come from the returned iterator (nothing is allocated).
+pub fn decode_batch(b: &[u8]) -> Result<Chunks<'_>, DecodeError> {
     let mut rest = b;
+    let mut count = 0usize;
     while !rest.is_empty() {
         let len = message_len(rest)?;
-        out.push(decode(&rest[..len])?);
+        decode(&rest[..len])?;
         rest = &rest[len..];
+        count += 1;
     }
-    if out.is_empty() {
+    if count == 0 {
         return Err(DecodeError::Short(0));
     }
-    Ok(out)
+    Ok(Chunks { rest: b, left: count })
 }
+
+/// The chunks of a validated message ([`decode_batch`]).
+#[derive(Clone, Debug)]
+pub struct Chunks<'a> {
+    rest: &'a [u8],
+    left: usize,
+}
+
+impl<'a> Iterator for Chunks<'a> {
+    type Item = Chunk<'a>;
+
+    fn next(&mut self) -> Option<Chunk<'a>> {
+        // Validated whole by decode_batch: neither call fails here.
+        let len = message_len(self.rest).ok()?;
+        let c = decode(&self.rest[..len]).ok()?;
+        self.rest = &self.rest[len..];
+        self.left -= 1;
+        Some(c)
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        (self.left, Some(self.left))
+    }
+}
+
+impl ExactSizeIterator for Chunks<'_> {}
 
 /// The length of the chunk message at the start of `b`, from its header (header length,
 /// frames, channels, GAP), checked against what `b` holds.
@@ -307,130 +405,64 @@ fn message_len(b: &[u8]) -> Result<usize, DecodeError> {
     Ok(len)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use proptest::prelude::*;
+/// Chunk messages waiting to go out together in one Zenoh message (`serve
+/// --chunks-per-message`): each chunk is encoded straight into the batch's buffer.
+#[derive(Debug, Default)]
+pub struct Batch {
+    max: u64,
+    bytes: Vec<u8>,
+    chunks: u64,
+    first_sequence: u64,
+    frames: u64,
+}
 
-    fn sample_header() -> Header {
-        Header {
-            magic: MAGIC,
-            version: VERSION,
-            header_len: HEADER_LEN as u16,
-            flags: flags::SOURCE_LOSS,
-            instance: 0xdead_beef,
-            epoch: 3,
-            sequence: 17,
-            first_frame: 64 * 5 + 1,
-            frames: 64,
-            channels: 2,
-            sample_format: SAMPLE_FORMAT_S32,
-            sample_rate: 48000,
-            chunks_on_port: 16,
-            mono_ns: 1,
-            realtime_ns: 2,
-            send_mono_ns: 3,
-            source_lost: 128,
-        }
+/// A full batch, taken from [`Batch::take`].
+#[derive(Debug)]
+pub struct Taken {
+    /// The first chunk's sequence number.
+    pub first_sequence: u64,
+    /// The Zenoh message: the chunk messages end to end.
+    pub bytes: Vec<u8>,
+    /// Chunks in it.
+    pub chunks: u64,
+    /// Frames in it.
+    pub frames: u64,
+}
+
+impl Batch {
+    /// A batch of up to `max` chunks (at least 1).
+    pub fn new(max: u32) -> Batch {
+        Batch { max: u64::from(max.max(1)), ..Default::default() }
     }
 
-    #[test]
-    fn a_chunk_round_trips_and_its_bytes_sit_at_the_documented_offsets() {
-        let h = sample_header();
-        let samples: Vec<i32> = (0..128).map(|i| i * 1000 - 7).collect();
-        let bytes = encode(&h, &samples);
-        assert_eq!(bytes.len(), 96 + 512);
-        assert_eq!(&bytes[0..8], b"BASSNET\0");
-        assert_eq!(u64::from_le_bytes(bytes[40..48].try_into().unwrap()), 321);
-        assert_eq!(i32::from_le_bytes(bytes[96..100].try_into().unwrap()), -7);
-        let c = decode(&bytes).unwrap();
-        assert_eq!(c.header, h);
-        assert_eq!(c.samples, samples);
+    /// Adds one chunk (see [`encode_into`]); returns whether the batch is now full.
+    pub fn push(&mut self, h: &Header, planar: &[i32]) -> bool {
+        if self.chunks == 0 {
+            self.first_sequence = h.sequence;
+            let per = HEADER_LEN + planar.len() * 4;
+            self.bytes = Vec::with_capacity(per * self.max as usize);
+        }
+        encode_into(&mut self.bytes, h, planar);
+        self.chunks += 1;
+        self.frames += u64::from(h.frames);
+        self.chunks >= self.max
     }
 
-    #[test]
-    fn a_gap_chunk_carries_no_samples_and_a_wrong_payload_is_refused() {
-        let h = Header { flags: flags::GAP, ..sample_header() };
-        assert_eq!(decode(&encode(&h, &[])).unwrap().samples, Vec::<i32>::new());
-        let data = sample_header();
-        assert_eq!(decode(&encode(&data, &[1, 2])), Err(DecodeError::Payload { found: 8, expected: 512 }));
-    }
-
-    #[test]
-    fn a_batch_decodes_chunk_by_chunk_and_a_truncated_batch_is_refused_whole() {
-        let samples: Vec<i32> = (0..128).collect();
-        let mut batch = Vec::new();
-        for k in 0..3u64 {
-            let h = Header { sequence: 7 + k, first_frame: 321 + 64 * k, ..sample_header() };
-            batch.extend(encode(&h, &samples));
+    /// The chunks waiting, if any; the batch is empty afterwards.
+    pub fn take(&mut self) -> Option<Taken> {
+        if self.chunks == 0 {
+            return None;
         }
-        // A GAP chunk (no samples) in the middle of a batch too.
-        let gap = Header { flags: flags::GAP, sequence: 10, first_frame: 321 + 64 * 3, ..sample_header() };
-        batch.extend(encode(&gap, &[]));
-        let chunks = decode_batch(&batch).unwrap();
-        let firsts: Vec<u64> = chunks.iter().map(|c| c.header.first_frame).collect();
-        assert_eq!(firsts, vec![321, 385, 449, 513]);
-        assert_eq!(chunks[2].samples, samples);
-        assert!(chunks[3].samples.is_empty());
-        // One message is a batch of one.
-        assert_eq!(decode_batch(&encode(&sample_header(), &samples)).unwrap().len(), 1);
-        // Cut inside the second chunk: nothing of the message is taken.
-        assert!(matches!(decode_batch(&batch[..96 + 512 + 100]), Err(DecodeError::Payload { .. })));
-        assert_eq!(decode_batch(&[]), Err(DecodeError::Short(0)));
-    }
-
-    #[test]
-    fn another_version_and_a_chunk_that_does_not_start_a_chunk_are_named_errors() {
-        let mut b = encode(&sample_header(), &[0; 128]);
-        b[8] = 2;
-        assert_eq!(decode(&b), Err(DecodeError::Version { found: 2 }));
-        let h = Header { first_frame: 2, ..sample_header() };
-        assert_eq!(
-            decode(&encode(&h, &[0; 128])),
-            Err(DecodeError::Field { field: "first_frame", value: 2 })
-        );
-    }
-
-    proptest! {
-        #![proptest_config(ProptestConfig { cases: 2000, failure_persistence: None, ..ProptestConfig::default() })]
-
-        /// Any mutation of a valid message decodes to a named error or to a message whose
-        /// fields are within range and whose samples match frames x channels.
-        #[test]
-        fn mutated_messages_never_panic_and_decode_only_to_valid_chunks(
-            muts in proptest::collection::vec((0usize..700, any::<u8>()), 1..16),
-            cut in proptest::option::of(0usize..700),
-        ) {
-            let mut b = encode(&sample_header(), &[5; 128]);
-            for (at, v) in muts { if at < b.len() { b[at] = v; } }
-            if let Some(c) = cut { b.truncate(c); }
-            if let Ok(c) = decode(&b) {
-                let h = c.header;
-                prop_assert!(h.frames >= 1 && h.frames <= MAX_FRAMES);
-                prop_assert!(h.channels >= 1 && h.channels <= MAX_CHANNELS);
-                prop_assert!(h.first_frame >= 1 && (h.first_frame - 1) % u64::from(h.frames) == 0);
-                let n = if h.flags & flags::GAP != 0 { 0 } else { h.frames as usize * h.channels as usize };
-                prop_assert_eq!(c.samples.len(), n);
-            }
-        }
-
-        #[test]
-        fn random_bytes_never_panic(b in proptest::collection::vec(any::<u8>(), 0..400)) {
-            let _ = decode(&b);
-        }
-
-        #[test]
-        fn any_valid_header_round_trips(
-            flags in 0u32..16, instance in any::<u64>(), epoch in 1u64..u64::MAX, seq in any::<u64>(),
-            chunk in 0u64..1_000_000, frames in 1u32..300, channels in 1u16..=8, rate in 1u32..400_000,
-        ) {
-            let h = Header { flags, instance, epoch, sequence: seq, first_frame: chunk * u64::from(frames) + 1,
-                frames, channels, sample_rate: rate, ..sample_header() };
-            let n = if flags & flags::GAP != 0 { 0 } else { frames as usize * channels as usize };
-            let samples: Vec<i32> = (0..n as i32).collect();
-            let c = decode(&encode(&h, &samples)).unwrap();
-            prop_assert_eq!(c.header, h);
-            prop_assert_eq!(c.samples, samples);
-        }
+        let t = Taken {
+            first_sequence: self.first_sequence,
+            bytes: std::mem::take(&mut self.bytes),
+            chunks: self.chunks,
+            frames: self.frames,
+        };
+        (self.chunks, self.frames) = (0, 0);
+        Some(t)
     }
 }
+
+#[cfg(test)]
+mod tests;

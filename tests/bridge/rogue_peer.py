@@ -31,6 +31,7 @@ key = lambda leaf: f"{ns}/{source}/{leaf}"  # noqa: E731
 HDR = struct.Struct("<8sHHIQQQQIHHIIQQQQ")  # bridge/src/wire.rs, 96 bytes
 assert HDR.size == 96
 MAGIC = b"BASSNET\0"
+VERSION = 2  # wire format 2: flags as the port's chunk flags, samples planar
 GAP = 1
 MAX_FRAME_INDEX = 1 << 62
 ESC = "\x1b]0;owned by rogue\x07\x1b[2J\x1b[31m\r\nFAKE LOG LINE"
@@ -38,7 +39,7 @@ ESC = "\x1b]0;owned by rogue\x07\x1b[2J\x1b[31m\r\nFAKE LOG LINE"
 
 def chunk(instance, epoch, first, frames, channels, rate, cop, flags=0, samples=None, seq=0):
     now = time.monotonic_ns()
-    head = HDR.pack(MAGIC, 1, 96, flags, instance, epoch, seq, first, frames, channels, 1, rate, cop,
+    head = HDR.pack(MAGIC, VERSION, 96, flags, instance, epoch, seq, first, frames, channels, 1, rate, cop,
                     now, time.time_ns(), now, 0)
     if flags & GAP:
         return head

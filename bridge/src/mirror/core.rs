@@ -26,12 +26,14 @@
 use std::collections::VecDeque;
 use std::path::PathBuf;
 
-use bassclient::format::{chunk_flags, error_code};
-use bassclient::{ChunkMeta, Geometry, PortParams, Source, State, Writer};
-use serde::Serialize;
+use bassclient::format::error_code;
+use bassclient::{Geometry, PortParams, State, Writer};
 
 use super::bounds::Bounds;
-use crate::net::SourceState;
+use super::replica::{publish, Replica};
+use super::status::held;
+pub use super::status::{LogLimit, MirrorStatus, LOG_EVERY_NS};
+use crate::net::{BridgeState, SourceState};
 use crate::text::escape;
 use crate::wire;
 
@@ -53,109 +55,6 @@ pub const RETRY_NS: u64 = 2 * SEC;
 pub const STATE_CONFIRM_NS: u64 = 300_000_000;
 /// Margin of time (beyond the window) a chunk may be ahead of what the elapsed time allows.
 pub const AHEAD_MARGIN_NS: u64 = 2 * SEC;
-/// Shortest interval between two log lines of one kind (the others are counted).
-pub const LOG_EVERY_NS: u64 = 5 * SEC;
-
-/// The mirror's counters (status file and log). Every text is escaped.
-#[derive(Clone, Debug, Default, Serialize)]
-pub struct MirrorStatus {
-    /// Replica port name.
-    pub replica: String,
-    /// Source broker name.
-    pub source: String,
-    /// The bridge runs without authentication (`--insecure`).
-    pub insecure: bool,
-    /// Replica epoch (0 = none yet).
-    pub replica_epoch: u64,
-    /// Source epoch followed.
-    pub source_epoch: u64,
-    /// Serve instance followed (hex), empty before the first chunk.
-    pub source_instance: String,
-    /// Newest replica frame.
-    pub last_frame_index: u64,
-    /// Chunks written with data.
-    pub chunks_written: u64,
-    /// Frames published as GAP for chunks that never arrived.
-    pub gap_frames_lost: u64,
-    /// Of those, frames the source side reported as not sent (its queue or its reader).
-    pub gap_frames_source: u64,
-    /// Chunks dropped for arriving late or twice.
-    pub late_or_duplicate: u64,
-    /// Messages refused by the decoder or outside this mirror's bounds.
-    pub invalid_messages: u64,
-    /// Chunks refused for a frame index further ahead than the elapsed time allows.
-    pub refused_far_frames: u64,
-    /// Chunks refused because they asked for a new replica sooner than the rate limit allows.
-    pub refused_epochs: u64,
-    /// Chunks refused because they came from a second serve instance while the followed one
-    /// was heard.
-    pub refused_other_source: u64,
-    /// Source states ignored because the followed stream's chunks went on after them.
-    pub refused_states: u64,
-    /// Replica ports made (the first included).
-    pub replica_recreations: u64,
-    /// Two serve instances heard with this source name at once (hex ids): an error.
-    pub two_sources: Vec<String>,
-    /// Times the replica went into the error state (source unreachable or failed).
-    pub outages: u64,
-    /// Why the mirror is in error, if it is (a replica it cannot make, two sources).
-    pub error: Option<String>,
-    /// Source CLOCK_MONOTONIC minus local CLOCK_MONOTONIC (ns), estimated.
-    pub clock_offset_ns: Option<i64>,
-    /// Uncertainty of that estimate (ns): half the best round trip.
-    pub clock_uncertainty_ns: Option<u64>,
-    /// Source clock rate relative to ours minus 1, in parts per million.
-    pub clock_drift_ppm: Option<f64>,
-    /// Clock probe answers refused (malformed, or contradicting the others).
-    pub clock_replies_refused: u64,
-    /// Status-file writes that failed.
-    pub status_write_failures: u64,
-    /// Replica state.
-    pub state: String,
-}
-
-/// A log line of one kind at most every [`LOG_EVERY_NS`]; the ones held back are counted and
-/// said with the next.
-#[derive(Debug, Default)]
-pub struct LogLimit {
-    last_ns: Option<u64>,
-    held: u64,
-}
-
-impl LogLimit {
-    /// Whether to log now; `Some(n)`: log, saying that `n` similar lines were held back.
-    pub fn allow(&mut self, now: u64) -> Option<u64> {
-        if self.last_ns.is_some_and(|l| now.saturating_sub(l) < LOG_EVERY_NS) {
-            self.held += 1;
-            return None;
-        }
-        self.last_ns = Some(now);
-        Some(std::mem::take(&mut self.held))
-    }
-}
-
-fn held(n: u64) -> String {
-    if n == 0 {
-        String::new()
-    } else {
-        format!(" ({n} more like it not logged)")
-    }
-}
-
-/// The replica and what it follows.
-struct Replica {
-    writer: Writer,
-    source_epoch: u64,
-    geometry: Geometry,
-    expected: u64,
-    last_source_lost: u64,
-    /// When the last chunk was applied (local ns).
-    last_chunk_ns: u64,
-    /// Its first frame's capture time (source CLOCK_MONOTONIC ns; 0 = not stamped).
-    last_mono_ns: u64,
-    /// First applied chunk (frame, source mono ns) for the rate estimate.
-    anchor: Option<(u64, u64)>,
-}
 
 /// A source state waiting for confirmation (no chunk of the followed stream after it).
 struct PendingState {
@@ -199,6 +98,10 @@ pub struct Core {
     last_stamp: Option<(u64, u64)>,
     /// The current silence of the source was said.
     unreachable_said: bool,
+    /// The decoded samples of the chunk being written (reused: no allocation per chunk).
+    samples: Vec<i32>,
+    /// What [`Core::on_message`] did with each chunk of the last message (reused).
+    outcomes: Vec<Outcome>,
     /// The followed instance's liveliness token went away.
     followed_token_gone: bool,
 }
@@ -234,7 +137,7 @@ impl Core {
             port_path,
             bounds,
             replica: None,
-            st: MirrorStatus { state: "idle".into(), ..st },
+            st: MirrorStatus { state: BridgeState::Idle, ..st },
             in_error: false,
             last_heard_ns: now,
             followed: None,
@@ -246,21 +149,29 @@ impl Core {
             last_stamp: None,
             unreachable_said: false,
             followed_token_gone: false,
+            samples: Vec::new(),
+            outcomes: Vec::new(),
         }
     }
 
     /// One Zenoh message of chunks; `offset` is the clock estimate (source - local, ns).
-    pub fn on_message(&mut self, bytes: &[u8], now: u64, offset: Option<i64>) -> Vec<Outcome> {
+    /// Returns what was done with each chunk (one [`Outcome::Invalid`] for a refused
+    /// message); nothing is allocated once the buffers have grown.
+    pub fn on_message(&mut self, bytes: &[u8], now: u64, offset: Option<i64>) -> &[Outcome] {
+        let mut outcomes = std::mem::take(&mut self.outcomes);
+        outcomes.clear();
         match wire::decode_batch(bytes) {
-            Ok(chunks) => chunks.into_iter().map(|c| self.on_chunk(c, now, offset)).collect(),
+            Ok(chunks) => outcomes.extend(chunks.map(|c| self.on_chunk(&c, now, offset))),
             Err(e) => {
                 self.st.invalid_messages += 1;
                 if let Some(n) = self.logs.invalid.allow(now) {
                     tracing::warn!("refused a message: {}{}", escape(&e.to_string()), held(n));
                 }
-                vec![Outcome::Invalid]
+                outcomes.push(Outcome::Invalid);
             }
         }
+        self.outcomes = outcomes;
+        &self.outcomes
     }
 
     /// The source stamp and local arrival time of the last chunk applied, once (for the
@@ -299,7 +210,7 @@ impl Core {
     }
 
     /// One chunk.
-    pub fn on_chunk(&mut self, c: wire::Chunk, now: u64, offset: Option<i64>) -> Outcome {
+    pub fn on_chunk(&mut self, c: &wire::Chunk, now: u64, offset: Option<i64>) -> Outcome {
         let h = c.header;
         let geometry = Geometry {
             channels: u32::from(h.channels),
@@ -402,13 +313,13 @@ impl Core {
             if let Some(n) = self.logs.states.allow(now) {
                 tracing::warn!(
                     "ignored a source state {:?}: the source's chunks went on after it{}",
-                    escape(&p.state.state),
+                    p.state.state,
                     held(n)
                 );
             }
         }
         let Some(r) = self.replica.as_mut() else { return Outcome::Failed };
-        match publish(r, &mut self.st, &c, now, offset) {
+        match publish(r, &mut self.st, c, &mut self.samples, now, offset) {
             Ok(gap) => {
                 // When it was queued (not its first frame's time, a chunk earlier or more).
                 self.last_stamp = (h.send_mono_ns != 0).then_some((h.send_mono_ns, now));
@@ -538,7 +449,7 @@ impl Core {
             self.st.refused_states += 1;
             return;
         }
-        if matches!(s.state.as_str(), "error" | "gone" | "stopped") {
+        if matches!(s.state, BridgeState::Error | BridgeState::Gone | BridgeState::Stopped) {
             self.pending_state = Some(PendingState { state: s, at_ns: now });
         }
     }
@@ -589,10 +500,12 @@ impl Core {
 
     fn apply_state(&mut self, s: &SourceState) {
         let Some(r) = &self.replica else { return };
-        match s.state.as_str() {
-            "error" | "gone" if !self.in_error && r.writer.state() == State::Capturing => {
+        match s.state {
+            BridgeState::Error | BridgeState::Gone
+                if !self.in_error && r.writer.state() == State::Capturing =>
+            {
                 let code = if s.error_code != 0 { s.error_code } else { error_code::DEVICE_LOST };
-                let msg = if s.state == "gone" {
+                let msg = if s.state == BridgeState::Gone {
                     "the source broker is gone".to_string()
                 } else {
                     format!("source: {}", escape(&s.message))
@@ -602,7 +515,7 @@ impl Core {
                 self.st.outages += 1;
                 tracing::warn!("{msg}: replica in error");
             }
-            "stopped" if r.writer.state() == State::Capturing => r.writer.stop(),
+            BridgeState::Stopped if r.writer.state() == State::Capturing => r.writer.stop(),
             _ => {}
         }
     }
@@ -611,7 +524,7 @@ impl Core {
     pub fn refresh(&mut self) {
         if let Some(r) = &self.replica {
             self.st.last_frame_index = r.writer.last_frame_index();
-            self.st.state = format!("{:?}", r.writer.state()).to_lowercase();
+            self.st.state = BridgeState::of_port(Some(r.writer.state()));
         }
     }
 
@@ -622,62 +535,4 @@ impl Core {
             let _ = r.writer.remove();
         }
     }
-}
-
-/// Publishes a chunk of the followed stream at or after the expected frame; returns the
-/// frames published as lost before it.
-fn publish(
-    r: &mut Replica,
-    st: &mut MirrorStatus,
-    c: &wire::Chunk,
-    now: u64,
-    offset: Option<i64>,
-) -> bassclient::Result<u64> {
-    let h = c.header;
-    let mono = match offset {
-        Some(off) if h.mono_ns != 0 => (h.mono_ns as i64).saturating_sub(off).max(1) as u64,
-        _ => 0,
-    };
-    let meta = ChunkMeta { mono_ns: mono, realtime_ns: h.realtime_ns, flags: chunk_flags::TIME_ESTIMATED };
-    let missing = h.first_frame - r.expected;
-    if missing > 0 {
-        // The source's cumulative count says how many of them it never sent.
-        let from_source = h.source_lost.saturating_sub(r.last_source_lost).min(missing);
-        r.writer.publish_lost(
-            missing,
-            ChunkMeta { mono_ns: 0, realtime_ns: 0, flags: chunk_flags::TIME_ESTIMATED },
-        )?;
-        st.gap_frames_lost += missing;
-        st.gap_frames_source += from_source;
-    }
-    r.last_source_lost = h.source_lost;
-    let mut flags = meta.flags;
-    if h.flags & wire::flags::DISCONTINUITY != 0 || h.flags & wire::flags::SOURCE_LOSS != 0 {
-        flags |= chunk_flags::DISCONTINUITY;
-    }
-    if h.flags & wire::flags::GAP != 0 {
-        r.writer.publish(Source::Zeros, ChunkMeta { flags: flags | chunk_flags::GAP, ..meta })?;
-    } else {
-        r.writer.publish(Source::Interleaved(&c.samples), ChunkMeta { flags, ..meta })?;
-    }
-    r.expected = h.first_frame + u64::from(h.frames);
-    r.last_chunk_ns = now;
-    r.last_mono_ns = h.mono_ns;
-    st.chunks_written += 1;
-    // The replica's rate estimate: the source's frames over the source's clock, from the
-    // first chunk on (a value far from the nominal rate is a bad stamp, not a rate).
-    if h.mono_ns != 0 {
-        match r.anchor {
-            None => r.anchor = Some((h.first_frame, h.mono_ns)),
-            Some((f0, m0)) if h.mono_ns > m0 + SEC => {
-                let hz = (h.first_frame - f0) as f64 * 1e9 / (h.mono_ns - m0) as f64;
-                let nominal = f64::from(r.geometry.sample_rate);
-                if (hz - nominal).abs() < nominal * 0.01 {
-                    r.writer.set_rate_estimate(hz);
-                }
-            }
-            Some(_) => {}
-        }
-    }
-    Ok(missing)
 }

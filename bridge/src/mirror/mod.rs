@@ -12,6 +12,8 @@
 
 pub mod bounds;
 pub mod core;
+mod replica;
+pub mod status;
 
 use std::sync::atomic::Ordering;
 use std::sync::mpsc::{channel, RecvTimeoutError};
@@ -26,24 +28,10 @@ use zenoh::Wait;
 
 use self::bounds::Bounds;
 use self::core::{Core, LogLimit, MirrorStatus};
+use bassclient::args::parse_seconds;
+
 use crate::clock::ClockEstimator;
 use crate::net::{self, NetOpts, UsageError};
-
-/// Longest `--timeout` / `--probe-interval` (seconds), as the `bass` tool's durations.
-pub const MAX_SECONDS: f64 = 1e9;
-
-/// Parses a duration in seconds: a finite number in (0, [`MAX_SECONDS`]], as the `bass`
-/// tool does (broker/src/cli.rs `parse_seconds`): NaN, infinities, zero and negative values
-/// are refused by clap (exit 2, naming the option).
-pub fn parse_seconds(s: &str) -> Result<f64, String> {
-    let v: f64 = s.trim().parse().map_err(|_| format!("{s:?} is not a number of seconds"))?;
-    if !v.is_finite() || v <= 0.0 || v > MAX_SECONDS {
-        return Err(format!(
-            "{s} is not in the accepted range: more than 0 and at most {MAX_SECONDS:e} seconds"
-        ));
-    }
-    Ok(v)
-}
 
 /// Options of `mirror`.
 #[derive(clap::Args, Debug)]
