@@ -8,7 +8,7 @@ CFLAGS_STRICT := -std=c11 -Wall -Wextra -Wpedantic -Werror
 BRIDGE_FEATURES := $(shell cat scripts/bridge-features)
 
 .PHONY: all deps deps-build build build-bridge demo test test-rust test-loom test-c test-broker test-replay test-clients test-faults test-bridge \
-        header fmt lint bench install clean
+        header fmt lint bench install clean install-files deb test-package
 
 all: build
 
@@ -28,7 +28,7 @@ demo: build
 	scripts/demo.sh
 
 # Everything CI runs.
-test: deps lint test-rust test-loom test-c test-broker test-replay test-clients test-faults test-bridge
+test: deps lint test-rust test-loom test-c test-broker test-replay test-clients test-faults test-bridge test-package
 	@echo "make test: all suites passed"
 
 lint:
@@ -85,6 +85,10 @@ build-bridge:
 	$(CARGO) build --release --workspace --all-targets --features $(BRIDGE_FEATURES)
 
 install: build build-bridge
+	@$(MAKE) --no-print-directory install-files
+
+# The files only, from binaries built before (make deb, tests/package): no cargo run.
+install-files:
 	install -d $(INSTALL_ROOT)/bin $(INSTALL_ROOT)/lib/pkgconfig $(INSTALL_ROOT)/lib/cmake/bassclient \
 	  $(INSTALL_ROOT)/include $(INSTALL_ROOT)/share/bass/matlab
 	install -m 0755 $(BUILT_DIR)/bassd $(BUILT_DIR)/bass $(BUILT_DIR)/bass-bridge $(INSTALL_ROOT)/bin/
@@ -98,8 +102,18 @@ install: build build-bridge
 	install -m 0644 cmake/bassclientConfig.cmake $(INSTALL_ROOT)/lib/cmake/bassclient/
 	sed -e 's|@VERSION@|$(VERSION)|' cmake/bassclientConfigVersion.cmake.in \
 	  > $(INSTALL_ROOT)/lib/cmake/bassclient/bassclientConfigVersion.cmake
-	install -m 0644 matlab/bass_mex.c matlab/Bass.m matlab/README.md $(INSTALL_ROOT)/share/bass/matlab/
+	install -m 0644 matlab/bass_mex.c matlab/bass_mex_tables.h matlab/Bass.m matlab/README.md $(INSTALL_ROOT)/share/bass/matlab/
+	broker/systemd/install-units.sh $(INSTALL_ROOT) $(PREFIX)
 	@echo "installed bass $(VERSION) into $(INSTALL_ROOT)"
+
+# A Debian package of what `make install PREFIX=/usr` installs, with the systemd units and the
+# group bass (docs/broker.md, "Running bass as a service"): target/deb/bass_VERSION-1_ARCH.deb.
+deb: build build-bridge
+	broker/debian/build-deb.sh target/deb
+
+# The package built, linted, installed, used and purged on this machine (root; tests/package).
+test-package: build build-bridge
+	tests/package/run.sh
 
 clean:
 	$(CARGO) clean

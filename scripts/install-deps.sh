@@ -11,6 +11,9 @@ pkgs=(build-essential pkg-config libasound2-dev libasound2-plugins alsa-utils ja
 # The Python client and its tests (tests/clients, python/tests, tests/conformance).
 pkgs+=(python3 python3-numpy python3-pytest)
 if [[ "${1:-}" == "--with-octave" ]]; then
+  # What make test needs on top (make deps): the package test (tests/package) lints the
+  # package, verifies the systemd units (systemd-analyze) and traces bassd.
+  pkgs+=(lintian systemd strace adduser)
   pkgs+=(octave liboctave-dev)
 fi
 for p in "${pkgs[@]}"; do have_pkg "$p" || need+=("$p"); done
