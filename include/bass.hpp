@@ -13,6 +13,8 @@
 
 #include <algorithm>
 #include <chrono>
+#include <exception>
+#include <functional>
 #include <cstdint>
 #include <stdexcept>
 #include <string>
@@ -236,6 +238,76 @@ class block_reader {
     std::uint64_t nfr_;
     std::chrono::milliseconds timeout_;
     std::uint64_t fop_ = 0;
+};
+
+// A callback stream (bass_stream_*, docs/c-api.md "Callback streams"): on_block(const
+// bass_block &) is called with every block and returns true to go on; on_event(const
+// bass_stream_event &) with every acquisition event (true: go on, e.g. wait for a restart;
+// none given: every event ends the stream). mode::own_thread starts it on bass's thread;
+// mode::caller_thread waits for run(). The destructor stops and joins it. Not copyable or
+// movable: the callbacks live in the object. An exception thrown by a callback stops the
+// stream and is rethrown by run() or join(). Realtime: calling the std::function does not
+// allocate; the callables must not either (see the rules in docs/c-api.md).
+class stream {
+  public:
+    using block_fn = std::function<bool(const bass_block &)>;
+    using event_fn = std::function<bool(const bass_stream_event &)>;
+    enum class mode { own_thread, caller_thread };
+
+    stream(const port &p, const bass_stream_config &cfg, block_fn on_block, event_fn on_event = {},
+           mode m = mode::own_thread)
+        : on_block_(std::move(on_block)), on_event_(std::move(on_event)) {
+        if (m == mode::own_thread)
+            check("bass_stream_start", bass_stream_start(p.handle(), &cfg, block_tramp, event_tramp, this, &h_));
+        else
+            check("bass_stream_create", bass_stream_create(p.handle(), &cfg, block_tramp, event_tramp, this, &h_));
+    }
+    ~stream() { bass_stream_close(h_); }
+    stream(const stream &) = delete;
+    stream &operator=(const stream &) = delete;
+
+    // Runs a caller_thread stream here until a callback or stop() ends it.
+    void run() {
+        check("bass_stream_run", bass_stream_run(h_));
+        rethrow();
+    }
+    // Asks the stream to stop; from any thread, also inside a callback.
+    void stop() noexcept { bass_stream_stop(h_); }
+    // Stops an own_thread stream and waits for it; rethrows a callback's exception.
+    void join() {
+        bass_result r = bass_stream_close(h_);
+        h_ = nullptr;
+        check("bass_stream_close", r);
+        rethrow();
+    }
+
+  private:
+    static int block_tramp(const bass_block *b, void *user) {
+        auto *s = static_cast<stream *>(user);
+        try {
+            return s->on_block_(*b) ? 0 : 1;
+        } catch (...) {
+            s->failure_ = std::current_exception();
+            return 1;
+        }
+    }
+    static int event_tramp(const bass_stream_event *e, void *user) {
+        auto *s = static_cast<stream *>(user);
+        if (!s->on_event_) return 1;
+        try {
+            return s->on_event_(*e) ? 0 : 1;
+        } catch (...) {
+            s->failure_ = std::current_exception();
+            return 1;
+        }
+    }
+    void rethrow() {
+        if (failure_) std::rethrow_exception(std::exchange(failure_, nullptr));
+    }
+    block_fn on_block_;
+    event_fn on_event_;
+    std::exception_ptr failure_;
+    bass_stream *h_ = nullptr;
 };
 
 inline const char *version() noexcept { return bass_version(); }

@@ -26,7 +26,6 @@ pub fn parse_seconds(s: &str) -> Result<f64, String> {
     Ok(v)
 }
 
-
 #[cfg(feature = "cli")]
 mod acquire {
     use super::{MAX_SAMPLE_RATE, SAMPLE_FORMAT_NAMES};

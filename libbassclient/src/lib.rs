@@ -6,6 +6,8 @@
 //! - [`reader::Port`]: opens a port read-only; `get_audio_data` is the formal
 //!   `getAudioData` algorithm of the BASS documentation;
 //! - [`ffi`]: the C ABI (`include/bass.h`);
+//! - [`stream`]: callback streams (a closure per block, with its first frame, loss, flags and
+//!   timestamps), on the caller's thread or bass's own;
 //! - [`sidecar`]: the sidecar of a recording (`FILE.wav.json`), for `bass record` and the replay;
 //! - [`args`]: the command-line vocabulary bassd, bass and bass-bridge share;
 //! - [`control`]: the broker's control protocol and its [`control::Client`].
@@ -31,6 +33,7 @@ pub mod ring;
 mod shm;
 pub mod sidecar;
 pub mod sigbus;
+pub mod stream;
 pub mod sys;
 pub mod testsignal;
 pub mod waker;

@@ -595,5 +595,8 @@ impl<'a> Ring<'a> {
     }
 }
 
+// An explicit path: this file is also compiled through `#[path]` by tests/loom_ring.rs,
+// where a bare `mod tests;` would be looked for beside that test.
 #[cfg(all(test, not(loom)))]
+#[path = "ring/tests.rs"]
 mod tests;

@@ -441,3 +441,8 @@ def list_devices(broker=None):
         _check("bass_list_devices", r)
         text = buf.value.decode(errors="replace")
         return [tuple((line.split("\t", 1) + [""])[:2]) for line in text.splitlines() if line]
+
+# Callback streams (python/bass/stream.py): not realtime; see its docstring for the GIL.
+from .stream import StreamBlock, StreamEvent, StreamStop, run_stream  # noqa: E402
+
+__all__ += ["StreamBlock", "StreamEvent", "StreamStop", "run_stream"]

@@ -131,6 +131,56 @@ class Status(ctypes.Structure):
     ]
 
 
+class StreamConfig(ctypes.Structure):
+    """bass_stream_config (python/bass/stream.py)."""
+
+    _fields_ = [
+        ("frames_per_call", c_size_t),
+        ("start", c_uint32),
+        ("interleaved", c_uint32),
+        ("start_frame", c_uint64),
+        ("channels", POINTER(c_uint32)),
+        ("n_channels", c_size_t),
+        ("realtime_priority", ctypes.c_int32),
+    ]
+
+
+class Block(ctypes.Structure):
+    """bass_block (one block of a callback stream)."""
+
+    _fields_ = [
+        ("epoch", c_uint64),
+        ("first_frame", c_uint64),
+        ("frames", c_size_t),
+        ("lost", c_uint64),
+        ("mono_ns", c_uint64),
+        ("realtime_ns", c_uint64),
+        ("rate_hz", c_double),
+        ("flags", c_uint32),
+        ("n_channels", c_uint32),
+        ("port_channels", POINTER(c_uint32)),
+        ("channels", POINTER(POINTER(ctypes.c_int32))),
+        ("interleaved", POINTER(ctypes.c_int32)),
+    ]
+
+
+class StreamEvent(ctypes.Structure):
+    """bass_stream_event (an event of a callback stream)."""
+
+    _fields_ = [
+        ("kind", c_uint32),
+        ("code", c_uint32),
+        ("epoch", c_uint64),
+        ("frame", c_uint64),
+        ("os_error", c_int),
+        ("message", c_char_p),
+    ]
+
+
+BLOCK_FN = ctypes.CFUNCTYPE(c_int, POINTER(Block), c_void_p)
+EVENT_FN = ctypes.CFUNCTYPE(c_int, POINTER(StreamEvent), c_void_p)
+
+
 lib = _load()
 _P = c_void_p
 _I32P = POINTER(ctypes.c_int32)
@@ -170,6 +220,11 @@ _SIGNATURES = {
     "bass_stop": (c_int, [c_char_p]),
     "bass_status": (c_int, [c_char_p, POINTER(Status)]),
     "bass_list_devices": (c_int, [c_char_p, POINTER(c_char), c_size_t, POINTER(c_size_t)]),
+    # Callback streams (python/bass/stream.py).
+    "bass_stream_create": (c_int, [_P, POINTER(StreamConfig), BLOCK_FN, EVENT_FN, c_void_p, POINTER(_P)]),
+    "bass_stream_run": (c_int, [_P]),
+    "bass_stream_stop": (c_int, [_P]),
+    "bass_stream_close": (c_int, [_P]),
 }
 
 

@@ -14,11 +14,22 @@ link=(-L "$lib" -lbassclient -Wl,-rpath,"$lib" -lpthread)
 "$cc" "${flags[@]}" -O2 "$top/tests/c/abi_test.c" -o "$out/abi_test" "${link[@]}"
 "$cc" "${flags[@]}" -O1 -g -fsanitize=address,undefined -fno-sanitize-recover=all \
   "$top/tests/c/abi_test.c" -o "$out/abi_test_asan" "${link[@]}"
+# The callback stream (bass_stream_*), plain and sanitized.
+"$cc" "${flags[@]}" -O2 "$top/tests/c/stream_test.c" -o "$out/stream_test" "${link[@]}"
+"$cc" "${flags[@]}" -O1 -g -fsanitize=address,undefined -fno-sanitize-recover=all \
+  "$top/tests/c/stream_test.c" -o "$out/stream_test_asan" "${link[@]}"
+# The C stream's steady path makes no allocation (interposes malloc: no sanitizer build).
+"$cc" "${flags[@]}" -O2 "$top/tests/c/stream_rt.c" -o "$out/stream_rt" "${link[@]}"
+# The C++ wrapper's callback stream (include/bass.hpp), plain and sanitized.
+cxxflags=(-std=c++17 -Wall -Wextra -Wpedantic -Werror -I "$top/include")
+"${CXX:-c++}" "${cxxflags[@]}" -O2 "$top/tests/c/stream_test.cpp" -o "$out/stream_test_cpp" "${link[@]}"
+"${CXX:-c++}" "${cxxflags[@]}" -O1 -g -fsanitize=address,undefined -fno-sanitize-recover=all \
+  "$top/tests/c/stream_test.cpp" -o "$out/stream_test_cpp_asan" "${link[@]}"
 # The header must also compile as C++.
 printf '#include "bass.h"\nint main() { return bass_version() == nullptr; }\n' > "$out/hpp.cpp"
 "${CXX:-c++}" -std=c++17 -Wall -Wextra -Wpedantic -Werror -I "$top/include" "$out/hpp.cpp" -o "$out/hpp" "${link[@]}"
 
-for t in abi_test abi_test_asan; do
+for t in abi_test abi_test_asan stream_test stream_test_asan stream_test_cpp stream_test_cpp_asan stream_rt; do
   mkdir -p "$out/rt-$t"
   echo "== $t"
   BASS_RUNTIME_DIR="$out/rt-$t" ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 "$out/$t"

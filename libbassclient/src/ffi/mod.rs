@@ -15,10 +15,12 @@
 
 mod control;
 mod port;
+mod stream;
 mod writer;
 
 pub use control::*;
 pub use port::*;
+pub use stream::*;
 pub use writer::*;
 
 use std::cell::RefCell;

@@ -106,6 +106,11 @@ fn port(p: *const bass_port) -> Result<Arc<Port>, Failure> {
     PORTS.get(nonnull(p, "port")? as usize)
 }
 
+/// The port behind a handle, for the callback stream (ffi/stream.rs).
+pub(super) fn port_arc(p: *const bass_port) -> Result<Arc<Port>, Failure> {
+    port(p)
+}
+
 /// Refuses output buffers that overlap (they become `&mut` slices, which must not alias).
 fn check_disjoint(ptrs: &[*mut i32], len: usize) -> Result<(), Failure> {
     let bytes = len * std::mem::size_of::<i32>();

@@ -1,0 +1,63 @@
+//! A stream on a thread of its own: the handle that stops and joins it, and SCHED_FIFO.
+
+use std::thread::JoinHandle;
+
+use super::{Stopper, Stream};
+use crate::error::Result;
+
+/// A stream running on its own thread ([`Stream::spawn`]).
+pub struct StreamHandle {
+    pub(super) stopper: Stopper,
+    pub(super) thread: Option<JoinHandle<(Stream, Result<()>)>>,
+}
+
+impl StreamHandle {
+    /// Asks the stream to stop (from any thread); [`StreamHandle::join`] waits for it.
+    pub fn stop(&self) {
+        self.stopper.stop();
+    }
+
+    /// A stop handle that can be moved into a callback or another thread.
+    pub fn stopper(&self) -> Stopper {
+        self.stopper.clone()
+    }
+
+    /// The id of the stream's thread (None once joined).
+    pub fn thread_id(&self) -> Option<std::thread::ThreadId> {
+        self.thread.as_ref().map(|t| t.thread().id())
+    }
+
+    /// Whether the stream's thread has ended (a callback stopped it, or an error).
+    pub fn is_finished(&self) -> bool {
+        self.thread.as_ref().map_or(true, |t| t.is_finished())
+    }
+
+    /// Waits for the stream to end (without asking it to) and gives it back with how its run
+    /// ended. A panic in a callback is resumed here.
+    pub fn join(mut self) -> (Stream, Result<()>) {
+        let thread = self.thread.take().expect("joined once");
+        thread.join().unwrap_or_else(|p| std::panic::resume_unwind(p))
+    }
+}
+
+impl Drop for StreamHandle {
+    fn drop(&mut self) {
+        if let Some(t) = self.thread.take() {
+            self.stopper.stop();
+            let _ = t.join();
+        }
+    }
+}
+
+/// Puts the calling thread in `SCHED_FIFO` at `priority`; Err(errno) when refused.
+pub fn set_fifo(priority: i32) -> std::result::Result<(), i32> {
+    let param = libc::sched_param { sched_priority: priority };
+    // SAFETY: `param` is a valid sched_param for the duration of the call; pid 0 is the
+    // calling thread.
+    let r = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error().raw_os_error().unwrap_or(libc::EPERM))
+    }
+}

@@ -1,0 +1,145 @@
+// The C++ callback stream (bass::stream in include/bass.hpp): a lambda's blocks tile the
+// stream of a real port written with bass_writer_*, sample by
+// sample against the pattern, across a lapped callback, on the caller's thread and on bass's
+// own; an exception thrown by the lambda stops the stream and reaches run(). Run by
+// tests/c/run.sh with BASS_RUNTIME_DIR set to a fresh directory.
+#include <atomic>
+#include <cstdio>
+#include <cstdlib>
+#include <stdexcept>
+#include <thread>
+
+#include "bass.hpp"
+
+namespace {
+int failures = 0;
+#define CHECK(cond)                                                                    \
+    do {                                                                               \
+        if (!(cond)) {                                                                 \
+            failures++;                                                                \
+            std::fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
+        }                                                                              \
+    } while (0)
+
+constexpr unsigned NFPC = 16, NCOP = 8, CH = 2;
+
+std::int32_t pattern(std::uint64_t f, unsigned c) {
+    return static_cast<std::int32_t>(static_cast<std::uint32_t>((f & 0x3FFFFFFu) << 6) | (c & 63u));
+}
+
+struct feed {
+    bass_writer *w = nullptr;
+    std::uint64_t lfi = 0;
+    explicit feed(const char *name) { bass::check("bass_writer_create", bass_writer_create(name, "cpp", 48000, NFPC, NCOP, CH, &w)); }
+    ~feed() { bass_writer_close(w); }
+    void publish() {
+        std::int32_t chunk[NFPC * CH];
+        for (unsigned i = 0; i < NFPC; i++)
+            for (unsigned c = 0; c < CH; c++) chunk[i * CH + c] = pattern(lfi + 1 + i, c);
+        bass::check("publish", bass_writer_publish_interleaved(w, chunk, NFPC * CH, nullptr, &lfi));
+    }
+    void stop() { bass::check("set_state", bass_writer_set_state(w, BASS_STATE_STOPPED, BASS_DEVERR_NONE, nullptr)); }
+};
+
+struct tiling {
+    std::uint64_t next = 1, delivered = 0, lost = 0, calls = 0, last = 0;
+    int wrong = 0;
+    void check(const bass_block &b) {
+        if (b.first_frame != next + b.lost) wrong++;
+        for (std::size_t i = 0; i < b.frames; i++)
+            for (std::uint32_t k = 0; k < b.n_channels; k++)
+                if (b.channels[k][i] != pattern(b.first_frame + i, b.port_channels[k])) wrong++;
+        next = b.first_frame + b.frames;
+        delivered += b.frames;
+        lost += b.lost;
+        calls++;
+    }
+};
+
+void caller_thread() {
+    feed f("cppstream");
+    for (int i = 0; i < 3; i++) f.publish();
+    bass::port p("cppstream");
+    tiling t;
+    bass_stream_config cfg{};
+    cfg.start = BASS_START_OLDEST;
+    bass::stream s(
+        p, cfg,
+        [&](const bass_block &b) {
+            t.check(b);
+            if (t.calls == 10)
+                for (unsigned i = 0; i < NCOP * 2 + 3; i++) f.publish();  // lapped
+            else if (t.calls == 30) {
+                f.publish();
+                f.stop();
+            } else if (t.calls < 30)
+                while (f.lfi < b.first_frame + 2 * b.frames) f.publish();
+            return true;
+        },
+        [&](const bass_stream_event &e) {
+            if (e.kind == BASS_EVENT_STOPPED) t.last = e.frame;
+            return false;
+        },
+        bass::stream::mode::caller_thread);
+    s.run();
+    CHECK(t.wrong == 0);
+    CHECK(t.last > 0 && t.next == t.last + 1 && 1 + t.delivered + t.lost == t.next);
+    CHECK(t.lost > NFPC * NCOP);
+    std::printf("C++ caller's thread: %llu blocks, %llu lost\n", (unsigned long long)t.calls, (unsigned long long)t.lost);
+}
+
+void own_thread() {
+    feed f("cppthread");
+    bass::port p("cppthread");
+    tiling t;
+    std::atomic<bool> ended{false};
+    bass_stream_config cfg{};
+    cfg.start = BASS_START_FRAME;
+    cfg.start_frame = 1;
+    bass::stream s(
+        p, cfg, [&](const bass_block &b) { t.check(b); return true; },
+        [&](const bass_stream_event &e) {
+            if (e.kind == BASS_EVENT_STOPPED) t.last = e.frame;
+            ended = true;
+            return false;
+        });
+    for (int i = 0; i < 2000; i++) {
+        f.publish();
+        if (i % 40 == 0) std::this_thread::sleep_for(std::chrono::microseconds(200));
+    }
+    f.stop();
+    while (!ended) std::this_thread::sleep_for(std::chrono::milliseconds(1));  // the stopped event
+    s.join();
+    CHECK(t.wrong == 0);
+    CHECK(t.last == 2000ull * NFPC && t.next == t.last + 1 && 1 + t.delivered + t.lost == t.next);
+    std::printf("C++ own thread: %llu blocks, %llu lost\n", (unsigned long long)t.calls, (unsigned long long)t.lost);
+}
+
+void exception_reaches_run() {
+    feed f("cppthrow");
+    for (int i = 0; i < 4; i++) f.publish();
+    bass::port p("cppthrow");
+    bass_stream_config cfg{};
+    bass::stream s(p, cfg, [](const bass_block &) -> bool { throw std::runtime_error("from the callback"); }, {},
+                   bass::stream::mode::caller_thread);
+    bool caught = false;
+    try {
+        s.run();
+    } catch (const std::runtime_error &e) {
+        caught = std::string(e.what()) == "from the callback";
+    }
+    CHECK(caught);
+}
+}  // namespace
+
+int main() {
+    if (!std::getenv("BASS_RUNTIME_DIR")) {
+        std::fprintf(stderr, "set BASS_RUNTIME_DIR to an empty directory\n");
+        return 2;
+    }
+    caller_thread();
+    own_thread();
+    exception_reaches_run();
+    std::printf("stream_test_cpp: %d failures\n", failures);
+    return failures != 0;
+}
