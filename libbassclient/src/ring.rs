@@ -595,8 +595,6 @@ impl<'a> Ring<'a> {
     }
 }
 
-// An explicit path: this file is also compiled through `#[path]` by tests/loom_ring.rs,
-// where a bare `mod tests;` would be looked for beside that test.
 #[cfg(all(test, not(loom)))]
-#[path = "ring/tests.rs"]
+#[path = "ring/tests.rs"] // explicit: tests/loom_ring.rs includes this file by path
 mod tests;
