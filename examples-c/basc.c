@@ -9,6 +9,9 @@
  *   --wait: blocks on the port's futex (bass_port_wait) until the frames of the block are
  *     published, reading at least every half window; it never loses frames, whatever the
  *     block size, as long as the process is scheduled within half a window.
+ *   --callback: the same blocks from a callback stream (bass_stream_start): the library's
+ *     thread calls on_block with each whole block, its first frame and the frames lost
+ *     before it; the lines printed are the blocking modes' (one "Requested" line per block).
  *
  * Printed on stdout, exactly as in the seed:
  *   "Requested %6zu frames, got %6zu."     (one line per getAudioData call)
@@ -37,6 +40,7 @@
 #include <errno.h>
 #include <inttypes.h>
 #include <signal.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -58,6 +62,7 @@ struct options {
     long long start_offs;
     unsigned long period_ms;
     int wait_mode;
+    int callback_mode;
     int check_pattern;
     int trace;
     int align;
@@ -70,7 +75,8 @@ static void usage(FILE *f) {
             "  GetBlocks(nBlocks = 1, nFramesPerBlock = 12000, startOffs = -12000); nBlocks 0 = until Ctrl-C.\n"
             "  --port NAME     port (= broker) name, default \"default\" (in $BASS_RUNTIME_DIR or /dev/shm)\n"
             "  --period-ms MS  period of the getAudioData calls (default 250)\n"
-            "  --wait          block on the port until frames arrive instead (never loses frames)\n");
+            "  --wait          block on the port until frames arrive instead (never loses frames)\n"
+            "  --callback      receive the blocks from a callback stream (bass_stream_start)\n");
 }
 
 static int parse_ull(const char *s, unsigned long *out) {
@@ -104,6 +110,8 @@ static int parse_args(int argc, char **argv, struct options *o) {
             if (parse_ull(argv[++i], &o->period_ms) || o->period_ms == 0) return -1;
         } else if (!strcmp(a, "--wait")) {
             o->wait_mode = 1;
+        } else if (!strcmp(a, "--callback")) {
+            o->callback_mode = 1;
         } else if (!strcmp(a, "--check-pattern")) {
             o->check_pattern = 1;
         } else if (!strcmp(a, "--trace")) {
@@ -158,8 +166,95 @@ static int fail(const char *what, bass_result r) {
     return 1;
 }
 
+/* The state of a --callback run, shared by the stream's thread and main. */
+struct cb_run {
+    const struct options *o;
+    unsigned long blocks;
+    size_t remaining; /* frames still missing from the current block */
+    uint64_t total_loss, mismatches, next;
+    atomic_int done; /* 1: the stream ended (enough blocks, or the acquisition ended) */
+    int status;
+};
+
+static int on_block(const bass_block *b, void *user) {
+    struct cb_run *run = user;
+    if (run->o->check_pattern)
+        for (size_t i = 0; i < b->frames; i++)
+            if (b->channels[0][i] != pattern_expected(b->first_frame + i, 0) ||
+                b->channels[1][i] != pattern_expected(b->first_frame + i, 1))
+                run->mismatches++;
+    /* One callback holds at most half a window; a block is completed by as many callbacks as
+     * it takes, each printed as the blocking modes print one read. */
+    for (size_t off = 0; off < b->frames;) {
+        size_t requested = run->remaining ? run->remaining : run->o->frames_per_block;
+        size_t take = b->frames - off < requested ? b->frames - off : requested;
+        printf("Requested %6zu frames, got %6zu.\n", requested, take);
+        if (off == 0 && b->lost) {
+            printf("!!Lost %" PRIu64 " frames!!\n", b->lost);
+            run->total_loss += b->lost;
+        }
+        run->remaining = requested - take;
+        off += take;
+        if (run->remaining == 0) {
+            printf("A new block is ready to be processed.\n");
+            run->blocks++;
+            if (run->o->n_blocks && run->blocks >= run->o->n_blocks) {
+                run->next = b->first_frame + off;
+                fflush(stdout);
+                atomic_store(&run->done, 1);
+                return 1;
+            }
+        }
+    }
+    fflush(stdout);
+    run->next = b->first_frame + b->frames;
+    return 0;
+}
+
+static int on_event(const bass_stream_event *e, void *user) {
+    struct cb_run *run = user;
+    if (e->kind == BASS_EVENT_REALTIME_REFUSED) return 0;
+    fprintf(stderr, "basc: the acquisition ended (%s)%s%s\n",
+            e->kind == BASS_EVENT_WRITER_GONE ? "writer gone"
+            : e->kind == BASS_EVENT_DEVICE    ? "device error"
+            : e->kind == BASS_EVENT_RESTARTED ? "restarted"
+                                              : "stopped",
+            e->message[0] ? ": " : "", e->message);
+    run->status = e->kind == BASS_EVENT_WRITER_GONE ? 4 : 1;
+    atomic_store(&run->done, 1);
+    return 1;
+}
+
+/* --callback: the blocks from a callback stream on the library's thread; main waits for its
+ * end or for Ctrl-C / SIGTERM. */
+static int run_callback(bass_port *port, const struct options *o, uint64_t nfr, uint64_t frames_on_port) {
+    struct cb_run run = {o, 0, 0, 0, 0, nfr, 0, 0};
+    bass_stream_config c;
+    memset(&c, 0, sizeof c);
+    size_t half = (size_t)(frames_on_port / 2) ? (size_t)(frames_on_port / 2) : 1;
+    c.frames_per_call = o->frames_per_block < half ? o->frames_per_block : half;
+    c.start = BASS_START_FRAME;
+    c.start_frame = nfr ? nfr : 1;
+    bass_stream *stream = NULL;
+    bass_result r = bass_stream_start(port, &c, on_block, on_event, &run, &stream);
+    if (r != BASS_OK) return fail("bass_stream_start", r);
+    while (!stop_requested && !atomic_load(&run.done)) {
+        struct timespec t = {0, 20000000L};
+        nanosleep(&t, NULL);
+    }
+    r = bass_stream_close(stream);
+    if (r != BASS_OK && !run.status) run.status = fail("bass_stream_close", r);
+    fprintf(stderr, "basc: %lu block(s) of %lu frames, %" PRIu64 " frames lost, next frame %" PRIu64 "\n", run.blocks,
+            o->frames_per_block, run.total_loss, run.next);
+    if (run.mismatches) {
+        fprintf(stderr, "basc: %" PRIu64 " frames did not hold the pattern signal\n", run.mismatches);
+        return 3;
+    }
+    return run.status;
+}
+
 int main(int argc, char **argv) {
-    struct options o = {"default", 1, 12000, -12000, 250, 0, 0, 0, 1};
+    struct options o = {"default", 1, 12000, -12000, 250, 0, 0, 0, 0, 1};
     if (parse_args(argc, argv, &o)) {
         usage(stderr);
         return 2;
@@ -186,7 +281,7 @@ int main(int argc, char **argv) {
     const long long period_ns = (long long)o.period_ms * 1000000LL;
     /* Periodic mode: start the period clock half a chunk after a publish, so that a
      * scheduling delay of up to half a chunk never changes which chunks a call sees. */
-    if (!o.wait_mode && o.align && info.state == BASS_STATE_CAPTURING) {
+    if (!o.wait_mode && !o.callback_mode && o.align && info.state == BASS_STATE_CAPTURING) {
         uint64_t lfi = 0;
         r = bass_port_wait(port, info.last_frame_index + 1, 10000, &lfi);
         if (r == BASS_OK) {
@@ -207,6 +302,11 @@ int main(int argc, char **argv) {
     long long first = (long long)lfi0 + 1 + o.start_offs;
     uint64_t nfr = first < 0 ? 0 : (uint64_t)first; /* clamped: nfr is unsigned */
     if (o.trace) fprintf(stderr, "trace start lfi=%" PRIu64 " nfr=%" PRIu64 "\n", lfi0, nfr);
+    if (o.callback_mode) {
+        int st = run_callback(port, &o, nfr, info.frames_on_port);
+        bass_port_close(port);
+        return st;
+    }
 
     size_t cap = o.frames_per_block;
     if (cap > info.frames_on_port) cap = (size_t)info.frames_on_port; /* at most nFOP per call */
