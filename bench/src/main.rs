@@ -91,6 +91,7 @@ fn child(role: &str, args: &[String]) {
         "orig-reader" => publish::child_orig_reader(args),
         "futex-pong" => wake::child_futex_pong(args),
         "wake-reader" => wake::child_wake_reader(args),
+        "stream-reader" => wake::child_stream_reader(args),
         "poll-reader" => wake::child_poll_reader(args),
         "wake-raw-waiter" => wake::child_raw_waiter(args),
         "futex-waiter" => wake::child_futex_waiter(args),

@@ -133,6 +133,14 @@ pub(super) fn goals(r: &Results) -> Vec<Goal> {
                 },
             });
         }
+        for (ratios, limit, against) in [
+            (&w.ratio_stream_blocking, 1.05, "the blocking wait path (`Port::wait` readers)"),
+            (&w.ratio_stream_raw, 1.2, "a raw futex"),
+        ] {
+            if !ratios.is_empty() {
+                g.push(stream_goal(ratios, limit, against));
+            }
+        }
         for (ratios, lasts, port) in [
             (&w.ratio_n, &w.ratio_n_last, ""),
             (&w.ratio_n_memfd, &w.ratio_n_memfd_last, ", sealed memfd port"),
@@ -247,5 +255,33 @@ pub(super) fn many_readers_goal(k: usize, port: &str, each: &[f64], last: &[f64]
             let (lo2, hi2) = min_max(last);
             (lo <= 1.2 && hi > 1.2) || (lo2 <= 1.2 && hi2 > 1.2)
         },
+    }
+}
+
+/// A callback-stream goal: at every reader count, the median of the per-repetition ratios of
+/// the median publish → callback-entered latency to `against`'s is at most `limit`.
+fn stream_goal(ratios: &std::collections::BTreeMap<usize, Vec<f64>>, limit: f64, against: &str) -> Goal {
+    let parts: Vec<String> = ratios
+        .iter()
+        .map(|(k, v)| {
+            format!(
+                "{k} reader{}: {} (repetitions {})",
+                if *k == 1 { "" } else { "s" },
+                fmt_ratio(median(v)),
+                spread(v, fmt_ratio)
+            )
+        })
+        .collect();
+    Goal {
+        part: "3 wake",
+        goal: format!(
+            "callback streams: median chunk published → callback entered ≤ {limit}× {against}, at 1, 8 and 64 readers"
+        ),
+        measured: parts.join("; "),
+        met: Some(ratios.values().all(|v| median(v) <= limit)),
+        borderline: ratios.values().any(|v| {
+            let (lo, hi) = min_max(v);
+            lo <= limit && hi > limit
+        }),
     }
 }

@@ -143,6 +143,47 @@ fn dist_row(md: &mut String, name: &str, d: &crate::wake::Dist, raw: f64) {
     );
 }
 
+/// Callback streams (issue 25): chunk published → block callback entered, against the
+/// `Port::wait` readers and the raw futex interleaved with them in the same run.
+fn stream_table(w: &crate::wake::WakeResults, md: &mut String) {
+    if w.stream.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        md,
+        "Callback streams (`bassclient::stream::Stream`, one chunk per block, from the live edge): chunk published \
+         (its `mono_ns`, which the block carries) → block callback entered, interleaved publish by publish with the \
+         `Port::wait` readers (*blocking*) and the raw futex (1 reader: the ping-pong; 8 and 64: one FUTEX_WAKE of \
+         that many waiters), every reader counted. Ratios: median over repetitions of the per-repetition ratio.\n"
+    );
+    let _ = writeln!(
+        md,
+        "| readers | callback p50 | callback p99 | blocking p50 | blocking p99 | raw futex p50 | raw futex p99 | callback / blocking p50 (p99) | callback / raw p50 (p99) |"
+    );
+    let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let ratio =
+        |m: &std::collections::BTreeMap<usize, Vec<f64>>, k: &usize| m.get(k).map_or(f64::NAN, |v| median(v));
+    for (k, cb) in &w.stream {
+        let blocking = w.bass.get(k).cloned().unwrap_or_default();
+        let raw = if *k == 1 { w.raw.clone() } else { w.raw_n.get(k).cloned().unwrap_or_default() };
+        let _ = writeln!(
+            md,
+            "| {k} | {} | {} | {} | {} | {} | {} | {} ({}) | {} ({}) |",
+            fmt_ns(cb.median()),
+            fmt_ns(cb.p99()),
+            fmt_ns(blocking.median()),
+            fmt_ns(blocking.p99()),
+            fmt_ns(raw.median()),
+            fmt_ns(raw.p99()),
+            fmt_ratio(ratio(&w.ratio_stream_blocking, k)),
+            fmt_ratio(ratio(&w.ratio_stream_blocking_p99, k)),
+            fmt_ratio(ratio(&w.ratio_stream_raw, k)),
+            fmt_ratio(ratio(&w.ratio_stream_raw_p99, k))
+        );
+    }
+    let _ = writeln!(md);
+}
+
 pub(super) fn wake_section(r: &Results, md: &mut String) {
     let Some(w) = &r.wake else { return };
     let _ = writeln!(md, "## 3. Wake latency: publish → blocked reader running\n");
@@ -200,6 +241,7 @@ pub(super) fn wake_section(r: &Results, md: &mut String) {
         spread(&w.ratio_1, fmt_ratio),
         spread(&w.ratio_memfd, fmt_ratio)
     );
+    stream_table(w, md);
     let _ = writeln!(md, "Reader CPU per chunk (wake + `get_audio_data` + `chunk_info` + wait again, from `CLOCK_PROCESS_CPUTIME_ID`):");
     for (k, v) in &w.reader_cpu {
         let _ = write!(md, " {k} reader{}: {};", if *k == 1 { "" } else { "s" }, spread(v, fmt_ns));

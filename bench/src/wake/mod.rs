@@ -13,6 +13,10 @@
 //! - the seed's BASC client: `GetBlocks` runs every 250 ms and calls getAudioData; the
 //!   latency of a chunk is from its publication to the poll that obtains it.
 //!
+//! - bass callback stream (`bassclient::stream::Stream`, one chunk per block): the time from
+//!   the chunk's stamp to the block callback being entered; interleaved with the raw futex
+//!   and the `Port::wait` readers at 1, 8 and 64 readers (issue 25).
+//!
 //! All publishes are spaced by a random 3–6 ms so that every waiter is really asleep.
 
 use std::collections::BTreeMap;
@@ -30,7 +34,7 @@ mod readers;
 pub use raw::{child_futex_pong, child_futex_waiter, child_raw_waiter};
 use raw::{Pinger, RawBroadcast};
 use readers::polling;
-pub use readers::{child_poll_reader, child_wake_reader};
+pub use readers::{child_poll_reader, child_stream_reader, child_wake_reader};
 /// Reader process counts.
 pub const READERS: &[usize] = &[1, 8, 64];
 
@@ -113,6 +117,16 @@ pub struct WakeResults {
     pub bare_reader_cpu: Vec<f64>,
     /// The 250 ms polling client.
     pub poll: Dist,
+    /// Callback stream, per reader count: every reader's publish → callback-entered latency.
+    pub stream: BTreeMap<usize, Dist>,
+    /// Per reader count, per repetition: callback median / blocking (`Port::wait`) median.
+    pub ratio_stream_blocking: BTreeMap<usize, Vec<f64>>,
+    /// Per reader count, per repetition: callback median / raw futex median.
+    pub ratio_stream_raw: BTreeMap<usize, Vec<f64>>,
+    /// The same with p99s, per reader count and repetition: callback / blocking.
+    pub ratio_stream_blocking_p99: BTreeMap<usize, Vec<f64>>,
+    /// The same with p99s: callback / raw futex.
+    pub ratio_stream_raw_p99: BTreeMap<usize, Vec<f64>>,
     /// Publishes per configuration and repetition.
     pub publishes: usize,
 }
@@ -143,6 +157,7 @@ struct OneReader {
     bass: Samples,
     bare: Samples,
     memfd: Samples,
+    stream: Samples,
 }
 
 /// A bass port with wake-latency readers attached.
@@ -228,23 +243,26 @@ fn samples_of(lines: &[String]) -> Samples {
     Samples { each, last: last.into_values().collect(), data: data_in_hand, cpu: median(&cpu) }
 }
 
-/// `readers` readers of a file port, `readers` of a sealed memfd port and `readers` raw
-/// futex waiters, all running at once; `n` wakes of each, interleaved wake by wake (random
-/// 3–6 ms apart) so that the three see the same machine. Returns (file, memfd, raw).
-fn many_side_by_side(readers: usize, n: usize) -> (Samples, Samples, Samples) {
+/// `readers` readers of a file port, `readers` of a sealed memfd port, `readers` callback
+/// streams of a file port and `readers` raw futex waiters, all running at once; `n` wakes of
+/// each, interleaved wake by wake (random 3–6 ms apart) so that the four see the same
+/// machine. Returns (file, memfd, stream, raw).
+fn many_side_by_side(readers: usize, n: usize) -> (Samples, Samples, Samples, Samples) {
     let mut file = WakePort::start("bench-wake-n", readers, "wake-reader");
     let mut memfd = WakePort::start_memfd("bench-wake-nm", readers);
+    let mut stream = WakePort::start("bench-wake-ns", readers, "stream-reader");
     let raw = RawBroadcast::start(readers);
     std::thread::sleep(Duration::from_millis(50));
-    for k in 0..3 * n {
+    for k in 0..4 * n {
         std::thread::sleep(random_gap());
-        match k % 3 {
+        match k % 4 {
             0 => file.publish(),
             1 => memfd.publish(),
+            2 => stream.publish(),
             _ => raw.wake(),
         }
     }
-    (file.finish(), memfd.finish(), raw.finish())
+    (file.finish(), memfd.finish(), stream.finish(), raw.finish())
 }
 
 /// The one-reader comparison, interleaved publish by publish so that all three see the
@@ -255,6 +273,7 @@ fn one_reader_side_by_side(n: usize) -> OneReader {
     let mut a = WakePort::start("bench-wake-a", 1, "wake-reader");
     let mut b = WakePort::start("bench-wake-b", 1, "wake-raw-waiter");
     let mut m = WakePort::start_memfd("bench-wake-m", 1);
+    let mut s = WakePort::start("bench-wake-s", 1, "stream-reader");
     // Experiment hook: a fourth reader from another build, interleaved with the rest.
     let mut alt = std::env::var_os("BASS_BENCH_ALT_EXE").map(|exe| {
         let mut p = WakePort::start("bench-wake-c", 0, "wake-reader");
@@ -263,7 +282,7 @@ fn one_reader_side_by_side(n: usize) -> OneReader {
         p.kids.push(k);
         p
     });
-    let ways = if alt.is_some() { 5 } else { 4 };
+    let ways = if alt.is_some() { 6 } else { 5 };
     std::thread::sleep(Duration::from_millis(50));
     for k in 0..ways * n {
         std::thread::sleep(random_gap());
@@ -272,6 +291,7 @@ fn one_reader_side_by_side(n: usize) -> OneReader {
             1 => a.publish(),
             2 => b.publish(),
             3 => m.publish(),
+            4 => s.publish(),
             _ => alt.as_mut().expect("alt").publish(),
         }
     }
@@ -284,7 +304,45 @@ fn one_reader_side_by_side(n: usize) -> OneReader {
             fmt_ns(v.cpu)
         );
     }
-    OneReader { raw: pinger.finish(), bass: a.finish(), bare: b.finish(), memfd: m.finish() }
+    OneReader {
+        raw: pinger.finish(),
+        bass: a.finish(),
+        bare: b.finish(),
+        memfd: m.finish(),
+        stream: s.finish(),
+    }
+}
+
+impl WakeResults {
+    /// Records one repetition of the callback stream with `readers` readers against the
+    /// blocking readers and the raw futex of the same interleaved run, and prints it.
+    fn add_stream(&mut self, rep: usize, readers: usize, s: Samples, blocking: &[f64], raw: &[f64]) {
+        let cb = s.each;
+        let (c50, c99) = (median(&cb), quantile(&cb, 0.99));
+        let (b50, b99) = (median(blocking), quantile(blocking, 0.99));
+        let (r50, r99) = (median(raw), quantile(raw, 0.99));
+        println!(
+            "  rep {} callback stream, {readers:>2} reader{}: p50 {} p99 {} | blocking p50 {} p99 {} | raw futex p50 {} p99 {} | callback / blocking {} (p99 {}), callback / raw {} (p99 {}); CPU/chunk {}",
+            rep + 1,
+            if readers == 1 { "" } else { "s" },
+            fmt_ns(c50),
+            fmt_ns(c99),
+            fmt_ns(b50),
+            fmt_ns(b99),
+            fmt_ns(r50),
+            fmt_ns(r99),
+            fmt_ratio(c50 / b50),
+            fmt_ratio(c99 / b99),
+            fmt_ratio(c50 / r50),
+            fmt_ratio(c99 / r99),
+            fmt_ns(s.cpu)
+        );
+        self.ratio_stream_blocking.entry(readers).or_default().push(c50 / b50);
+        self.ratio_stream_raw.entry(readers).or_default().push(c50 / r50);
+        self.ratio_stream_blocking_p99.entry(readers).or_default().push(c99 / b99);
+        self.ratio_stream_raw_p99.entry(readers).or_default().push(c99 / r99);
+        self.stream.entry(readers).or_default().add_rep(cb);
+    }
 }
 
 /// Runs part 3.
@@ -292,7 +350,8 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
     let n = if quick { 80 } else { 250 };
     let mut res = WakeResults { publishes: n, ..WakeResults::default() };
     for rep in 0..reps {
-        let OneReader { raw, bass, bare, memfd } = one_reader_side_by_side(n);
+        let OneReader { raw, bass, bare, memfd, stream } = one_reader_side_by_side(n);
+        res.add_stream(rep, 1, stream, &bass.each, &raw);
         let mfd = memfd.each;
         println!(
             "  rep {} bass 1 reader, sealed memfd port: median {} p99 {} (CPU/chunk {}) | memfd / raw {}",
@@ -329,7 +388,8 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
         res.bass_last.entry(1).or_default().add_rep(one);
         res.bass_data.entry(1).or_default().add_rep(data);
         for &k in READERS.iter().filter(|&&k| k > 1) {
-            let (bass_k, m, raw_k) = many_side_by_side(k, n);
+            let (bass_k, m, stream_k, raw_k) = many_side_by_side(k, n);
+            res.add_stream(rep, k, stream_k, &bass_k.each, &raw_k.each);
             let Samples { each, last, data, cpu } = bass_k;
             res.reader_cpu.entry(k).or_default().push(cpu);
             println!(

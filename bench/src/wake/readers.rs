@@ -54,6 +54,43 @@ pub fn child_wake_reader(args: &[String]) {
     print!("{out}");
 }
 
+/// Child: a callback stream (`bassclient::stream::Stream`, one chunk per block, starting at
+/// the live edge); on entry to the block callback it takes CLOCK_MONOTONIC and records
+/// `lfi wake_ns data_ns` as `child_wake_reader` prints them (the block's `mono_ns` is its
+/// chunk's publish stamp; the samples are already in hand, so both latencies are the same).
+/// The callback does not allocate: it writes into a preallocated table printed at the end.
+pub fn child_stream_reader(args: &[String]) {
+    use bassclient::stream::{Config, Control, Event, Stream};
+    let cfg = Config { frames_per_call: super::WAKE_NFPC as usize, ..Config::default() };
+    let mut stream = Stream::open(&args[0], cfg).expect("open stream");
+    // Room for far more blocks than a run publishes; beyond it, samples are dropped, not grown.
+    let mut rec: Vec<(u64, u64)> = Vec::with_capacity(1 << 16);
+    crate::procs::say_ready();
+    let cpu0 = crate::procs::process_cpu_ns();
+    stream
+        .run(
+            |b| {
+                let entered = monotonic_ns();
+                if b.mono_ns > 0 && rec.len() < rec.capacity() {
+                    rec.push((b.first_frame + b.frames as u64 - 1, entered.saturating_sub(b.mono_ns)));
+                }
+                Control::Continue
+            },
+            |e| match e {
+                Event::RealtimeRefused { .. } => Control::Continue,
+                _ => Control::Stop,
+            },
+        )
+        .expect("stream");
+    let cpu = crate::procs::process_cpu_ns() - cpu0;
+    let mut out = String::with_capacity(rec.len() * 32 + 64);
+    for (lfi, lat) in &rec {
+        out.push_str(&format!("{lfi} {lat} {lat}\n"));
+    }
+    out.push_str(&format!("cpu_ns={cpu} chunks={}\n", rec.len()));
+    print!("{out}");
+}
+
 pub(super) fn polling(readers: usize, duration: Duration) -> Vec<f64> {
     let name = "bench-poll";
     let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: 2205, chunks_on_port: 20 };
