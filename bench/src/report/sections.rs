@@ -154,13 +154,14 @@ fn stream_table(w: &crate::wake::WakeResults, md: &mut String) {
         "Callback streams (`bassclient::stream::Stream`, one chunk per block, from the live edge): chunk published \
          (its `mono_ns`, which the block carries) → block callback entered, interleaved publish by publish with the \
          `Port::wait` readers (*blocking*) and the raw futex (1 reader: the ping-pong; 8 and 64: one FUTEX_WAKE of \
-         that many waiters), every reader counted. Ratios: median over repetitions of the per-repetition ratio.\n"
+         that many waiters), every reader counted. The callback is entered once its block is copied out, so the \
+         blocking readers' *data in hand* (after `get_audio_data`) is the like-for-like of the last column. Ratios: median over repetitions of the per-repetition ratio.\n"
     );
     let _ = writeln!(
         md,
-        "| readers | callback p50 | callback p99 | blocking p50 | blocking p99 | raw futex p50 | raw futex p99 | callback / blocking p50 (p99) | callback / raw p50 (p99) |"
+        "| readers | callback p50 | callback p99 | blocking p50 | blocking p99 | raw futex p50 | raw futex p99 | callback / blocking p50 (p99) | callback / raw p50 (p99) | blocking, data in hand p50 |"
     );
-    let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     let ratio =
         |m: &std::collections::BTreeMap<usize, Vec<f64>>, k: &usize| m.get(k).map_or(f64::NAN, |v| median(v));
     for (k, cb) in &w.stream {
@@ -168,7 +169,7 @@ fn stream_table(w: &crate::wake::WakeResults, md: &mut String) {
         let raw = if *k == 1 { w.raw.clone() } else { w.raw_n.get(k).cloned().unwrap_or_default() };
         let _ = writeln!(
             md,
-            "| {k} | {} | {} | {} | {} | {} | {} | {} ({}) | {} ({}) |",
+            "| {k} | {} | {} | {} | {} | {} | {} | {} ({}) | {} ({}) | {} |",
             fmt_ns(cb.median()),
             fmt_ns(cb.p99()),
             fmt_ns(blocking.median()),
@@ -178,7 +179,8 @@ fn stream_table(w: &crate::wake::WakeResults, md: &mut String) {
             fmt_ratio(ratio(&w.ratio_stream_blocking, k)),
             fmt_ratio(ratio(&w.ratio_stream_blocking_p99, k)),
             fmt_ratio(ratio(&w.ratio_stream_raw, k)),
-            fmt_ratio(ratio(&w.ratio_stream_raw_p99, k))
+            fmt_ratio(ratio(&w.ratio_stream_raw_p99, k)),
+            fmt_ns(w.bass_data.get(k).map_or(f64::NAN, |d| d.median()))
         );
     }
     let _ = writeln!(md);

@@ -316,13 +316,23 @@ fn one_reader_side_by_side(n: usize) -> OneReader {
 impl WakeResults {
     /// Records one repetition of the callback stream with `readers` readers against the
     /// blocking readers and the raw futex of the same interleaved run, and prints it.
-    fn add_stream(&mut self, rep: usize, readers: usize, s: Samples, blocking: &[f64], raw: &[f64]) {
+    /// `blocking`: the `Port::wait` readers' (wake, data in hand) latencies; the callback is
+    /// entered after its block is copied, so the second is its like-for-like (printed only).
+    fn add_stream(
+        &mut self,
+        rep: usize,
+        readers: usize,
+        s: Samples,
+        blocking: (&[f64], &[f64]),
+        raw: &[f64],
+    ) {
+        let (blocking, data) = blocking;
         let cb = s.each;
         let (c50, c99) = (median(&cb), quantile(&cb, 0.99));
         let (b50, b99) = (median(blocking), quantile(blocking, 0.99));
         let (r50, r99) = (median(raw), quantile(raw, 0.99));
         println!(
-            "  rep {} callback stream, {readers:>2} reader{}: p50 {} p99 {} | blocking p50 {} p99 {} | raw futex p50 {} p99 {} | callback / blocking {} (p99 {}), callback / raw {} (p99 {}); CPU/chunk {}",
+            "  rep {} callback stream, {readers:>2} reader{}: p50 {} p99 {} | blocking p50 {} p99 {} | raw futex p50 {} p99 {} | callback / blocking {} (p99 {}), callback / raw {} (p99 {}); callback / blocking data in hand {}; CPU/chunk {}",
             rep + 1,
             if readers == 1 { "" } else { "s" },
             fmt_ns(c50),
@@ -335,6 +345,7 @@ impl WakeResults {
             fmt_ratio(c99 / b99),
             fmt_ratio(c50 / r50),
             fmt_ratio(c99 / r99),
+            fmt_ratio(c50 / median(data)),
             fmt_ns(s.cpu)
         );
         self.ratio_stream_blocking.entry(readers).or_default().push(c50 / b50);
@@ -351,7 +362,7 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
     let mut res = WakeResults { publishes: n, ..WakeResults::default() };
     for rep in 0..reps {
         let OneReader { raw, bass, bare, memfd, stream } = one_reader_side_by_side(n);
-        res.add_stream(rep, 1, stream, &bass.each, &raw);
+        res.add_stream(rep, 1, stream, (&bass.each, &bass.data), &raw);
         let mfd = memfd.each;
         println!(
             "  rep {} bass 1 reader, sealed memfd port: median {} p99 {} (CPU/chunk {}) | memfd / raw {}",
@@ -389,7 +400,7 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
         res.bass_data.entry(1).or_default().add_rep(data);
         for &k in READERS.iter().filter(|&&k| k > 1) {
             let (bass_k, m, stream_k, raw_k) = many_side_by_side(k, n);
-            res.add_stream(rep, k, stream_k, &bass_k.each, &raw_k.each);
+            res.add_stream(rep, k, stream_k, (&bass_k.each, &bass_k.data), &raw_k.each);
             let Samples { each, last, data, cpu } = bass_k;
             res.reader_cpu.entry(k).or_default().push(cpu);
             println!(
