@@ -8,7 +8,7 @@ CFLAGS_STRICT := -std=c11 -Wall -Wextra -Wpedantic -Werror
 BRIDGE_FEATURES := $(shell cat scripts/bridge-features)
 
 .PHONY: all deps deps-build build build-bridge demo test test-rust test-loom test-c test-broker test-replay test-clients test-faults test-bridge \
-        header fmt lint bench install clean install-files deb test-package
+        header fmt lint bench install clean install-files deb test-package test-systemd
 
 all: build
 
@@ -28,7 +28,7 @@ demo: build
 	scripts/demo.sh
 
 # Everything CI runs.
-test: deps lint test-rust test-loom test-c test-broker test-replay test-clients test-faults test-bridge test-package
+test: deps lint test-rust test-loom test-c test-broker test-replay test-clients test-faults test-bridge test-package test-systemd
 	@echo "make test: all suites passed"
 
 lint:
@@ -114,6 +114,12 @@ deb: build build-bridge
 # The package built, linted, installed, used and purged on this machine (root; tests/package).
 test-package: build build-bridge
 	tests/package/run.sh
+
+# The package under a real systemd booted in a minimal Debian root: boot start, READY, a
+# reader riding through a restart and a crash, the watchdog (root; tests/systemd/run.sh; about
+# 40 s, plus about 70 s of debootstrap the first time on a machine).
+test-systemd: build build-bridge
+	tests/systemd/run.sh
 
 clean:
 	$(CARGO) clean

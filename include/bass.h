@@ -490,8 +490,9 @@ bass_result bass_port_get_info(const bass_port *port, bass_port_info *out_info);
 // Blocks until frame `frame` is published (`BASS_OK`, and `*out_last_frame_index` if not
 // NULL), or returns `BASS_ERR_TIMEOUT` after `timeout_ms` (`BASS_WAIT_FOREVER`: no limit),
 // `BASS_ERR_STOPPED`, `BASS_ERR_DEVICE`, `BASS_ERR_RESTARTED`, `BASS_ERR_WRITER_GONE`
-// (detected within about 100 ms) or `BASS_ERR_INTERRUPTED` (a signal). A futex wait: no
-// CPU is used while waiting.
+// (detected within about 100 ms; for a broker run by systemd with the fd store, only after
+// its restart grace, 10 s by default: a restarted broker takes the port back and the wait
+// goes on) or `BASS_ERR_INTERRUPTED` (a signal). A futex wait: no CPU is used while waiting.
 //
 // # Safety
 // `out_last_frame_index` must be NULL or valid for a write.

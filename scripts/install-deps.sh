@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Installs what bass needs on a fresh Debian machine (idempotent; skips what is present).
-# Usage: scripts/install-deps.sh [--with-octave]
+# Usage: scripts/install-deps.sh [--with-octave] [--with-bench]
+#   --with-octave: what make test needs on top; --with-bench: what make bench needs on top
+#   (PipeWire, for its comparison with bass: scripts/bench.sh asks for it).
 set -euo pipefail
 
 need=()
@@ -10,10 +12,23 @@ pkgs=(build-essential pkg-config libasound2-dev libasound2-plugins alsa-utils ja
       libfontconfig1-dev libfreetype-dev fonts-dejavu-core)
 # The Python client and its tests (tests/clients, python/tests, tests/conformance).
 pkgs+=(python3 python3-numpy python3-pytest)
-if [[ "${1:-}" == "--with-octave" ]]; then
+with_octave="" with_bench=""
+for a in "$@"; do
+  case "$a" in
+    --with-octave) with_octave=1 ;;
+    --with-bench) with_bench=1 ;;
+    *) echo "install-deps: unknown option $a" >&2; exit 2 ;;
+  esac
+done
+if [[ -n "$with_bench" ]]; then
+  # make bench, part 7: the PipeWire daemon and pw-link, and libpipewire to build its C clients.
+  pkgs+=(pipewire libpipewire-0.3-dev)
+fi
+if [[ -n "$with_octave" ]]; then
   # What make test needs on top (make deps): the package test (tests/package) lints the
-  # package, verifies the systemd units (systemd-analyze) and traces bassd.
-  pkgs+=(lintian systemd strace adduser)
+  # package, verifies the systemd units (systemd-analyze) and traces bassd; the systemd test
+  # (tests/systemd) boots the package in a Debian root made by debootstrap.
+  pkgs+=(lintian systemd strace adduser debootstrap)
   pkgs+=(octave liboctave-dev)
 fi
 for p in "${pkgs[@]}"; do have_pkg "$p" || need+=("$p"); done
@@ -40,4 +55,8 @@ fi
 # colleague): PyPI eclipse-zenoh, the version of the bridge's zenoh crate.
 if ! python3 -c 'import importlib.metadata as m, zenoh; assert m.version("eclipse-zenoh") == "1.10.2"' 2>/dev/null; then
   python3 -m pip install -q eclipse-zenoh==1.10.2 2>/dev/null || python3 -m pip install -q --break-system-packages eclipse-zenoh==1.10.2
+fi
+# Readers of MCAP / rosbag2 that bass did not write, for the recording suite (tests/replay).
+if ! python3 -c 'import importlib.metadata as m, mcap, mcap_ros2, rosbags; assert (m.version("mcap"), m.version("mcap-ros2-support"), m.version("rosbags")) == ("1.6.0", "0.6.0", "0.11.9")' 2>/dev/null; then
+  python3 -m pip install -q mcap==1.6.0 mcap-ros2-support==0.6.0 rosbags==0.11.9 2>/dev/null || python3 -m pip install -q --break-system-packages mcap==1.6.0 mcap-ros2-support==0.6.0 rosbags==0.11.9
 fi

@@ -77,6 +77,10 @@ pub struct CaptureParams {
     pub requested_ns: u64,
     /// Stall watchdog threshold in ms (0 = max(4 chunks, 250 ms)).
     pub stall_ms: u64,
+    /// A port taken back after a restart: CLOCK_MONOTONIC (ns) at which the frame after its
+    /// last one was due. The frames between then and the device's first are published as
+    /// GAP, so the frame index stays proportional to time across the restart.
+    pub resume_from_ns: Option<u64>,
 }
 
 /// A running (or finished) acquisition, as the control thread holds it.
@@ -170,6 +174,24 @@ impl Acquisition {
     /// Stopped (unless it already ended on an error). A thread blocked inside the device is
     /// left behind; it exits when the device returns and never publishes again.
     pub fn stop(&mut self, timeout: Duration) {
+        self.stop_thread(timeout);
+        self.shared.writer().stop();
+    }
+
+    /// Stops the capture thread like [`Acquisition::stop`] but leaves the port capturing, for
+    /// the broker's successor to take back (`Writer::leave_to_successor`).
+    pub fn leave_to_successor(&mut self, timeout: Duration) {
+        self.stop_thread(timeout);
+        self.shared.writer().leave_to_successor();
+    }
+
+    /// Whether the capture is in health for the service manager's watchdog: not ended by a
+    /// stalled device.
+    pub fn healthy(&self) -> bool {
+        !matches!(self.failure(), Some((code, _)) if code == error_code::DEVICE_STALLED)
+    }
+
+    fn stop_thread(&mut self, timeout: Duration) {
         self.shared.stop.signal();
         if let Some(t) = self.thread.take() {
             match self.done.recv_timeout(timeout) {
@@ -181,7 +203,6 @@ impl Acquisition {
                 }
             }
         }
-        self.shared.writer().stop();
     }
 
     /// Marks the port superseded by a new acquisition and wakes its readers (who then see
@@ -401,6 +422,8 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
             }
         }
     }
+    // No timer slack on this thread: the device pacing's sleeps end when due.
+    crate::device::precise_timers();
     if let Err(msg) = dev.start() {
         shared.fail(error_code::DEVICE_LOST, &format!("starting the capture failed: {msg}"));
         return;
@@ -428,9 +451,10 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
     let mut scratch = vec![0i32; nfpc * channels];
     let mut replay =
         Replay { rate: f64::from(g.sample_rate), requested_ns: p.requested_ns, published: 0, in_gap: false };
-    // Time of the frame after the last one read, for estimating overrun gaps.
-    let mut expected_ns: Option<u64> = None;
-    let mut after_xrun = false;
+    // Time of the frame after the last one read, for estimating overrun gaps; a resumed
+    // port's timeline goes on from its last frame, the restart counted like an overrun.
+    let mut expected_ns: Option<u64> = p.resume_from_ns;
+    let mut after_xrun = p.resume_from_ns.is_some();
     // Timestamps further ahead than this of where the stream should be mean lost frames.
     let unreported_gap_ns = (4 * asm.frames_ns(nfpc as u64)).max(100_000_000);
     while !shared.stop.is_set() {
@@ -456,7 +480,18 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
                     asm.discontinuity = true;
                     if let Some(exp) = expected_ns {
                         let gap = ((jump as f64) * asm.rate as f64 / 1e9).round() as u64;
-                        tracing::warn!(gap_frames = gap, "overrun recovered; zero-filling the lost frames");
+                        if asm.published == 0 && p.resume_from_ns.is_some() {
+                            tracing::info!(
+                                gap_frames = gap,
+                                gap_ms = jump / 1_000_000,
+                                "resumed after a restart; the frames missed meanwhile are published as GAP"
+                            );
+                        } else {
+                            tracing::warn!(
+                                gap_frames = gap,
+                                "overrun recovered; zero-filling the lost frames"
+                            );
+                        }
                         asm.push_zeros(gap, exp);
                     }
                 }

@@ -35,6 +35,9 @@ pub struct Config {
     pub port_backing: bassclient::Backing,
     /// Longest wait for a device to open and configure (`--open-timeout-ms`).
     pub open_timeout: Duration,
+    /// Under a service manager with an fd store: how long readers wait for a restarted
+    /// broker to take its port back (`--restart-grace-ms`; 0 = do not use the store).
+    pub restart_grace_ms: u32,
 }
 
 impl Default for Config {
@@ -51,6 +54,7 @@ impl Default for Config {
             idle_timeout: DEFAULT_IDLE_TIMEOUT,
             port_backing: bassclient::Backing::File,
             open_timeout: DEFAULT_OPEN_TIMEOUT,
+            restart_grace_ms: crate::supervise::DEFAULT_RESTART_GRACE_MS,
         }
     }
 }

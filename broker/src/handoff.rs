@@ -22,19 +22,23 @@ use bassclient::{memfd, Backing, PendingPort, PortParams, Writer};
 use crate::capture::Acquisition;
 use crate::config::Config;
 
-/// Builds the next port in the configured backing; its epoch follows the current
-/// acquisition's (whatever is left at the port's path: a cut or removed file says nothing).
+/// Builds the next port in the configured backing; its epoch follows `after` (the current
+/// acquisition's, or the one a predecessor left in the fd store), whatever is left at the
+/// port's path: a cut or removed file says nothing. `resumable`: a memfd port a restarted
+/// broker may take back (see [`Writer::prepare_memfd_resumable`]).
 pub fn prepare(
     cfg: &Config,
     params: &PortParams,
-    current: Option<&Acquisition>,
+    after: Option<u64>,
+    resumable: bool,
 ) -> bassclient::Result<PendingPort> {
     match cfg.port_backing {
         Backing::File => Writer::prepare(&cfg.name, params).map(|mut p| {
-            p.after_epoch(current.map(|a| a.port.epoch()));
+            p.after_epoch(after);
             p
         }),
-        Backing::Memfd => Writer::prepare_memfd(&cfg.name, params, current.map(|a| a.port.epoch())),
+        Backing::Memfd if resumable => Writer::prepare_memfd_resumable(&cfg.name, params, after),
+        Backing::Memfd => Writer::prepare_memfd(&cfg.name, params, after),
     }
 }
 

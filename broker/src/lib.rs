@@ -24,6 +24,7 @@ pub mod policy;
 pub mod rate_estimator;
 pub mod request;
 pub mod server;
+pub mod supervise;
 
 /// Sets up logging to stderr: `BASS_LOG` (or `RUST_LOG`) filters, `info` by default.
 pub fn init_logging() {

@@ -23,12 +23,14 @@ use crate::capture::Acquisition;
 use crate::device;
 use crate::os;
 use crate::pins::Ledger;
+use crate::supervise::Supervisor;
 
 mod accept;
 mod acquire;
 mod dispatch;
 mod instance;
 mod opening;
+mod resume;
 
 pub use crate::config::{Config, DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_PORT_BYTES};
 pub use accept::{peer_allowed, MAX_CLIENTS, RESERVED_CLIENTS};
@@ -64,6 +66,11 @@ pub struct Broker {
     opening: Option<opening::Opening>,
     /// Device-open threads alive (stuck ones included).
     open_threads: Arc<AtomicUsize>,
+    /// The service manager (systemd), if bassd runs under one.
+    sup: Supervisor,
+    /// The epoch of a port a predecessor left in the fd store that this broker did not
+    /// resume: the next acquisition's epoch passes it.
+    handed_epoch: Option<u64>,
 }
 
 impl Broker {
@@ -78,6 +85,8 @@ impl Broker {
             own_uid: os::euid(),
             opening: None,
             open_threads: Arc::new(AtomicUsize::new(0)),
+            sup: Supervisor::none(),
+            handed_epoch: None,
         }
     }
 
@@ -186,6 +195,8 @@ impl Broker {
     fn stop(&mut self) -> Reply {
         let cancelled = self.cancel_open("by a Stop").map(|d| format!("cancelled the Acquire of {d:?}; "));
         let cancelled = cancelled.unwrap_or_default();
+        // A broker restarted after a Stop starts afresh.
+        self.sup.forget();
         let Some(a) = self.current.as_mut() else {
             return Reply::Stopped {
                 message: format!("{cancelled}nothing to stop: no acquisition since the broker started"),
@@ -225,14 +236,26 @@ impl Broker {
                 a.check_stall(now);
             }
         }
+        let healthy = self.current.as_ref().map_or(true, Acquisition::healthy);
+        if self.sup.active() {
+            let line = self.sup.status_due(now).then(|| resume::status_line(&self.status()));
+            self.sup.tick(now, healthy, line);
+        }
     }
 
     /// Stops everything (on SIGTERM / SIGINT), within [`SHUTDOWN_STOP_TIMEOUT`]: a pending
     /// Acquire is cancelled, threads stuck in a device are left behind.
     pub fn shutdown(&mut self) {
+        self.sup.stopping();
         self.cancel_open("because the broker is shutting down");
         if let Some(a) = self.current.as_mut() {
-            a.stop(SHUTDOWN_STOP_TIMEOUT);
+            if self.sup.holds_port() && a.running() {
+                // The service manager keeps the port: its successor takes it back.
+                tracing::info!("leaving the port capturing for the restarted broker (fd store)");
+                a.leave_to_successor(SHUTDOWN_STOP_TIMEOUT);
+            } else {
+                a.stop(SHUTDOWN_STOP_TIMEOUT);
+            }
         }
     }
 }
@@ -263,11 +286,17 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
     tracing::info!(name = %cfg.name, socket = %files.socket.display(), pid = std::process::id(), "bassd ready");
     let own_uid = os::euid();
     let mut broker = Broker::new(cfg.clone());
-    if let Some(r) = &cfg.acquire {
+    broker.sup = Supervisor::from_env(cfg.restart_grace_ms);
+    let resumed = match broker.sup.take_handed(&cfg.name) {
+        Some(handed) => broker.take_back(handed),
+        None => false,
+    };
+    if let (false, Some(r)) = (resumed, &cfg.acquire) {
         if let Some(Reply::Error { message, .. }) = broker.acquire(r, own_uid, None) {
             tracing::error!("start-up Acquire failed: {message}");
         }
     }
+    broker.sup.ready(&resume::status_line(&broker.status()));
     let mut clients: Vec<Conn> = Vec::new();
     let mut acceptor = Acceptor::new();
     let idle_ns = u64::try_from(cfg.idle_timeout.as_nanos()).unwrap_or(u64::MAX).max(1);

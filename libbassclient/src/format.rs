@@ -33,8 +33,9 @@ pub const MAGIC: u64 = u64::from_le_bytes(*b"BASSPORT");
 /// Major version: readers refuse any other major.
 pub const VERSION_MAJOR: u32 = 2;
 /// Minor version: additions that old readers may ignore.
-/// 1 added state 5 (starting) and `lost_upstream_frames` (offset 192, zero in minor-0 ports).
-pub const VERSION_MINOR: u32 = 1;
+/// 1 added state 5 (starting) and `lost_upstream_frames` (offset 192, zero in minor-0 ports);
+/// 2 added `restart_grace_ms` (offset 104, zero in older ports).
+pub const VERSION_MINOR: u32 = 2;
 /// Size of the header, one page.
 pub const HEADER_SIZE: usize = 4096;
 /// Size of one chunk-table entry.
@@ -193,7 +194,11 @@ pub struct Header {
     pub error_code: AtomicU32,
     /// Futex word: incremented (and woken) on every publish and state change.
     pub futex: AtomicU32,
-    _pad0: [u8; 24],
+    /// How long (ms after its last heartbeat) a dead writer may be replaced by its successor
+    /// taking the same port back (a broker restarted by its service manager); readers wait
+    /// that long before they report the writer gone. 0 = a dead writer is gone (minor 2).
+    pub restart_grace_ms: AtomicU32,
+    _pad0: [u8; 20],
     /// Index of the newest published frame (frames are numbered from 1).
     pub last_frame_index: AtomicU64,
     /// Highest frame index the writer may be writing now (>= last_frame_index).
@@ -227,6 +232,7 @@ const _: () = assert!(offset_of!(Header, channels) == 20);
 const _: () = assert!(offset_of!(Header, chunks_on_port) == 36);
 const _: () = assert!(offset_of!(Header, epoch) == 64);
 const _: () = assert!(offset_of!(Header, futex) == 100);
+const _: () = assert!(offset_of!(Header, restart_grace_ms) == 104);
 const _: () = assert!(offset_of!(Header, last_frame_index) == 128);
 const _: () = assert!(offset_of!(Header, write_intent) == 136);
 const _: () = assert!(offset_of!(Header, started_mono_ns) == 184);

@@ -8,6 +8,7 @@
 //! - [`ffi`]: the C ABI (`include/bass.h`);
 //! - [`stream`]: callback streams (a closure per block, with its first frame, loss, flags and
 //!   timestamps), on the caller's thread or bass's own;
+//! - [`ros2`]: the ROS 2 messages of bass (type names, definitions, CDR) for MCAP and topics;
 //! - [`sidecar`]: the sidecar of a recording (`FILE.wav.json`), for `bass record` and the replay;
 //! - [`args`]: the command-line vocabulary bassd, bass and bass-bridge share;
 //! - [`control`]: the broker's control protocol and its [`control::Client`].
@@ -30,6 +31,7 @@ pub mod paths;
 pub mod portfile;
 pub mod reader;
 pub mod ring;
+pub mod ros2;
 mod shm;
 pub mod sidecar;
 pub mod sigbus;

@@ -85,6 +85,18 @@ pub fn seal(file: &File) -> Result<()> {
     rustix::fs::fcntl_add_seals(file, PORT_SEALS).map_err(|e| Error::io("seal the port memfd", e.into()))
 }
 
+/// Seals a port memfd that a successor writer may map writable again (a broker restarted
+/// with the port from systemd's fd store): [`SIZE_SEALS`] and `F_SEAL_SEAL`, not
+/// `F_SEAL_FUTURE_WRITE`. In its place the memfd's mode becomes 0600, so no other user can
+/// reopen a read-only descriptor it was handed (through /proc/PID/fd) for writing; only the
+/// writer's own user (and root) could.
+pub fn seal_resumable(file: &File) -> Result<()> {
+    rustix::fs::fchmod(file, Mode::from_raw_mode(0o600))
+        .map_err(|e| Error::io("chmod the port memfd 0600", e.into()))?;
+    rustix::fs::fcntl_add_seals(file, SIZE_SEALS.union(SealFlags::SEAL))
+        .map_err(|e| Error::io("seal the port memfd", e.into()))
+}
+
 /// Whether `fd`'s size can no longer change (it carries `F_SEAL_SHRINK` and `F_SEAL_GROW`).
 /// A file that cannot carry seals (any regular file of a file system) is not sealed.
 pub fn size_sealed(fd: BorrowedFd<'_>) -> bool {

@@ -19,6 +19,7 @@ use crate::ring::{ChannelRing, Plan, Ring};
 use crate::shm::Mapping;
 use crate::sys::{self, FutexWait};
 
+mod liveness;
 mod stream_reads;
 mod types;
 
@@ -67,6 +68,8 @@ pub struct Port {
     version_minor: u32,
     /// The size is sealed (a memfd port): no per-call size check.
     sealed: bool,
+    /// Whether the writer lives (a pidfd opened once).
+    watch: liveness::WriterWatch,
 }
 
 impl Port {
@@ -217,6 +220,7 @@ impl Port {
             epoch,
             version_minor: v.version_minor,
             sealed,
+            watch: liveness::WriterWatch::default(),
         })
     }
 
@@ -403,7 +407,8 @@ impl Port {
     ///
     /// A futex wait on the header's futex word; the writer's liveness is checked at least
     /// every [`LIVENESS_SLICE`] while nothing is published: by its heartbeat while that is
-    /// younger than the slice, else in /proc (a file read, so not on every call).
+    /// younger than the slice, else of its pidfd (see `reader/liveness.rs`). A writer that
+    /// died leaving the port to a successor (`restart_grace_ms`) is waited for meanwhile.
     ///
     /// ```
     /// use std::time::Duration;
@@ -459,7 +464,7 @@ impl Port {
                 Some(State::Superseded) => return Err(Error::Restarted),
                 Some(State::Idle | State::Starting | State::Capturing) => {
                     // A heartbeat (stored at every publish) younger than the liveness slice
-                    // shows the writer alive without reading /proc/PID/stat (~15 µs per wait).
+                    // shows the writer alive without asking its pidfd.
                     let fresh = (beat <= now)
                         .then(|| LIVENESS_SLICE_NS.saturating_sub(now - beat))
                         .filter(|&ns| ns > 0);
@@ -490,15 +495,32 @@ impl Port {
         }
     }
 
-    /// `WriterGone` if the writer process no longer exists (reads /proc).
+    /// `WriterGone` if the writer process is gone for good (see [`Port::writer_gone`]).
     fn check_writer_alive(&self) -> Result<()> {
+        match self.writer_gone(sys::monotonic_ns()) {
+            None => Ok(()),
+            Some(pid) => Err(Error::WriterGone { pid }),
+        }
+    }
+
+    /// The writer's pid if it is gone for good: its process has ended and no successor can
+    /// take the port back any more. A port whose writer left it to a successor (a broker
+    /// restarted by its service manager: `restart_grace_ms` in the header, minor 2) keeps
+    /// its readers waiting for `restart_grace_ms` after the last heartbeat; a successor that
+    /// takes it back continues the same frames. `now` is CLOCK_MONOTONIC (ns).
+    pub(crate) fn writer_gone(&self, now: u64) -> Option<u32> {
         let h = self.header();
         let pid = h.writer_pid.load(Relaxed);
-        if sys::writer_alive(pid, h.writer_start_time.load(Relaxed)) {
-            Ok(())
-        } else {
-            Err(Error::WriterGone { pid })
+        if self.watch.alive(pid, h.writer_start_time.load(Relaxed)) {
+            return None;
         }
+        let grace_ns = u64::from(h.restart_grace_ms.load(Relaxed)) * 1_000_000;
+        let beat = h.heartbeat_mono_ns.load(Relaxed);
+        if grace_ns > 0 && now.saturating_sub(beat) < grace_ns {
+            return None;
+        }
+        // A successor that took over while we looked is not gone.
+        (h.writer_pid.load(Acquire) == pid).then_some(pid)
     }
 
     fn message(&self) -> String {
@@ -584,7 +606,7 @@ impl Port {
             chunks_published: h.chunks_published.load(Relaxed),
             rate_estimate_hz: h.rate_estimate_mhz.load(Relaxed) as f64 / 1000.0,
             writer_pid: pid,
-            writer_alive: sys::writer_alive(pid, h.writer_start_time.load(Relaxed)),
+            writer_alive: self.watch.alive(pid, h.writer_start_time.load(Relaxed)),
             started_mono_ns: h.started_mono_ns.load(Relaxed),
             heartbeat_mono_ns: h.heartbeat_mono_ns.load(Relaxed),
             version_minor: self.version_minor,

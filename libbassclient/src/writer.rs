@@ -21,6 +21,7 @@ use crate::waker::Waker;
 
 mod pending;
 mod replica;
+mod resume;
 
 pub use pending::PendingPort;
 use pending::{split_port_path, Place, Previous};
@@ -70,6 +71,8 @@ pub struct Writer {
     geometry: Geometry,
     layout: Layout,
     epoch: u64,
+    /// Left to a successor ([`Writer::leave_to_successor`]): dropping it changes nothing.
+    handed_over: bool,
 }
 
 impl Writer {
@@ -157,6 +160,26 @@ impl Writer {
         params: &PortParams,
         previous_epoch: Option<u64>,
     ) -> Result<PendingPort> {
+        Writer::prepare_memfd_sealed(name, params, previous_epoch, false)
+    }
+
+    /// [`Writer::prepare_memfd`] for a port a successor may take back ([`Writer::resume`]):
+    /// sealed without `F_SEAL_FUTURE_WRITE`, the memfd's mode 0600 keeping other users from
+    /// reopening a reader's descriptor writable (see [`memfd::seal_resumable`]).
+    pub fn prepare_memfd_resumable(
+        name: &str,
+        params: &PortParams,
+        previous_epoch: Option<u64>,
+    ) -> Result<PendingPort> {
+        Writer::prepare_memfd_sealed(name, params, previous_epoch, true)
+    }
+
+    fn prepare_memfd_sealed(
+        name: &str,
+        params: &PortParams,
+        previous_epoch: Option<u64>,
+        resumable: bool,
+    ) -> Result<PendingPort> {
         let path = paths::port_path(name)?;
         let geometry = params.geometry.clone();
         let layout = geometry.layout()?;
@@ -169,7 +192,7 @@ impl Writer {
         };
         let file = memfd::create(name, layout.total_size)?;
         let mut pending = PendingPort {
-            place: Place::Memfd { dir, name: file_name },
+            place: Place::Memfd { dir, name: file_name, resumable },
             path,
             file,
             mapping: None,
@@ -373,7 +396,7 @@ impl Writer {
 
     /// Stops the acquisition: the port keeps its frames and shows [`State::Stopped`].
     pub fn stop(&self) {
-        if matches!(self.state(), State::Idle | State::Starting | State::Capturing) {
+        if !self.handed_over && matches!(self.state(), State::Idle | State::Starting | State::Capturing) {
             self.set_state(State::Stopped, format::error_code::NONE, "");
         }
     }

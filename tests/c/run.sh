@@ -29,6 +29,15 @@ cxxflags=(-std=c++17 -Wall -Wextra -Wpedantic -Werror -I "$top/include")
 printf '#include "bass.h"\nint main() { return bass_version() == nullptr; }\n' > "$out/hpp.cpp"
 "${CXX:-c++}" -std=c++17 -Wall -Wextra -Wpedantic -Werror -I "$top/include" "$out/hpp.cpp" -o "$out/hpp" "${link[@]}"
 
+# bass_port_get_info asks /proc once per writer, not once per call (strace counts the opens).
+"$cc" "${flags[@]}" -O2 "$top/tests/c/info_liveness.c" -o "$out/info_liveness" "${link[@]}"
+mkdir -p "$out/rt-info"
+echo "== info_liveness (under strace)"
+BASS_RUNTIME_DIR="$out/rt-info" strace -f -qq -e trace=openat -o "$out/info.strace" "$out/info_liveness"
+stats=$(grep -c '"/proc/[0-9]*/stat"' "$out/info.strace" || true)
+echo "info_liveness: $stats opens of /proc/PID/stat for 2000 calls"
+((stats <= 2)) || { echo "tests/c: bass_port_get_info reads /proc on every call ($stats opens)" >&2; exit 1; }
+
 for t in abi_test abi_test_asan stream_test stream_test_asan stream_test_cpp stream_test_cpp_asan stream_rt; do
   mkdir -p "$out/rt-$t"
   echo "== $t"

@@ -48,6 +48,12 @@ struct BassdArgs {
     /// reads skip a per-call fstat; it lives only while the broker or a reader holds it)
     #[arg(long, value_name = "BACKING", default_value = "file", value_parser = ["file", "memfd"])]
     port_backing: String,
+    /// Under systemd (NOTIFY_SOCKET set): how long readers wait for a restarted bassd to take
+    /// its port back from the fd store and go on (ms); 0 = do not use the fd store, a restart
+    /// ends the acquisition (docs/broker.md, "Restarts that readers ride through")
+    #[arg(long, value_name = "MS", default_value_t = bassd::supervise::DEFAULT_RESTART_GRACE_MS,
+          value_parser = clap::value_parser!(u32).range(0..=3_600_000))]
+    restart_grace_ms: u32,
     /// Start capturing from DEVICE at start-up (with the acquisition options below)
     #[arg(short = 'D', long = "acquire", value_name = "DEVICE")]
     acquire: Option<String>,
@@ -131,6 +137,7 @@ fn config(a: &BassdArgs) -> Result<Config> {
         },
         idle_timeout: std::time::Duration::from_millis(h.idle_timeout_ms),
         open_timeout: std::time::Duration::from_millis(a.open_timeout_ms),
+        restart_grace_ms: a.restart_grace_ms,
         port_backing: if a.port_backing == "memfd" {
             bassclient::Backing::Memfd
         } else {

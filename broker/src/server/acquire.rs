@@ -14,7 +14,7 @@ use bassclient::portfile::mib;
 use bassclient::sys::monotonic_ns;
 use bassclient::PortParams;
 
-use super::opening::{answer, OpenJob, Opened, Opening, Parked, Poll, MAX_STUCK_OPENS};
+use super::opening::{answer, NextPort, OpenJob, Opened, Opening, Parked, Poll, MAX_STUCK_OPENS};
 use super::{Broker, STOP_TIMEOUT};
 use crate::capture::{Acquisition, CaptureParams};
 use crate::device::{self, alsa, sim::SimDevice, Capture};
@@ -99,7 +99,9 @@ impl Broker {
             tracing::warn!(uid = peer_uid, "{msg}");
             return Some(Reply::error(ErrorKind::InvalidArgument, &msg));
         }
-        let pending = match crate::handoff::prepare(&self.cfg, &params, self.current.as_ref()) {
+        let after = self.current.as_ref().map(|a| a.port.epoch()).or(self.handed_epoch);
+        let resumable = self.sup.restart_grace_ms() > 0;
+        let pending = match crate::handoff::prepare(&self.cfg, &params, after, resumable) {
             Ok(p) => p,
             // No room for the port where ports live: a refusal like a window over
             // --max-port-bytes (the message names the size needed and the space there is).
@@ -126,6 +128,7 @@ impl Broker {
             }
         };
         tracing::debug!(device = %r.device, "opening the device");
+        let pending = NextPort::New(pending);
         self.opening =
             Some(Opening { req: r.clone(), checked, pending, requested_ns, freed: false, reply_to, job });
         // The reply comes from poll_open, when the worker's eventfd wakes the loop (or the
@@ -133,7 +136,7 @@ impl Broker {
         None
     }
 
-    fn spawn_open(&self, checked: &Checked) -> std::io::Result<OpenJob> {
+    pub(super) fn spawn_open(&self, checked: &Checked) -> std::io::Result<OpenJob> {
         let (kind, g, format) = (checked.device.clone(), checked.geometry.clone(), checked.format);
         OpenJob::spawn(move || open_device(&kind, &g, format), self.cfg.open_timeout, &self.open_threads)
     }
@@ -222,6 +225,11 @@ impl Broker {
                     format!("{}; {kept}", e.message)
                 };
                 tracing::error!("Acquire failed: {msg}");
+                if let NextPort::Resumed { writer, .. } = &op.pending {
+                    // The resumed acquisition cannot go on: its readers are told why.
+                    writer.set_state(State::Error, e.code, &msg);
+                    self.sup.forget();
+                }
                 return Some((op.reply_to, Reply::error(ErrorKind::Device, &msg)));
             }
         };
@@ -230,14 +238,17 @@ impl Broker {
         if let Some(old) = self.current.as_mut() {
             old.stop(STOP_TIMEOUT);
         }
-        let writer = match op.pending.commit() {
-            Ok(w) => w,
-            Err(e) => {
-                // The rename failed: the old acquisition stays current (stopped, its window kept).
-                let msg = format!("cannot put the new port in place: {e}; {}", self.unchanged());
-                tracing::error!("{msg}");
-                return Some((op.reply_to, Reply::error(ErrorKind::Internal, &msg)));
-            }
+        let (writer, resume_from_ns) = match op.pending {
+            NextPort::New(p) => match p.commit() {
+                Ok(w) => (w, None),
+                Err(e) => {
+                    // The rename failed: the old acquisition stays current (stopped, its window kept).
+                    let msg = format!("cannot put the new port in place: {e}; {}", self.unchanged());
+                    tracing::error!("{msg}");
+                    return Some((op.reply_to, Reply::error(ErrorKind::Internal, &msg)));
+                }
+            },
+            NextPort::Resumed { writer, due_ns } => (writer, Some(due_ns)),
         };
         if let Some(old) = self.current.take() {
             crate::handoff::supersede(&old);
@@ -248,14 +259,21 @@ impl Broker {
         let epoch = writer.epoch();
         let port_path = writer.path().display().to_string();
         let format = dev.format_name();
+        writer.set_restart_grace_ms(self.sup.restart_grace_ms());
+        let store_fd =
+            writer.writable_fd().map_err(|e| tracing::warn!("no descriptor for the fd store: {e}")).ok();
         let cp = CaptureParams {
             geometry: g.clone(),
             rt_priority: self.cfg.rt_priority,
             requested_ns: op.requested_ns,
             stall_ms: self.cfg.stall_ms,
+            resume_from_ns,
         };
         let reply = match Acquisition::start(writer, dev, &r.device, cp) {
             Ok(a) => {
+                if let Some(fd) = store_fd {
+                    self.store_port(fd, r, epoch);
+                }
                 tracing::info!(
                     epoch,
                     device = %r.device,

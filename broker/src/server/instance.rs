@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::bail;
+use bassclient::format::State;
 use bassclient::instance::{Instance, InstanceError};
 use bassclient::reader::Port;
 
@@ -52,10 +53,14 @@ pub(super) fn take_instance(cfg: &Config) -> anyhow::Result<Files> {
     let port = inst.port_path();
     if let Ok(p) = Port::open_path(&port) {
         if let Ok(i) = p.info() {
-            if !i.writer_alive {
+            // A port its broker stopped is no news; one still "capturing" was left by a broker
+            // that died (or, under systemd, left for this one to take back from the fd store).
+            let live = matches!(i.state, Some(State::Idle | State::Starting | State::Capturing));
+            if live && !i.writer_alive {
                 tracing::warn!(
-                    "port {} was left by a broker that died (pid {}); its readers see the writer gone, \
-                     and the next Acquire replaces it",
+                    "port {} was left capturing by a broker that is gone (pid {}); unless this broker \
+                     takes it back from systemd's fd store, its readers see the writer gone and the \
+                     next Acquire replaces it",
                     port.display(),
                     i.writer_pid
                 );

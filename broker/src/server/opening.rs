@@ -23,7 +23,7 @@ use std::time::Duration;
 
 use bassclient::control::{self, AcquireRequest, Reply};
 use bassclient::sys::monotonic_ns;
-use bassclient::PendingPort;
+use bassclient::{PendingPort, Writer};
 
 use crate::device::{alsa::OpenError, Capture};
 use crate::os::EventFd;
@@ -117,14 +117,24 @@ impl OpenJob {
     }
 }
 
+/// The port an Acquire will publish into.
+pub(super) enum NextPort {
+    /// A new port, built under a temporary name (removed if the Acquire fails).
+    New(PendingPort),
+    /// The port a predecessor left in the service manager's fd store, taken back: the
+    /// capture picks its timeline up at `due_ns` (CLOCK_MONOTONIC of the frame after its
+    /// last one), the frames missed meanwhile published as GAP.
+    Resumed { writer: Writer, due_ns: u64 },
+}
+
 /// An Acquire waiting for its device: everything the switch needs once the device is open.
 pub(super) struct Opening {
     /// The request as the client sent it.
     pub req: AcquireRequest,
     /// The request after the checks.
     pub checked: Checked,
-    /// The new port, built under a temporary name (removed if the Acquire fails).
-    pub pending: PendingPort,
+    /// The port it will publish into.
+    pub pending: NextPort,
     /// CLOCK_MONOTONIC (ns) of the request (for the first-chunk latency log).
     pub requested_ns: u64,
     /// The running capture was stopped to free a busy device and the open retried.

@@ -13,7 +13,7 @@
 //! wait — no allocation, no lock, no other system call (tests/stream_rt.rs counts the
 //! allocations). Exceptions, off the audio path: a restart reopens the port (allocates, opens
 //! files); while the writer is silent for more than [`crate::reader::LIVENESS_SLICE`] its
-//! liveness is read from /proc; with the SIGBUS guard off (`BASS_SIGBUS_GUARD=0`) every read
+//! liveness is asked of a pidfd (a lock and a `poll`; /proc once per writer); with the SIGBUS guard off (`BASS_SIGBUS_GUARD=0`) every read
 //! of a port *file* checks its size (one `lseek`).
 //!
 //! ```
@@ -310,7 +310,7 @@ impl Stream {
 
     /// Waits until frame `target` is published (None) or the acquisition ends. With `ended`,
     /// only a restart or a stop ends the wait. Atomic loads and the futex wait; the writer's
-    /// liveness is read from /proc only while its heartbeat is older than the liveness slice.
+    /// liveness is asked (a pidfd) only while its heartbeat is older than the liveness slice.
     fn wait_for(&self, target: u64, ended: bool) -> Result<Option<End>> {
         let port = &*self.port;
         let h = port.stream_header();
@@ -342,8 +342,7 @@ impl Stream {
                 Some(State::Idle | State::Starting | State::Capturing) => {
                     let beat = h.heartbeat_mono_ns.load(Ordering::Relaxed);
                     if now.saturating_sub(beat) >= LIVENESS_SLICE.as_nanos() as u64 {
-                        let pid = h.writer_pid.load(Ordering::Relaxed);
-                        if !sys::writer_alive(pid, h.writer_start_time.load(Ordering::Relaxed)) {
+                        if let Some(pid) = port.writer_gone(now) {
                             return Ok(Some(End::WriterGone { pid }));
                         }
                     }

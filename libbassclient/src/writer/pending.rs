@@ -22,7 +22,9 @@ pub(super) enum Place {
     /// A file built under a temporary name in `dir`, renamed to `name` by the commit.
     File { dir: OwnedFd, dir_path: PathBuf, name: String, tmp_name: Option<String> },
     /// A sealed memfd; a left-over port file `name` in `dir` (if any) is removed by the commit.
-    Memfd { dir: Option<OwnedFd>, name: String },
+    /// `resumable`: sealed without `F_SEAL_FUTURE_WRITE`, so a successor can map it writable
+    /// again (see [`memfd::seal_resumable`]).
+    Memfd { dir: Option<OwnedFd>, name: String, resumable: bool },
 }
 
 /// A port built by [`Writer::prepare_at`] but not yet in place: its file exists only under a
@@ -53,10 +55,14 @@ impl PendingPort {
             mapping.guard();
         }
         init_header(mapping.header(), &self.geometry, &self.layout, &params.device);
-        if matches!(self.place, Place::Memfd { .. }) {
+        if let Place::Memfd { resumable, .. } = self.place {
             // Allocated (memfd::create) and mapped writable: from here on its size is final
-            // and nobody gains write access to it.
-            memfd::seal(&self.file)?;
+            // and nobody gains write access to it (but a successor, if resumable).
+            if resumable {
+                memfd::seal_resumable(&self.file)?;
+            } else {
+                memfd::seal(&self.file)?;
+            }
         }
         self.mapping = Some(mapping);
         Ok(())
@@ -119,6 +125,7 @@ impl PendingPort {
             geometry: self.geometry.clone(),
             layout: self.layout,
             epoch,
+            handed_over: false,
         })
     }
 }

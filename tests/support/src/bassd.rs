@@ -30,6 +30,7 @@ pub struct BassdBuilder {
     env: Vec<(OsString, OsString)>,
     stall_ms: Option<u64>,
     log_level: String,
+    handed: Vec<(String, std::os::fd::OwnedFd)>,
 }
 
 impl BassdBuilder {
@@ -51,6 +52,13 @@ impl BassdBuilder {
         self
     }
 
+    /// Descriptors the service manager hands back on start (`LISTEN_FDS`, `LISTEN_FDNAMES`,
+    /// `LISTEN_PID`: see [`crate::FakeManager`]), at 3, 4, ... in this order.
+    pub fn handed_fds(mut self, fds: Vec<(String, std::os::fd::OwnedFd)>) -> BassdBuilder {
+        self.handed = fds;
+        self
+    }
+
     /// `$BASS_LOG` of the broker (its log is kept in a temporary file, see [`Bassd::log_text`]).
     pub fn log_level(mut self, level: &str) -> BassdBuilder {
         level.clone_into(&mut self.log_level);
@@ -66,7 +74,23 @@ impl BassdBuilder {
             .suffix(".log")
             .tempfile()
             .expect("create the broker's log file");
-        let mut cmd = Command::new(bassd_bin());
+        let supervised = !self.handed.is_empty() || self.env.iter().any(|(k, _)| k == "WATCHDOG_USEC");
+        let mut cmd = if supervised {
+            // LISTEN_PID and WATCHDOG_PID must be bassd's pid, as a service manager sets
+            // them: the shell's, which exec keeps.
+            let mut c = Command::new("/bin/sh");
+            let script = "[ -n \"$WATCHDOG_USEC\" ] && export WATCHDOG_PID=$$; \
+                          [ -n \"$LISTEN_FDS\" ] && export LISTEN_PID=$$; exec \"$0\" \"$@\"";
+            c.args(["-c", script, &bassd_bin()]);
+            if !self.handed.is_empty() {
+                let names: Vec<&str> = self.handed.iter().map(|(n, _)| n.as_str()).collect();
+                c.env("LISTEN_FDS", names.len().to_string()).env("LISTEN_FDNAMES", names.join(":"));
+                pass_fds(&mut c, &self.handed);
+            }
+            c
+        } else {
+            Command::new(bassd_bin())
+        };
         cmd.arg("--name").arg(&self.name).args(["--rt-priority", "0"]);
         if let Some(ms) = self.stall_ms {
             cmd.arg("--stall-ms").arg(ms.to_string());
@@ -107,6 +131,7 @@ impl Bassd {
             env: Vec::new(),
             stall_ms: Some(1500),
             log_level: "info".into(),
+            handed: Vec::new(),
         }
     }
 
@@ -194,5 +219,31 @@ impl Bassd {
     /// Sends `sig` and reaps the process (for signals that end it, e.g. SIGKILL).
     pub fn kill(&mut self, sig: i32) {
         self.child.kill(sig);
+    }
+}
+
+/// Makes the child find `fds` at descriptors 3, 4, ... (as the service manager passes them).
+fn pass_fds(cmd: &mut Command, fds: &[(String, std::os::fd::OwnedFd)]) {
+    use std::os::fd::AsRawFd;
+    use std::os::unix::process::CommandExt;
+    // Copies above any target number first, so no dup2 overwrites a source it still needs.
+    let high: Vec<std::os::fd::OwnedFd> = fds
+        .iter()
+        .map(|(_, fd)| rustix::io::fcntl_dupfd_cloexec(fd, 100).expect("dup a handed descriptor"))
+        .collect();
+    let raws: Vec<i32> = high.iter().map(AsRawFd::as_raw_fd).collect();
+    // SAFETY: the closure runs in the forked child before exec and only calls dup2, which
+    // is async-signal-safe; `raws` are open descriptors (kept open by `high`, moved into the
+    // closure, until the command is dropped).
+    unsafe {
+        cmd.pre_exec(move || {
+            let _keep = &high;
+            for (i, &fd) in raws.iter().enumerate() {
+                if libc::dup2(fd, 3 + i as i32) < 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+            }
+            Ok(())
+        });
     }
 }

@@ -15,6 +15,7 @@ mod cli;
 mod jackd;
 mod port;
 mod skip;
+mod systemd;
 mod tempdir;
 mod tmpfs;
 mod wait;
@@ -28,6 +29,7 @@ pub use skip::{
     as_nobody, impersonation_missing, is_root, nobody_in_group, root_missing, setpriv, skip, skips_forbidden,
     NOBODY, NO_SKIP_VAR,
 };
+pub use systemd::{FakeManager, Notice};
 pub use tempdir::{list_dir, TempDir};
 pub use tmpfs::Tmpfs;
 pub use wait::{eventually, wait_until, PATIENCE};
