@@ -13,6 +13,7 @@ pub mod fault;
 pub mod iox;
 pub mod mirror;
 pub mod net;
+pub mod ros2;
 pub mod serve;
 pub mod text;
 pub mod wire;

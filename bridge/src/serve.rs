@@ -7,7 +7,7 @@
 //! item 5; the mirror starts its replica at the first frame it receives).
 //!
 //! A port is not read before a subscriber (a mirror) matches the chunk key, unless serve also
-//! exports to iceoryx2: a serve started before any mirror connected does not put its backlog
+//! exports to iceoryx2 or to ROS 2 (`--ros2`, [`crate::ros2`]): a serve started before any mirror connected does not put its backlog
 //! to nobody; the first mirror gets the port from its oldest frame then still in the window.
 //! That backlog goes through the bounded queue with blocking sends (bounded in time, see
 //! [`CATCH_UP_PATIENCE`]) until the reader has caught up with the port. From then on the
@@ -77,6 +77,8 @@ pub struct ServeOpts {
     pub iceoryx2: bool,
     #[command(flatten)]
     pub net: NetOpts,
+    #[command(flatten)]
+    pub ros2: crate::ros2::Ros2Opts,
 }
 
 /// One message for the sender thread.
@@ -89,6 +91,9 @@ pub struct Outgoing {
 
 /// Runs `serve` until SIGTERM/SIGINT.
 pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
+    if o.ros2.ros2 {
+        crate::ros2::check(&o.ros2, &o.name)?;
+    }
     let term = net::termination_flag()?;
     let session = o.net.open()?;
     let instance = net::instance_id();
@@ -184,6 +189,14 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
     } else {
         None
     };
+    let (ros2_graph, ros2) = match o.ros2.ros2 {
+        true => {
+            let (g, e) =
+                crate::ros2::start(&session, &o.ros2, &o.name, crate::ros2::QUEUE.max(o.queue as usize))?;
+            (Some(g), Some(e))
+        }
+        false => (None, None),
+    };
     let (tx, rx) = sync_channel::<Outgoing>(o.queue as usize);
     let sender = std::thread::Builder::new().name("bridge-send".into()).spawn(move || {
         let mut faults = faults;
@@ -207,6 +220,7 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
 
     tracing::info!(instance = %instance_hex, zid = %zid, name = %o.name, "serving");
     let mut reader = Reader::new(&o.name, &tx, &term, &matched, instance, o.chunks_per_message);
+    reader.ros2 = ros2;
     let mut states = StatePublisher {
         shared,
         conflicts,
@@ -227,13 +241,15 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
         };
         reader.follow(&port, publish_state, iox.as_mut())?;
     }
+    let ros2_done = reader.ros2.take().map_or(true, |r| r.finish(SENDER_PATIENCE));
     drop(reader);
     drop(iox);
     // Bounded exit (SIGTERM ends serve within a second in every state): the sender may be
     // blocked in a put on a dead link; it is given SENDER_PATIENCE, then left to the exit.
     drop(tx);
     drop(states);
-    if !wait_until_finished(&sender, SENDER_PATIENCE)
+    if !ros2_done
+        || !wait_until_finished(&sender, SENDER_PATIENCE)
         || !wait_until_finished(&state_sender, Duration::from_millis(50))
     {
         // Closing the session would wait on the same dead link: the exit ends it all.
@@ -246,7 +262,7 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
     }
     // Undeclaring and closing the session may wait on a link that just died: on a thread of
     // its own, given CLOSE_PATIENCE.
-    let parts = (token, alive_sub, state_sub, info, clock, control, session);
+    let parts = (token, alive_sub, state_sub, info, clock, control, ros2_graph, session);
     let closer = std::thread::Builder::new().name("bridge-close".into()).spawn(move || drop(parts))?;
     if !wait_until_finished(&closer, CLOSE_PATIENCE) {
         tracing::warn!(
@@ -259,7 +275,7 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
 }
 
 /// Waits up to `patience` for `thread` to finish; whether it did.
-fn wait_until_finished<T>(thread: &std::thread::JoinHandle<T>, patience: Duration) -> bool {
+pub(crate) fn wait_until_finished<T>(thread: &std::thread::JoinHandle<T>, patience: Duration) -> bool {
     let t0 = Instant::now();
     while !thread.is_finished() {
         if t0.elapsed() >= patience {

@@ -9,6 +9,14 @@
 #   late      sim:pattern with bassd stopped 0.4 s mid-recording: LATE chunks
 #   loss      sim:pattern with the recorder stopped longer than the window: a loss inside
 #   renumber  gap-ends replayed with --renumber: from frame 1, same flags
+# and the same for `bass record --format mcap` (a rosbag2 bag directory holding one MCAP file),
+# checked first by readers bass did not write (tests/replay/mcap_check.py: PyPI mcap with
+# mcap-ros2-support, and rosbags), which also write what the messages say as the WAV +
+# sidecar the replay is compared against:
+#   mcap-gap       sim:xrun recorded beside gap-ends: the same samples and rows as its WAV
+#   mcap-loss      sim:pattern with the recorder stopped: a loss inside, every sample checked
+#   mcap-renumber  mcap-gap replayed from frame 1
+#   mcap-refused   a replay with another chunk size is refused, naming the recording's
 # Assertions are on indices, samples, losses and flags; the stops only create the conditions.
 set -euo pipefail
 top=$(cd "$(dirname "$0")/../.." && pwd)
@@ -70,6 +78,35 @@ replay() {
   fi
 }
 
+# replay_mcap CASE BAG REF [--renumber]: replays the MCAP recording BAG (a bag directory or its
+# .mcap file), dumps what a client reads, compares with REF (the WAV + sidecar mcap_check.py
+# wrote from the messages).
+replay_mcap() {
+  local case=$1 bag=$2 ref=$3 extra=${4:-}
+  local flag=() mode=sim:file
+  [[ -n "$extra" ]] && { flag=(--renumbered); mode=sim:file-renumber; }
+  if ! out=$(bass acquire "$mode:$bag" -r 8000 --frames 100 --chunks 400 -c 2 2>&1); then
+    bad "$case: the replay was refused: $out"; return
+  fi
+  if ! timeout 30 "$work/port_dump" default 1000 25 >"$work/$case.dump" 2>"$work/$case.err"; then
+    bad "$case: port_dump: $(cat "$work/$case.err")"; return
+  fi
+  if out=$(python3 "$top/tests/replay/compare.py" "$ref" "$work/$case.dump" "${flag[@]}"); then
+    ok "$case: replay $out"
+  else
+    bad "$case: $out"
+  fi
+}
+
+# mcap_check CASE BAG ARGS...: the independent readers' verdict on BAG.
+mcap_check() {
+  local case=$1; shift
+  if out=$(python3 "$top/tests/replay/mcap_check.py" "$@" 2>&1); then
+    ok "$case: $out"; return 0
+  fi
+  bad "$case: $out"; return 1
+}
+
 # sidecar_has WAV PYTHON-EXPR: whether the expression holds of the sidecar `s`.
 sidecar_has() {
   python3 -c "import json,sys; s=json.load(open(sys.argv[1])); sys.exit(0 if ($2) else 1)" "$1.json"
@@ -78,7 +115,11 @@ sidecar_has() {
 # 1. gap-ends: sim:xrun, 8000 Hz, 100-frame chunks: GAP chunks at 4001..4400 and 8501..8800.
 bass acquire sim:xrun -r 8000 --frames 100 --chunks 200 -c 2 >/dev/null
 gap=$work/rec/gap-ends.wav
+gap_bag=$work/rec/gap-mcap
+bass record --format mcap "$gap_bag" --from 4001 --frames 4800 -q --json >"$work/gap-mcap.json" &
+rec=$!
 bass record "$gap" --from 4001 --frames 4800 -q
+wait "$rec" || bad "mcap-gap: bass record --format mcap failed"
 if sidecar_has "$gap" 's["chunks"][0]["flags"] & 1 and s["chunks"][-1]["flags"] & 1 and s["recording"]["first_frame"] == 4001'; then
   replay gap-ends "$gap"
 else
@@ -117,6 +158,37 @@ fi
 
 # 4. renumber: the gap-ends recording from frame 1.
 replay renumber "$gap" --renumber
+
+# 5. MCAP: the sim:xrun recording made beside gap-ends, checked against its WAV and the
+# signal, replayed from the bag directory at its indices and from frame 1.
+if mcap_check mcap-gap "$gap_bag" --signal xrun --expect-gap --recorder "$work/gap-mcap.json" \
+    --wav "$gap" --ref "$work/gap-mcap-ref.wav"; then
+  replay_mcap mcap-gap "$gap_bag" "$work/gap-mcap-ref.wav"
+  replay_mcap mcap-renumber "$gap_bag" "$work/gap-mcap-ref.wav" --renumber
+fi
+
+# 6. MCAP with a loss inside: sim:pattern, a 1000-frame window, the recorder stopped 0.6 s;
+# replayed from the .mcap file itself.
+bass acquire sim:pattern -r 8000 --frames 100 --chunks 10 -c 2 >/dev/null
+loss_bag=$work/rec/loss-mcap
+"$bin/bass" record --format mcap "$loss_bag" --frames 12000 -q --json >"$work/loss-mcap.json" &
+rec=$!
+sleep 0.4
+kill -STOP "$rec"; sleep 0.6; kill -CONT "$rec"
+wait "$rec" || true
+if mcap_check mcap-loss "$loss_bag" --signal pattern --expect-loss --recorder "$work/loss-mcap.json" \
+    --ref "$work/loss-mcap-ref.wav"; then
+  replay_mcap mcap-loss "$loss_bag/loss-mcap_0.mcap" "$work/loss-mcap-ref.wav"
+fi
+
+# 7. The replay of an MCAP recording keeps the recorded chunks: another chunk size is refused.
+if out=$(bass acquire "sim:file:$gap_bag" -r 8000 --frames 50 --chunks 400 -c 2 2>&1); then
+  bad "mcap-refused: a replay with 50-frame chunks of a 100-frame recording was accepted"
+elif [[ $out == *"recorded with 100 frames per chunk"* ]]; then
+  ok "mcap-refused: the replay with 50-frame chunks is refused: \"...recorded with 100 frames per chunk...\""
+else
+  bad "mcap-refused: refused, but not for the chunk size: $out"
+fi
 
 echo "tests/replay: $passed passed, $failed failed"
 [[ $failed == 0 ]]

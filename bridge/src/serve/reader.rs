@@ -64,6 +64,8 @@ pub struct Reader<'a> {
     pub started: bool,
     /// Sending the port's backlog: blocking sends until the reader has caught up.
     pub catching_up: bool,
+    /// The ROS 2 export (`serve --ros2`), if any.
+    pub ros2: Option<crate::ros2::Exporter>,
 }
 
 /// One port being followed: where the reader is, and its reused buffers.
@@ -101,6 +103,7 @@ impl<'a> Reader<'a> {
             dropped: 0,
             started: false,
             catching_up: false,
+            ros2: None,
         }
     }
 
@@ -135,7 +138,8 @@ impl<'a> Reader<'a> {
                 Err(PortError::Interrupted) => continue,
                 Err(e) => return Err(e.into()),
             }
-            if !self.started && iox.is_none() && !self.matched.load(Ordering::Relaxed) {
+            if !self.started && iox.is_none() && self.ros2.is_none() && !self.matched.load(Ordering::Relaxed)
+            {
                 // Nobody takes the chunks yet (serve just started, no mirror connected yet):
                 // the port is not read, so the first mirror gets it from its oldest frame
                 // still in the window rather than a backlog put to nobody.
@@ -259,6 +263,9 @@ impl<'a> Reader<'a> {
                 *s = f.planar[(i % ch) * f.nfpc + i / ch];
             }
             x.publish(&h, &f.interleaved);
+        }
+        if let Some(r) = self.ros2.as_mut() {
+            r.offer(&h, &f.planar, self.catching_up, self.term);
         }
         let gap = h.flags & wire::flags::GAP != 0;
         self.started = true;

@@ -176,7 +176,20 @@ struct Cli {
 /// serve's numeric options; every other option taking a value is text (a name, a path,
 /// an endpoint, a choice). A new option must be put in one list or the other.
 const NUMERIC: &[(&str, u64, u64)] = &[("queue", 1, 16), ("chunks-per-message", 1, 64)];
-const TEXT: &[&str] = &["name", "zenoh-config", "mode", "listen", "connect", "namespace", "credentials"];
+const TEXT: &[&str] = &[
+    "name",
+    "zenoh-config",
+    "mode",
+    "listen",
+    "connect",
+    "namespace",
+    "credentials",
+    // `serve --ros2`: names, checked by crate::ros2::check (its own tests), and an enum.
+    "ros2-topic",
+    "ros2-node",
+    "ros2-frame-id",
+    "ros2-distro",
+];
 
 fn parse(args: &[&str]) -> Result<Cli, clap::Error> {
     Cli::try_parse_from(["bass-bridge", "serve"].iter().chain(args))

@@ -1,4 +1,7 @@
-//! Replay of a WAV file as a capture device, paced in real time, one chunk at a time:
+//! Replay of a recording as a capture device, paced in real time, one chunk at a time. The
+//! recording is a WAV file with its sidecar, or an MCAP recording of `bass record --format mcap`
+//! (a `.mcap` file or its bag directory, read by [`super::mcap_file`] into the same frames and
+//! sidecar), the replay the same for both:
 //!
 //! - `sim:file:PATH.wav` — with the sidecar `PATH.wav.json` that `bass record` writes, the
 //!   recording comes back as the live port had it: **at its recorded frame indices** (the port
@@ -30,6 +33,7 @@ use bassclient::format::{chunk_flags, error_code};
 use bassclient::sys::{monotonic_ns, realtime_ns};
 use bassclient::ChunkMeta;
 
+use super::mcap_file::{self, McapFrames};
 use super::{sleep_until, Capture, ReadEvent, RecordedChunk, StopSignal};
 use bassclient::sidecar::Sidecar;
 
@@ -88,11 +92,18 @@ struct Replayed {
     last: u64,
 }
 
-/// A WAV file replayed as a device.
+/// Where the frames of a recording come from.
+enum Frames {
+    /// A WAV file: its samples, left-justified to S32.
+    Wav { reader: hound::WavReader<BufReader<File>>, spec: hound::WavSpec, pos: u64 },
+    /// An MCAP recording's audio messages (S32 as captured).
+    Mcap(Box<McapFrames>),
+}
+
+/// A recording replayed as a device.
 pub struct FileDevice {
     path: PathBuf,
-    reader: hound::WavReader<BufReader<File>>,
-    spec: hound::WavSpec,
+    frames: Frames,
     mode: Mode,
     sidecar: Option<Sidecar>,
     rate: u64,
@@ -106,8 +117,6 @@ pub struct FileDevice {
     rec_first: u64,
     /// The port's chunks are the recording's: each chunk's row gives its flags and times.
     exact: bool,
-    /// Next WAV frame the reader returns.
-    file_pos: u64,
     /// First port frame of the next chunk.
     next: u64,
     /// First port frame of the first chunk (the pacing origin).
@@ -122,16 +131,14 @@ pub struct FileDevice {
 
 /// Opens `path` for an Acquire at `rate` Hz with `channels` channels and `nfpc` frames per chunk.
 pub fn open(path: &Path, mode: Mode, rate: u32, channels: u32, nfpc: u32) -> Result<FileDevice, String> {
+    if mcap_file::is_mcap(path) {
+        return open_mcap(path, mode, rate, channels, nfpc);
+    }
     let name = format!("sim:{}{}", mode.prefix(), path.display());
     let reader = hound::WavReader::new(BufReader::new(open_regular(path)?))
         .map_err(|e| format!("sim:file:{}: cannot read the WAV file: {e}", path.display()))?;
     let spec = reader.spec();
-    if spec.sample_rate != rate || u32::from(spec.channels) != channels {
-        return Err(format!(
-            "{name} holds {} Hz, {} channel(s); the Acquire asks for {rate} Hz, {channels} channel(s): use --rate {} --channels {}",
-            spec.sample_rate, spec.channels, spec.sample_rate, spec.channels
-        ));
-    }
+    check_shape(&name, spec.sample_rate, spec.channels, rate, channels)?;
     let float_ok = spec.sample_format == hound::SampleFormat::Float && spec.bits_per_sample == 32;
     if spec.sample_format == hound::SampleFormat::Int && !(8..=32).contains(&spec.bits_per_sample)
         || !float_ok && spec.sample_format == hound::SampleFormat::Float
@@ -147,8 +154,6 @@ pub fn open(path: &Path, mode: Mode, rate: u32, channels: u32, nfpc: u32) -> Res
     }
     let sidecar = Sidecar::load_for(path)
         .map_err(|e| format!("{name}: {e}; fix it or move it away to replay the WAV alone"))?;
-    let nfpc = u64::from(nfpc.max(1));
-    let (mut base, mut rec_first, mut exact) = (1, 1, false);
     if let Some(sc) = &sidecar {
         let (a, r) = (&sc.acquisition, &sc.recording);
         if a.sample_rate != spec.sample_rate || r.channels.len() != usize::from(spec.channels) {
@@ -168,10 +173,59 @@ pub fn open(path: &Path, mode: Mode, rate: u32, channels: u32, nfpc: u32) -> Res
         }
         // A checkpoint of a recorder that was killed: the frames it vouches for.
         total = r.frames;
-        if total == 0 {
-            return Err(format!("{name}: its sidecar vouches for no frames"));
-        }
-        rec_first = r.first_frame;
+    }
+    let frames = Frames::Wav { reader, spec, pos: 0 };
+    device(path, &name, frames, sidecar, total, mode, rate, channels, nfpc)
+}
+
+/// Refuses an Acquire whose rate or channel count is not the recording's.
+fn check_shape(
+    name: &str,
+    file_rate: u32,
+    file_channels: u16,
+    rate: u32,
+    channels: u32,
+) -> Result<(), String> {
+    if file_rate != rate || u32::from(file_channels) != channels {
+        return Err(format!(
+            "{name} holds {file_rate} Hz, {file_channels} channel(s); the Acquire asks for {rate} Hz, {channels} channel(s): use --rate {file_rate} --channels {file_channels}"
+        ));
+    }
+    Ok(())
+}
+
+/// `open` for an MCAP recording (a `.mcap` file or a bag directory holding one).
+fn open_mcap(path: &Path, mode: Mode, rate: u32, channels: u32, nfpc: u32) -> Result<FileDevice, String> {
+    let name = format!("sim:{}{}", mode.prefix(), path.display());
+    let file = mcap_file::resolve(path).map_err(|e| format!("{name}: {e}"))?;
+    let (frames, side) = mcap_file::open(&file, open_regular(&file)?).map_err(|e| format!("{name}: {e}"))?;
+    let file_channels = u16::try_from(side.recording.channels.len()).unwrap_or(u16::MAX);
+    check_shape(&name, side.acquisition.sample_rate, file_channels, rate, channels)?;
+    let total = side.recording.frames;
+    device(path, &name, Frames::Mcap(Box::new(frames)), Some(side), total, mode, rate, channels, nfpc)
+}
+
+/// The replay of `total` frames from `frames`, described by `sidecar` if there is one.
+#[allow(clippy::too_many_arguments)]
+fn device(
+    path: &Path,
+    name: &str,
+    frames: Frames,
+    sidecar: Option<Sidecar>,
+    total: u64,
+    mode: Mode,
+    rate: u32,
+    channels: u32,
+    nfpc: u32,
+) -> Result<FileDevice, String> {
+    let nfpc = u64::from(nfpc.max(1));
+    let (mut base, mut rec_first, mut exact) = (1, 1, false);
+    if total == 0 {
+        return Err(format!("{name} holds no frames"));
+    }
+    if let Some(sc) = &sidecar {
+        let a = &sc.acquisition;
+        rec_first = sc.recording.first_frame;
         let same_chunks = u64::from(a.frames_per_chunk) == nfpc;
         match mode {
             Mode::Recorded if !same_chunks => {
@@ -191,8 +245,7 @@ pub fn open(path: &Path, mode: Mode, rate: u32, channels: u32, nfpc: u32) -> Res
     let origin = (base - 1) / nfpc * nfpc + 1;
     Ok(FileDevice {
         path: path.to_owned(),
-        reader,
-        spec,
+        frames,
         mode,
         sidecar,
         rate: u64::from(rate),
@@ -202,7 +255,6 @@ pub fn open(path: &Path, mode: Mode, rate: u32, channels: u32, nfpc: u32) -> Res
         base,
         rec_first,
         exact,
-        file_pos: 0,
         next: origin,
         origin,
         start_ns: 0,
@@ -217,14 +269,15 @@ pub fn open(path: &Path, mode: Mode, rate: u32, channels: u32, nfpc: u32) -> Res
 /// later request and bassd's shutdown. The open is non-blocking (a FIFO opens at once), the
 /// type is checked on the open descriptor (no race with a rename), then the descriptor is
 /// made blocking again for the reads of a regular file.
-fn open_regular(path: &Path) -> Result<File, String> {
+pub(super) fn open_regular(path: &Path) -> Result<File, String> {
     use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
     let name = path.display();
+    let kind = if mcap_file::is_mcap(path) { "MCAP" } else { "WAV" };
     let f = std::fs::OpenOptions::new()
         .read(true)
         .custom_flags(rustix::fs::OFlags::NONBLOCK.bits() as i32)
         .open(path)
-        .map_err(|e| format!("sim:file:{name}: cannot read the WAV file: {e}"))?;
+        .map_err(|e| format!("sim:file:{name}: cannot read the {kind} file: {e}"))?;
     let t = f.metadata().map_err(|e| format!("sim:file:{name}: {e}"))?.file_type();
     if !t.is_file() {
         let what = if t.is_fifo() {
@@ -236,7 +289,7 @@ fn open_regular(path: &Path) -> Result<File, String> {
         } else {
             "not a regular file"
         };
-        return Err(format!("sim:file:{name} is {what}: give a regular WAV file"));
+        return Err(format!("sim:file:{name} is {what}: give a regular {kind} file"));
     }
     rustix::fs::fcntl_setfl(&f, rustix::fs::OFlags::empty()).map_err(|e| format!("sim:file:{name}: {e}"))?;
     Ok(f)
@@ -281,25 +334,29 @@ impl FileDevice {
         }
     }
 
-    /// Reads `n` frames from WAV frame `i` into `out` (interleaved, left-justified S32).
+    /// Reads `n` frames from file frame `i` into `out` (interleaved, left-justified S32).
     fn fill(&mut self, i: u64, out: &mut [i32], n: usize) -> Result<(), String> {
-        if self.file_pos != i {
-            let to = u32::try_from(i).map_err(|_| format!("frame {i} is past a WAV file's reach"))?;
-            self.reader.seek(to).map_err(|e| e.to_string())?;
-            self.file_pos = i;
-        }
         let want = n * self.channels;
-        let shift = 32 - u32::from(self.spec.bits_per_sample);
+        let (reader, spec, pos) = match &mut self.frames {
+            Frames::Mcap(m) => return m.fill(i, &mut out[..want], n),
+            Frames::Wav { reader, spec, pos } => (reader, spec, pos),
+        };
+        if *pos != i {
+            let to = u32::try_from(i).map_err(|_| format!("frame {i} is past a WAV file's reach"))?;
+            reader.seek(to).map_err(|e| e.to_string())?;
+            *pos = i;
+        }
+        let shift = 32 - u32::from(spec.bits_per_sample);
         let mut got = 0;
-        if self.spec.sample_format == hound::SampleFormat::Float {
-            for (o, s) in out[..want].iter_mut().zip(self.reader.samples::<f32>()) {
+        if spec.sample_format == hound::SampleFormat::Float {
+            for (o, s) in out[..want].iter_mut().zip(reader.samples::<f32>()) {
                 let x = s.map_err(|e| e.to_string())?;
                 *o = (f64::from(x) * 2_147_483_648.0).round().clamp(f64::from(i32::MIN), f64::from(i32::MAX))
                     as i32;
                 got += 1;
             }
         } else {
-            for (o, s) in out[..want].iter_mut().zip(self.reader.samples::<i32>()) {
+            for (o, s) in out[..want].iter_mut().zip(reader.samples::<i32>()) {
                 *o = s.map_err(|e| e.to_string())?.wrapping_shl(shift);
                 got += 1;
             }
@@ -307,7 +364,7 @@ impl FileDevice {
         if got < want {
             return Err(format!("the file ended early ({got} of {want} samples)"));
         }
-        self.file_pos += n as u64;
+        *pos += n as u64;
         Ok(())
     }
 
@@ -498,54 +555,4 @@ impl Capture for FileDevice {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_rate_or_channel_mismatch_is_refused_with_the_files_values() {
-        let dir = std::env::temp_dir().join(format!("bass-file-dev-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let p = dir.join("a.wav");
-        let spec = hound::WavSpec {
-            channels: 2,
-            sample_rate: 8000,
-            bits_per_sample: 16,
-            sample_format: hound::SampleFormat::Int,
-        };
-        let mut w = hound::WavWriter::create(&p, spec).unwrap();
-        for i in 0..200 {
-            w.write_sample(i as i16).unwrap();
-        }
-        w.finalize().unwrap();
-        let e = open(&p, Mode::Recorded, 48000, 2, 80).err().unwrap();
-        assert!(e.contains("8000 Hz, 2 channel(s)") && e.contains("--rate 8000 --channels 2"), "{e}");
-        assert!(open(&p, Mode::Recorded, 8000, 1, 80).err().unwrap().contains("--channels 2"));
-        let mut d = open(&p, Mode::Recorded, 8000, 2, 80).unwrap();
-        let mut out = vec![0; 20];
-        d.fill(0, &mut out, 10).unwrap();
-        assert_eq!(out[3], 3 << 16, "16-bit samples are left-justified");
-        std::fs::remove_dir_all(&dir).unwrap();
-    }
-
-    #[test]
-    fn a_fifo_is_refused_at_once_without_blocking_in_open() {
-        let dir = std::env::temp_dir().join(format!("bass-file-fifo-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let p = dir.join("fifo.wav");
-        rustix::fs::mknodat(
-            rustix::fs::CWD,
-            &p,
-            rustix::fs::FileType::Fifo,
-            rustix::fs::Mode::RUSR | rustix::fs::Mode::WUSR,
-            0,
-        )
-        .unwrap();
-        // With a blocking open this call never returns (nobody writes to the FIFO).
-        let e = open(&p, Mode::Recorded, 48000, 2, 480).err().expect("a FIFO is refused");
-        assert!(e.contains("is a FIFO: give a regular WAV file"), "{e}");
-        let e =
-            open(Path::new("/dev/null"), Mode::Recorded, 48000, 2, 480).err().expect("/dev/null is refused");
-        assert!(e.contains("is a device node"), "{e}");
-        std::fs::remove_dir_all(&dir).unwrap();
-    }
-}
+mod tests;

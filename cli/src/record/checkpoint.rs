@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use crate::wav;
 use bassclient::sidecar::Sidecar;
 
-use super::recording::Recording;
+use super::recording::{Out, Recording};
 
 /// How often the header and the sidecar are brought up to date at least (see [`Checkpoints`]).
 const CHECKPOINT_EVERY: Duration = Duration::from_secs(1);
@@ -41,10 +41,16 @@ impl Checkpoints {
         }
         if self.running.is_none() && self.last.elapsed() >= self.every {
             self.last = Instant::now();
-            rec.wav.flush()?;
-            let side = rec.sidecar(rec.wav.frames(), IN_PROGRESS, true);
-            let data = side.recording.frames * rec.wav.spec().frame_bytes();
-            let (file, format) = (rec.wav.file().try_clone()?, rec.wav.spec().format);
+            let w = match &mut rec.out {
+                Out::Wav(w) => w,
+                // Everything is in the MCAP file: its complete chunks go to the disk.
+                Out::Mcap(m) => return m.flush(),
+            };
+            w.flush()?;
+            let frames = w.frames();
+            let (fb, format, file) = (w.spec().frame_bytes(), w.spec().format, w.file().try_clone()?);
+            let side = rec.sidecar(frames, IN_PROGRESS, true);
+            let data = side.recording.frames * fb;
             let path = rec.side_path.clone();
             self.running = Some(std::thread::spawn(move || {
                 let t0 = Instant::now();

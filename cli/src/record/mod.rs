@@ -29,6 +29,7 @@ use bassclient::sidecar;
 mod check;
 mod checkpoint;
 mod files;
+pub mod mcap_out;
 mod progress;
 mod recording;
 
@@ -36,7 +37,7 @@ pub use check::check;
 use checkpoint::Checkpoints;
 use files::{create, refuse_path};
 use progress::Progress;
-use recording::{Ended, Recording, Step};
+use recording::{Ended, Out, Recording, Step};
 
 /// Largest data chunk a RIFF/WAV file can describe (its sizes are 32-bit).
 const WAV_LIMIT: u64 = u32::MAX as u64 - 64;
@@ -75,8 +76,13 @@ fn parse_bits(s: &str) -> Result<u16, String> {
 /// Options of `bass record`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct RecordArgs {
-    /// Output WAV file (the sidecar is FILE.json next to it, e.g. rec.wav.json)
+    /// Output WAV file (the sidecar is FILE.json next to it, e.g. rec.wav.json); with
+    /// --format mcap, the bag directory to create (DIR/DIR_0.mcap and DIR/metadata.yaml)
     pub file: PathBuf,
+    /// wav (WAV + JSON sidecar) or mcap (a rosbag2 bag directory: ROS 2 audio_common_msgs
+    /// AudioDataStamped, AudioInfo and bass_msgs ChunkInfo messages, 32-bit samples)
+    #[arg(long, value_name = "FORMAT", default_value = "wav")]
+    pub format: OutFormat,
     /// Verify FILE and its sidecar instead of recording (exit 0 and one "ok" line, else 1)
     #[arg(long)]
     pub check: bool,
@@ -123,6 +129,13 @@ pub fn convert(s: i32, bits: u16) -> i32 {
 
 /// Runs `bass record` on broker `name` (or `bass record --check`).
 pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
+    if a.check && (a.format == OutFormat::Mcap || a.file.is_dir()) {
+        return Err(Exit::new(
+            exit::USAGE,
+            "--check verifies a WAV and its sidecar; an MCAP recording is checked when it is replayed (sim:file:DIR)",
+        )
+        .into());
+    }
     if a.check {
         return match check(&a.file) {
             Ok(line) => {
@@ -141,9 +154,22 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
             .into()),
         };
     }
-    let side_path = sidecar::path_of(&a.file);
-    for p in [&a.file, &side_path] {
-        refuse_path(p, a.force)?;
+    let mcap = a.format == OutFormat::Mcap;
+    if mcap && a.bits != 32 {
+        return Err(Exit::new(
+            exit::USAGE,
+            "--format mcap keeps the 32-bit samples as captured: leave out --bits",
+        )
+        .into());
+    }
+    let mcap_file = mcap_out::file_in(&a.file);
+    let side_path = if mcap { mcap_file.clone() } else { sidecar::path_of(&a.file) };
+    if mcap {
+        refuse_path(&a.file, a.force)?;
+    } else {
+        for p in [&a.file, &side_path] {
+            refuse_path(p, a.force)?;
+        }
     }
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
@@ -167,7 +193,11 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
     let spec =
         wav::Spec { channels: channels.len() as u16, sample_rate: g.sample_rate, bits: a.bits, format };
     let frame_bytes = spec.frame_bytes();
-    let max_frames = (WAV_LIMIT - format.header_len()) / frame_bytes;
+    let max_frames = if mcap {
+        bassclient::format::MAX_FRAME_INDEX
+    } else {
+        (WAV_LIMIT - format.header_len()) / frame_bytes
+    };
     let limit = match (a.frames, a.duration) {
         (Some(n), _) => Some(n),
         (None, Some(s)) => Some(((s * f64::from(g.sample_rate)).round() as u64).max(1)),
@@ -209,13 +239,38 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
             g.sample_rate
         );
     }
-    let wav_file = create(&a.file, a.force)?;
-    let side_file = match create(&side_path, a.force) {
-        Ok(f) => f,
-        Err(e) => {
-            let _ = std::fs::remove_file(&a.file);
-            return Err(e);
+    let (out, side_file) = if mcap {
+        match std::fs::create_dir(&a.file) {
+            Err(e) if !(a.force && e.kind() == std::io::ErrorKind::AlreadyExists && a.file.is_dir()) => {
+                return Err(
+                    anyhow::Error::new(e).context(format!("create the bag directory {}", a.file.display()))
+                )
+            }
+            _ => {}
         }
+        let f = create(&mcap_file, a.force)?;
+        let m = mcap_out::McapOut::new(
+            &a.file,
+            f,
+            name,
+            channels.len(),
+            g.sample_rate,
+            g.frames_per_chunk,
+            port.epoch(),
+        )
+        .with_context(|| format!("write {}", mcap_file.display()))?;
+        (Out::Mcap(Box::new(m)), None)
+    } else {
+        let wav_file = create(&a.file, a.force)?;
+        let side_file = match create(&side_path, a.force) {
+            Ok(f) => f,
+            Err(e) => {
+                let _ = std::fs::remove_file(&a.file);
+                return Err(e);
+            }
+        };
+        let w = wav::Writer::new(wav_file, spec).with_context(|| format!("write {}", a.file.display()))?;
+        (Out::Wav(w), Some(side_file))
     };
     let mut rec = Recording {
         file: a.file.clone(),
@@ -228,9 +283,11 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
         rows: Vec::new(),
         gap_count: 0,
         losses: Vec::new(),
-        wav: wav::Writer::new(wav_file, spec).with_context(|| format!("write {}", a.file.display()))?,
+        out,
     };
-    rec.write_first_checkpoint(side_file).with_context(|| format!("write {}", rec.side_path.display()))?;
+    if let Some(f) = side_file {
+        rec.write_first_checkpoint(f).with_context(|| format!("write {}", rec.side_path.display()))?;
+    }
     let mut checkpoints = Checkpoints::new();
     let progress = Progress::new(a.quiet, limit, g.sample_rate);
     let mut peaks = vec![0f64; channels.len()];
@@ -239,12 +296,12 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
         if stop.load(Ordering::Relaxed) {
             break Ok("signal".into());
         }
-        let written = rec.wav.frames();
+        let written = rec.out.frames();
         if limit.is_some_and(|l| written >= l) {
             break Ok("limit".into());
         }
         if written >= max_frames {
-            break Ok(format!("4 GiB WAV limit reached at frame {}", rec.next - 1));
+            break Ok(format!("file size limit reached at frame {}", rec.next - 1));
         }
         let started = rec.first.is_some();
         let step = rec.step(&port, Some(limit.unwrap_or(max_frames)), &mut peaks);
@@ -291,7 +348,8 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
         if last_progress.elapsed() >= Duration::from_secs(1) {
             last_progress = Instant::now();
             let lost = rec.losses.iter().map(|l| l.frames).sum();
-            progress.update(rec.wav.frames(), rec.wav.frames() * frame_bytes, rec.gap_count, lost, &peaks);
+            let fb = rec.out.frame_bytes(channels.len());
+            progress.update(rec.out.frames(), rec.out.frames() * fb, rec.gap_count, lost, &peaks);
             peaks.iter_mut().for_each(|p| *p = 0.0);
         }
     };
@@ -342,6 +400,19 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
     let r = &side.recording;
     if a.json {
         println!("{}", serde_json::to_string(r)?);
+    } else if !a.quiet && mcap {
+        println!(
+            "recorded {} frames ({:.3} s) from frame {} to {}: {} bytes, {} gap frames, {} frames lost by the recorder; {}; bag directory {}",
+            r.frames,
+            r.seconds,
+            r.first_frame,
+            mcap_file.display(),
+            r.bytes,
+            r.gap_frames,
+            r.lost_frames,
+            r.end,
+            a.file.display()
+        );
     } else if !a.quiet {
         println!(
             "recorded {} frames ({:.3} s) from frame {} to {}: {} bytes, {} gap frames, {} frames lost by the recorder; {}; sidecar {}",
@@ -362,6 +433,15 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
     }
 }
 
+/// `--format`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OutFormat {
+    /// A WAV file and its JSON sidecar FILE.json
+    Wav,
+    /// A rosbag2 bag directory holding one MCAP file (ROS 2 messages, CDR)
+    Mcap,
+}
+
 /// `--wav-format`.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum WavFormat {
@@ -374,211 +454,4 @@ pub enum WavFormat {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use bassclient::sidecar::{ChunkRow, Lost, Sidecar};
-    use bassclient::Port;
-    use std::fs::File;
-    use std::path::Path;
-
-    #[test]
-    fn conversion_rounds_half_up_and_saturates() {
-        assert_eq!(convert(0x1234_5678, 32), 0x1234_5678);
-        assert_eq!(convert(0x0001_8000, 16), 2); // 1.5 -> 2
-        assert_eq!(convert(0x0001_7fff, 16), 1);
-        assert_eq!(convert(-0x0001_8000, 16), -1); // -1.5 -> -1 (half up)
-        assert_eq!(convert(i32::MAX, 16), i16::MAX as i32);
-        assert_eq!(convert(i32::MIN, 16), i16::MIN as i32);
-        assert_eq!(convert(i32::MAX, 24), (1 << 23) - 1);
-        assert_eq!(convert(0x100 * 77 + 0x80, 24), 78);
-    }
-
-    #[test]
-    fn from_accepts_oldest_now_and_frames() {
-        assert_eq!(parse_from("oldest"), Ok(From::Oldest));
-        assert_eq!(parse_from("now"), Ok(From::Now));
-        assert_eq!(parse_from("12"), Ok(From::Frame(12)));
-        assert!(parse_from("0").is_err() && parse_from("later").is_err());
-    }
-
-    /// A WAV of 400 frames (2 channels, 16 bits) from frame 151 with a loss of chunk 301..=400
-    /// (zeros) and the sidecar that describes it; `poke` changes the pair before writing.
-    fn pair(name: &str, poke: impl FnOnce(&mut Vec<i32>, &mut Sidecar)) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("bass-check-{}-{name}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("r.wav");
-        let mut samples: Vec<i32> = (151..551u64)
-            .flat_map(|f| [0, 1].map(|c| if (301..=400).contains(&f) { 0 } else { (f * 2 + c) as i32 }))
-            .collect();
-        let row =
-            |f: u64, flags: u32| ChunkRow { first_frame: f, frames: 100, mono_ns: f, realtime_ns: f, flags };
-        let mut side: Sidecar = serde_json::from_value(serde_json::json!({
-            "acquisition": {"device": "sim:pattern", "format": "S32_LE", "sample_rate": 8000, "channels": 2,
-                            "frames_per_chunk": 100, "chunks_on_port": 20, "epoch": 1},
-            "recording": {"file": "r.wav", "first_frame": 151, "frames": 400, "seconds": 0.05, "bytes": 44 + 1600,
-                          "bits": 16, "channels": [0, 1], "gap_frames": 0, "lost_frames": 100, "end": "limit",
-                          "wav_format": "pcm"},
-            "losses": [{"first_frame": 301, "frames": 100}],
-        }))
-        .unwrap();
-        side.chunks = vec![row(101, 0), row(201, 0), row(401, 0), row(501, 0)];
-        poke(&mut samples, &mut side);
-        let spec = wav::Spec { channels: 2, sample_rate: 8000, bits: 16, format: wav::Format::Pcm };
-        let mut w = wav::Writer::new(File::create(&path).unwrap(), spec).unwrap();
-        for s in samples {
-            w.sample(s).unwrap();
-        }
-        w.finalize().unwrap();
-        std::fs::write(sidecar::path_of(&path), serde_json::to_vec(&side).unwrap()).unwrap();
-        path
-    }
-
-    #[test]
-    fn check_accepts_a_pair_that_agrees_and_names_each_disagreement() {
-        let done = |p: &Path| std::fs::remove_dir_all(p.parent().unwrap()).unwrap();
-        let p = pair("ok", |_, _| {});
-        let ok = check(&p).unwrap();
-        done(&p);
-        assert!(
-            ok.starts_with("ok: ") && ok.contains("400 frames") && ok.contains("100 frames lost"),
-            "{ok}"
-        );
-        type Poke = Box<dyn FnOnce(&mut Vec<i32>, &mut Sidecar)>;
-        let cases: Vec<(&str, Poke, &str)> = vec![
-            ("lost", Box::new(|s, _| s[(350 - 151) * 2] = 7), "lost frame 350 is not zero"),
-            ("gap", Box::new(|_, d| d.chunks[3].flags = 1), "gap_frames is 0; the GAP chunks hold 50"),
-            (
-                "gapdata",
-                Box::new(|_, d| {
-                    d.chunks[3].flags = 1;
-                    d.recording.gap_frames = 50;
-                }),
-                "GAP frame 501 is not zero",
-            ),
-            (
-                "frames",
-                Box::new(|s, _| s.truncate(399 * 2)),
-                "the WAV holds 399 frames; the sidecar says 400",
-            ),
-            ("format", Box::new(|_, d| d.recording.wav_format = Some("extensible".into())), "header is pcm"),
-            ("bits", Box::new(|_, d| d.recording.bits = 24), "16 bits per sample; the sidecar says 24"),
-        ];
-        for (name, poke, want) in cases {
-            let path = pair(name, poke);
-            let p = check(&path).unwrap_err();
-            done(&path);
-            assert!(p.iter().any(|m| m.contains(want)), "{name}: {want:?} not in {p:?}");
-        }
-        let p = check(Path::new("/nonexistent/r.wav")).unwrap_err();
-        assert!(p[0].contains("no sidecar"), "{p:?}");
-    }
-
-    /// A port of 4 chunks of 10 frames (1 channel, sample = frame index) written in this
-    /// process, and a recording of it from `from` into a WAV in `dir`.
-    fn rig(dir: &Path, from: u64) -> (bassclient::Writer, Port, Recording) {
-        use bassclient::{Geometry, PortParams};
-        std::fs::create_dir_all(dir).unwrap();
-        let geometry = Geometry { channels: 1, sample_rate: 8000, frames_per_chunk: 10, chunks_on_port: 4 };
-        let path = dir.join("rec.port");
-        let w = bassclient::Writer::create_at(
-            &path,
-            &PortParams { geometry, device: "unit".into(), group: None },
-        )
-        .unwrap();
-        let port = Port::open_path(&path).unwrap();
-        let file = dir.join("r.wav");
-        let spec = wav::Spec { channels: 1, sample_rate: 8000, bits: 32, format: wav::Format::Pcm };
-        let rec = Recording {
-            side_path: sidecar::path_of(&file),
-            wav: wav::Writer::new(File::create(&file).unwrap(), spec).unwrap(),
-            file,
-            acquisition: sidecar::Acquisition {
-                device: "unit".into(),
-                format: "S32_LE".into(),
-                sample_rate: 8000,
-                channels: 1,
-                frames_per_chunk: 10,
-                chunks_on_port: 4,
-                epoch: port.epoch(),
-            },
-            channels: vec![0],
-            requested: from,
-            first: None,
-            next: from,
-            rows: Vec::new(),
-            gap_count: 0,
-            losses: Vec::new(),
-        };
-        (w, port, rec)
-    }
-
-    fn publish(w: &mut bassclient::Writer, chunks: u64) {
-        for _ in 0..chunks {
-            let lfi = w.last_frame_index();
-            let s: Vec<i32> = (lfi + 1..=lfi + 10).map(|f| f as i32).collect();
-            w.publish(bassclient::Source::Interleaved(&s), bassclient::ChunkMeta::default()).unwrap();
-        }
-    }
-
-    fn samples(rec: &mut Recording) -> Vec<i32> {
-        rec.wav.checkpoint().unwrap();
-        hound::WavReader::open(&rec.file).unwrap().samples::<i32>().map(|s| s.unwrap()).collect()
-    }
-
-    #[test]
-    fn reads_end_on_chunks_so_a_loss_starts_on_a_chunk_and_whole_chunks_have_rows() {
-        let dir = std::env::temp_dir().join(format!("bass-rec-unit-{}-loss", std::process::id()));
-        let (mut w, port, mut rec) = rig(&dir, 5);
-        let mut peaks = [0.0];
-        publish(&mut w, 3);
-        // Frames 5..=20 (to the end of a chunk: at most 2 chunks a read with this window).
-        assert!(rec.step(&port, None, &mut peaks).is_ok());
-        assert_eq!((rec.first, rec.next), (Some(5), 21));
-        // The port moves on by 10 chunks: frames 21..=90 are lost, from a chunk start.
-        publish(&mut w, 10);
-        while rec.next <= 130 {
-            assert!(rec.step(&port, None, &mut peaks).is_ok());
-        }
-        assert_eq!(rec.losses, [Lost { first_frame: 21, frames: 70 }]);
-        let rows: Vec<u64> = rec.rows.iter().map(|r| r.first_frame).collect();
-        assert_eq!(rows, [1, 11, 91, 101, 111, 121], "a row for every chunk read, none for lost ones");
-        let side = rec.sidecar(rec.wav.frames(), "limit", false);
-        assert_eq!(side.problems(), Vec::<String>::new());
-        assert_eq!((side.recording.first_frame, side.recording.frames), (5, 126));
-        let want: Vec<i32> = (5..=130).map(|f| if (21..=90).contains(&f) { 0 } else { f }).collect();
-        assert_eq!(samples(&mut rec), want);
-        drop(port);
-        w.remove().unwrap();
-        std::fs::remove_dir_all(&dir).unwrap();
-    }
-
-    #[test]
-    fn a_start_the_port_no_longer_has_starts_the_file_at_its_oldest_chunk() {
-        let dir = std::env::temp_dir().join(format!("bass-rec-unit-{}-late", std::process::id()));
-        let (mut w, port, mut rec) = rig(&dir, 5);
-        let mut peaks = [0.0];
-        publish(&mut w, 13); // frames 91..=130 on the port
-        while rec.next <= 130 {
-            assert!(rec.step(&port, Some(25), &mut peaks).is_ok());
-            if rec.wav.frames() == 25 {
-                break;
-            }
-        }
-        assert!(rec.losses.is_empty(), "no loss inside the file");
-        let side = rec.sidecar(rec.wav.frames(), "limit", false);
-        let r = &side.recording;
-        assert_eq!(
-            (r.first_frame, r.frames, r.requested_first_frame, r.started_after_requested),
-            (91, 25, Some(5), 86)
-        );
-        assert_eq!(side.problems(), Vec::<String>::new());
-        assert_eq!(
-            samples(&mut rec),
-            (91..116).collect::<Vec<i32>>(),
-            "the limit counts from the file's start"
-        );
-        drop(port);
-        w.remove().unwrap();
-        std::fs::remove_dir_all(&dir).unwrap();
-    }
-}
+mod tests;

@@ -15,6 +15,7 @@ use bassclient::sidecar::{self, ChunkRow, Lost, Sidecar};
 
 use super::checkpoint::{stage, IN_PROGRESS};
 use super::convert;
+use super::mcap_out::McapOut;
 
 /// Why the loop ended in failure.
 pub(super) enum Ended {
@@ -50,7 +51,33 @@ pub(super) struct Recording {
     /// Frames of GAP rows in the file (for the progress line; the sidecar's is computed).
     pub(super) gap_count: u64,
     pub(super) losses: Vec<Lost>,
-    pub(super) wav: wav::Writer,
+    pub(super) out: Out,
+}
+
+/// Where the frames go.
+pub(super) enum Out {
+    /// A WAV file and its sidecar (lost frames as zeros).
+    Wav(wav::Writer),
+    /// An MCAP file in a bag directory (lost frames in no message).
+    Mcap(Box<McapOut>),
+}
+
+impl Out {
+    /// Frames in the file so far, lost ones included.
+    pub(super) fn frames(&self) -> u64 {
+        match self {
+            Out::Wav(w) => w.frames(),
+            Out::Mcap(m) => m.frames(),
+        }
+    }
+
+    /// Bytes per frame on the disk (the samples only).
+    pub(super) fn frame_bytes(&self, channels: usize) -> u64 {
+        match self {
+            Out::Wav(w) => w.spec().frame_bytes(),
+            Out::Mcap(_) => 4 * channels as u64,
+        }
+    }
 }
 
 impl Recording {
@@ -113,25 +140,44 @@ impl Recording {
                 return Ok(());
             }
             self.first = Some(got);
+            if let Out::Mcap(m) = &mut self.out {
+                m.begin(got);
+            }
         } else if r.loss > 0 {
-            let room = limit.map_or(u64::MAX, |l| l - self.wav.frames());
+            let room = limit.map_or(u64::MAX, |l| l - self.out.frames());
             let lost = r.loss.min(room);
             match self.losses.last_mut() {
                 Some(l) if l.first_frame + l.frames == before => l.frames += lost,
                 _ => self.losses.push(Lost { first_frame: before, frames: lost }),
             }
-            for _ in 0..lost * self.channels.len() as u64 {
-                self.wav.sample(0).map_err(Step::Disk)?;
+            match &mut self.out {
+                Out::Wav(w) => {
+                    for _ in 0..lost * self.channels.len() as u64 {
+                        w.sample(0).map_err(Step::Disk)?;
+                    }
+                }
+                Out::Mcap(m) => m.lose(lost, &self.rows).map_err(Step::Disk)?,
             }
             if lost < r.loss {
                 return Ok(()); // the limit
             }
         }
-        let bits = self.wav.spec().bits;
         #[allow(clippy::needless_range_loop)] // interleaving: frame i of every selected channel
-        for i in 0..kept as usize {
-            for &c in &self.channels {
-                self.wav.sample(convert(bufs[c as usize][i], bits)).map_err(Step::Disk)?;
+        match &mut self.out {
+            Out::Wav(w) => {
+                let bits = w.spec().bits;
+                for i in 0..kept as usize {
+                    for &c in &self.channels {
+                        w.sample(convert(bufs[c as usize][i], bits)).map_err(Step::Disk)?;
+                    }
+                }
+            }
+            Out::Mcap(m) => {
+                for i in 0..kept as usize {
+                    for &c in &self.channels {
+                        m.push(bufs[c as usize][i]);
+                    }
+                }
             }
         }
         let lv = levels(
@@ -155,6 +201,9 @@ impl Recording {
                 }
             }
         }
+        if let Out::Mcap(m) = &mut self.out {
+            m.emit(&self.rows, false).map_err(Step::Disk)?;
+        }
         Ok(())
     }
 
@@ -173,8 +222,15 @@ impl Recording {
         } else {
             self.rows.iter().filter(|r| r.first_frame < last).copied().collect()
         };
-        let spec = self.wav.spec();
-        let data = frames * spec.frame_bytes();
+        let (bits, bytes, wav_format) = match &self.out {
+            Out::Wav(w) => {
+                let spec = w.spec();
+                let data = frames * spec.frame_bytes();
+                (spec.bits, spec.format.header_len() + data + (data & 1), Some(spec.format.name().into()))
+            }
+            // The MCAP file's size is known once it is finished (set by `finish`).
+            Out::Mcap(_) => (32, 0, None),
+        };
         let after = first - self.requested;
         let mut s = Sidecar {
             acquisition: self.acquisition.clone(),
@@ -183,15 +239,15 @@ impl Recording {
                 first_frame: first,
                 frames,
                 seconds: frames as f64 / f64::from(self.acquisition.sample_rate),
-                bytes: spec.format.header_len() + data + (data & 1),
-                bits: spec.bits,
+                bytes,
+                bits,
                 channels: self.channels.clone(),
                 gap_frames: 0,
                 lost_frames: losses.iter().map(|l| l.frames).sum(),
                 end: end.into(),
                 requested_first_frame: (after > 0).then_some(self.requested),
                 started_after_requested: after,
-                wav_format: Some(spec.format.name().into()),
+                wav_format,
                 in_progress,
             },
             losses,
@@ -210,8 +266,16 @@ impl Recording {
     /// WAV is cut to the whole frames that reached it, and if the sidecar does not fit, cut
     /// further by whole frames until it does. Returns the sidecar and the frames cut for it.
     pub(super) fn finish(&mut self, end: &str) -> io::Result<(Sidecar, u64)> {
-        let fb = self.wav.spec().frame_bytes();
-        let mut frames = match self.wav.finalize() {
+        if let Out::Mcap(m) = &self.out {
+            let mut side = self.sidecar(m.frames(), end, false);
+            if let Out::Mcap(m) = &mut self.out {
+                side.recording.bytes = m.finish(&self.rows, &side)?;
+            }
+            return Ok((side, 0));
+        }
+        let Out::Wav(w) = &mut self.out else { unreachable!("an MCAP recording returned above") };
+        let fb = w.spec().frame_bytes();
+        let mut frames = match w.finalize() {
             Ok(n) => n,
             Err(_) => wav::repair(&self.file, fb, None)?,
         };
