@@ -1,11 +1,15 @@
 #!/usr/bin/env bash
 # Measures bassd on simulated devices (numbers reported in docs/broker.md):
-#  - CPU of bassd (% of one core, utime+stime from /proc/PID/stat) over SECONDS seconds,
-#    at 48 kHz stereo with 64-frame chunks and with the seed's defaults (44.1 kHz, 2205 x 20);
+#  - CPU of bassd (% of one core: the on-CPU time of all its threads from
+#    /proc/PID/task/*/schedstat, in ns) over SECONDS seconds, idle (no acquisition: a sleeping
+#    broker), at 48 kHz stereo with 64- and 256-frame chunks and with the seed's defaults
+#    (44.1 kHz, 2205 x 20);
 #  - the time from an Acquire request to the first published chunk (client side: request
 #    sent -> frame nFramesPerChunk visible in the port), from a stopped broker, N times;
 #  - the rate estimate's error against the simulated device's nominal rate.
 # Usage: scripts/measure-broker-cpu.sh [SECONDS (default 10)] [N (default 20)]
+# CPU_ONLY=1: only the CPU lines. BASSD_ARGS: extra bassd options, e.g. BASSD_ARGS="--rt-priority 0" for a capture thread
+# without real-time scheduling.
 set -euo pipefail
 top=$(cd "$(dirname "$0")/.." && pwd)
 bin="${CARGO_TARGET_DIR:-$top/target}/release"
@@ -16,27 +20,39 @@ BASS_RUNTIME_DIR=$(mktemp -d -t bass-measure.XXXXXX)
 pid=""
 cleanup() { [[ -n "$pid" ]] && kill -TERM "$pid" 2>/dev/null; wait 2>/dev/null; rm -rf "$BASS_RUNTIME_DIR"; }
 trap cleanup EXIT
-BASS_LOG=warn "$bin/bassd" 2>"$BASS_RUNTIME_DIR/bassd.log" &
+# shellcheck disable=SC2086 # BASSD_ARGS is a list of words
+BASS_LOG=warn "$bin/bassd" ${BASSD_ARGS:-} 2>"$BASS_RUNTIME_DIR/bassd.log" &
 pid=$!
 for _ in $(seq 200); do [[ -S "$BASS_RUNTIME_DIR/bass-default.sock" ]] && break; sleep 0.025; done
-tck=$(getconf CLK_TCK)
-ticks() { awk '{ s = $0; sub(/.*\) /, "", s); split(s, f, " "); print f[12] + f[13] }' "/proc/$pid/stat"; }
+# On-CPU ns of all of bassd's threads (schedstat's first field; finer than the clock ticks of stat).
+cpu_ns() { cat /proc/"$pid"/task/*/schedstat 2>/dev/null | awk '{ s += $1 } END { printf "%.0f", s }'; }
 echo "machine: $(nproc) cores, $(uname -r); bassd pid $pid; $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)"
 grep -q "real-time scheduling" "$BASS_RUNTIME_DIR/bassd.log" && echo "note: real-time scheduling refused" || echo "capture thread: SCHED_FIFO (or not requested)"
 
+sample() {  # what
+  local t0 c0 t1 c1
+  t0=$(date +%s.%N); c0=$(cpu_ns)
+  sleep "$secs"
+  t1=$(date +%s.%N); c1=$(cpu_ns)
+  awk -v c0="$c0" -v c1="$c1" -v t0="$t0" -v t1="$t1" -v what="$1" \
+    'BEGIN { printf "cpu  %-40s %6.3f %% of one core (%.1f ms in %.1f s)\n", what, 100 * (c1 - c0) / 1e9 / (t1 - t0), (c1 - c0) / 1e6, t1 - t0 }'
+}
 cpu() {  # device rate frames chunks
   "$bin/bass" acquire "$1" --rate "$2" --frames "$3" --chunks "$4" >/dev/null
   sleep 1
-  local t0 c0 t1 c1
-  t0=$(date +%s.%N); c0=$(ticks)
-  sleep "$secs"
-  t1=$(date +%s.%N); c1=$(ticks)
-  awk -v c0="$c0" -v c1="$c1" -v t0="$t0" -v t1="$t1" -v hz="$tck" -v what="$1 $2 Hz, $3 frames x $4 chunks" \
-    'BEGIN { printf "cpu  %-40s %6.2f %% of one core (%d ticks in %.1f s)\n", what, 100 * (c1 - c0) / hz / (t1 - t0), c1 - c0, t1 - t0 }'
+  sample "$1 $2 Hz, $3 frames x $4 chunks"
 }
+sleep 1
+sample "idle (no acquisition)"
 cpu sim:sine 48000 64 750
+cpu sim:pattern 48000 256 188
 cpu sim:sine 44100 2205 20
 cpu sim:pattern 48000 64 750
+"$bin/bass" stop >/dev/null
+sleep 1
+sample "idle again (after Stop)"
+# CPU_ONLY=1: the CPU lines only.
+[[ -n "${CPU_ONLY:-}" ]] && exit 0
 
 latency() {  # rate frames chunks
   local samples=()

@@ -77,13 +77,13 @@ pub struct E2eResults {
     pub seconds: f64,
 }
 
-fn bassd_path() -> Option<PathBuf> {
+pub(crate) fn bassd_path() -> Option<PathBuf> {
     let p = std::env::current_exe().ok()?.parent()?.join("bassd");
     p.exists().then_some(p)
 }
 
 /// On-CPU time of all threads of `pid` (ns).
-fn cpu_ns(pid: u32) -> u64 {
+pub(crate) fn cpu_ns(pid: u32) -> u64 {
     let Ok(dir) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return 0 };
     dir.filter_map(|e| e.ok())
         .filter_map(|e| std::fs::read_to_string(e.path().join("schedstat")).ok())
@@ -91,7 +91,8 @@ fn cpu_ns(pid: u32) -> u64 {
         .sum()
 }
 
-struct Proc(std::process::Child);
+/// A daemon process, ended with SIGTERM (then SIGKILL after 3 s) when dropped.
+pub(crate) struct Proc(pub(crate) std::process::Child);
 
 impl Drop for Proc {
     fn drop(&mut self) {

@@ -3,14 +3,16 @@
 //! Every comparison is measured side by side in one run and printed as a ratio of
 //! medians over several repetitions; the results go to docs/performance.md with PNG plots.
 //!
-//! Usage: `bass-bench [--quick] [--parts 1,2,3,4,5,6] [--docs DIR]`;
+//! Usage: `bass-bench [--quick] [--parts 1,2,3,4,5,6,7] [--docs DIR]`;
 //! `bass-bench child ROLE ARGS...` is this binary's own helper-process mode.
 
+mod callbacks;
 mod e2e;
 mod jack;
 mod machine;
 mod memory;
 mod original;
+mod pipewire;
 mod plot;
 mod procs;
 mod publish;
@@ -30,8 +32,8 @@ pub struct Opts {
     #[arg(long)]
     pub quick: bool,
     /// Parts to run, e.g. 1,3
-    #[arg(long, value_delimiter = ',', default_values_t = [1u32, 2, 3, 4, 5, 6],
-          value_parser = clap::value_parser!(u32).range(1..=6))]
+    #[arg(long, value_delimiter = ',', default_values_t = [1u32, 2, 3, 4, 5, 6, 7],
+          value_parser = clap::value_parser!(u32).range(1..=7))]
     pub parts: Vec<u32>,
     /// Where performance.md and the PNGs go
     #[arg(long, value_name = "DIR", default_value = "docs")]
@@ -62,6 +64,7 @@ fn main() {
         println!("part 1: read throughput vs memcpy");
         results.read = read::run(reps(7));
         results.copy_loops = Some(read::copy_loops(reps(7)));
+        results.info_cost = Some(read::info_cost(reps(7)));
     }
     if opts.parts.contains(&2) {
         println!("part 2: publish cost vs window size and readers, vs the original design");
@@ -78,6 +81,10 @@ fn main() {
     if opts.parts.contains(&6) {
         println!("part 6: memory");
         results.memory = Some(memory::run());
+    }
+    if opts.parts.contains(&7) {
+        println!("part 7: bass vs PipeWire (Dummy-Driver), 1, 8 and 64 clients, interleaved round by round; callback streams vs JACK process callbacks");
+        results.pipewire = Some(pipewire::run(2, if opts.quick { 1.5 } else { 5.0 }, !opts.quick));
     }
     results.load_end = machine::loadavg();
     results.elapsed_s = started.elapsed().as_secs_f64();
@@ -99,6 +106,9 @@ fn child(role: &str, args: &[String]) {
         "cpu-reader" => e2e::child_cpu_reader(args),
         "mem-writer" => memory::child_writer(args),
         "mem-orig-reader" => memory::child_orig_reader(args),
+        "pw-cmp-reader" => pipewire::child_reader(args),
+        "jack-cb-client" => callbacks::child_jack_client(args),
+        "cb-stream" => callbacks::child_stream(args),
         other => panic!("unknown child role {other}"),
     }
 }

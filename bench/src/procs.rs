@@ -56,10 +56,14 @@ impl Child {
 
     /// Starts `EXE child ROLE ARGS...`.
     pub fn spawn_exe(exe: &Path, role: &str, args: &[String]) -> Child {
-        let mut proc = Command::new(exe)
-            .arg("child")
-            .arg(role)
-            .args(args)
+        let mut cmd = Command::new(exe);
+        cmd.arg("child").arg(role).args(args);
+        Child::spawn_command(cmd)
+    }
+
+    /// Starts `cmd` (any program speaking the same protocol: `ready`, then result lines).
+    pub fn spawn_command(mut cmd: Command) -> Child {
+        let mut proc = cmd
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())

@@ -271,3 +271,74 @@ pub fn run(reps: usize) -> Vec<ReadRow> {
     }
     rows
 }
+
+/// The per-call cost of `bass_port_get_info` (which answers whether the writer lives, from a
+/// pidfd opened once) against `bass_get_audio_data` of one chunk, and against the /proc read
+/// every info call made before (`sys::writer_alive`: open, read and parse /proc/PID/stat).
+#[derive(Clone, Debug, Default)]
+pub struct InfoCost {
+    /// Per repetition: ns per `bass_port_get_info`.
+    pub info_ns: Vec<f64>,
+    /// Per repetition: ns per `bass_get_audio_data` of one 441-frame chunk (hot).
+    pub read_chunk_ns: Vec<f64>,
+    /// Per repetition: ns per /proc liveness read (the former per-call cost).
+    pub proc_ns: Vec<f64>,
+}
+
+/// Measures [`InfoCost`], the three alternating in each repetition.
+pub fn info_cost(reps: usize) -> InfoCost {
+    let nfpc = 441u32;
+    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: nfpc, chunks_on_port: 100 };
+    let params = PortParams { geometry, device: "bench:info".into(), group: None };
+    let mut w = Writer::create("bench-info", &params).expect("create port");
+    let chunk = vec![1i32; nfpc as usize * 2];
+    for _ in 0..10 {
+        w.publish(Source::Interleaved(&chunk), ChunkMeta::default()).expect("publish");
+    }
+    let lfi = w.last_frame_index();
+    let cname = std::ffi::CString::new("bench-info").expect("name");
+    let mut handle: *mut bassclient::ffi::bass_port = std::ptr::null_mut();
+    // SAFETY: a valid C string and a valid out-pointer.
+    let rc = unsafe { bassclient::ffi::bass_port_open(cname.as_ptr(), &mut handle) };
+    assert_eq!(rc as i32, 0, "bass_port_open");
+    let (mut left, mut right) = (vec![0i32; nfpc as usize], vec![0i32; nfpc as usize]);
+    let (pid, start) = (std::process::id(), bassclient::sys::own_start_time());
+    let mut out = InfoCost::default();
+    for _ in 0..reps {
+        let mut info = std::mem::MaybeUninit::<bassclient::ffi::bass_port_info>::uninit();
+        out.info_ns.push(time_per_iter(20_000, |_| {
+            // SAFETY: `handle` is open; `info` is valid for a write.
+            let rc = unsafe { bassclient::ffi::bass_port_get_info(handle, info.as_mut_ptr()) };
+            assert_eq!(rc as i32, 0);
+        }));
+        out.read_chunk_ns.push(time_per_iter(20_000, |_| {
+            let (mut nfr, mut got, mut loss) = (lfi - u64::from(nfpc) + 1, 0usize, 0u64);
+            // SAFETY: `handle` is open; both buffers hold nfpc samples; valid out-pointers.
+            let rc = unsafe {
+                bassclient::ffi::bass_get_audio_data(
+                    handle,
+                    nfpc as usize,
+                    &mut nfr,
+                    left.as_mut_ptr(),
+                    right.as_mut_ptr(),
+                    &mut got,
+                    &mut loss,
+                )
+            };
+            assert!(rc as i32 == 0 && got == nfpc as usize);
+        }));
+        out.proc_ns.push(time_per_iter(2_000, |_| {
+            assert!(bassclient::sys::writer_alive(pid, start));
+        }));
+    }
+    // SAFETY: `handle` came from bass_port_open and is closed once.
+    unsafe { bassclient::ffi::bass_port_close(handle) };
+    let _ = w.remove();
+    println!(
+        "  info: bass_port_get_info {} ns per call, bass_get_audio_data of one 441-frame chunk {} ns, the /proc liveness read it made before {} ns",
+        spread(&out.info_ns, |v| format!("{v:.0}")),
+        spread(&out.read_chunk_ns, |v| format!("{v:.0}")),
+        spread(&out.proc_ns, |v| format!("{v:.0}")),
+    );
+    out
+}

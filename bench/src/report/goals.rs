@@ -232,6 +232,7 @@ pub(super) fn goals(r: &Results) -> Vec<Goal> {
             met: Some(exact),
         });
     }
+    g.extend(super::pipewire::goals(r));
     g
 }
 

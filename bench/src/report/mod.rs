@@ -1,7 +1,9 @@
 //! Writes docs/performance.md and the docs/perf-*.png plots from one run's results:
-//! the goal table ([`goals`]), one section per part ([`sections`]) and the plots ([`plots`]).
+//! the goal table ([`goals`]), one section per part ([`sections`]; part 7, the PipeWire
+//! comparison, in [`pipewire`]) and the plots ([`plots`]).
 
 mod goals;
+mod pipewire;
 mod plots;
 mod sections;
 
@@ -25,6 +27,8 @@ pub struct Results {
     pub read: Vec<crate::read::ReadRow>,
     /// Part 1, copy-loop experiment.
     pub copy_loops: Option<crate::read::CopyLoops>,
+    /// Part 1, the cost of `bass_port_get_info`.
+    pub info_cost: Option<crate::read::InfoCost>,
     /// Part 2.
     pub publish: Option<crate::publish::PublishResults>,
     /// Part 3.
@@ -33,6 +37,8 @@ pub struct Results {
     pub e2e: Option<crate::e2e::E2eResults>,
     /// Part 6.
     pub memory: Option<Vec<crate::memory::MemRow>>,
+    /// Part 7.
+    pub pipewire: Option<crate::pipewire::PwResults>,
     /// Load average at the end.
     pub load_end: String,
     /// Wall time of the run.
@@ -86,6 +92,7 @@ pub fn write(r: &Results, docs: &Path) {
     wake_section(r, &mut md);
     e2e_section(r, &mut md);
     memory_section(r, &mut md);
+    pipewire::section(r, &mut md);
     md.push_str(ANALYSIS);
     md.push_str(HOWTO);
     if made.is_empty() {
@@ -100,11 +107,18 @@ const HOWTO: &str = "
 ## How to run
 
 - `make bench` builds the workspace in release mode and runs `scripts/bench.sh`, which runs
-  `target/release/bass-bench` and rewrites this file and `docs/perf-*.png` (about 5 minutes on 2 cores).
+  `target/release/bass-bench` and rewrites this file and `docs/perf-*.png` (about 8 minutes on 2 cores, 3 of them part 7).
 - `target/release/bass-bench --parts 1,3 --docs /tmp/x` runs some parts only, elsewhere;
   `--quick` gives development numbers in well under a minute.
+- `target/release/bass-bench --parts 7 --docs /tmp/x` runs the PipeWire comparison alone (about 4 minutes:
+  2 rounds × 3 client counts × 2 systems × 5 s, without and with SCHED_FIFO, then the callback streams
+  against JACK process callbacks). It needs `pipewire`, `pw-link`
+  and `libpipewire-0.3-dev` (`scripts/install-deps.sh --with-bench`, which `scripts/bench.sh` runs); without
+  them the part says why it did not run. Its PipeWire daemon lives in a private runtime directory under
+  $TMPDIR and never touches a user's PipeWire session.
 - Ports live in a scratch directory under /dev/shm (`BASS_RUNTIME_DIR`), removed at the end.
-- The bench is not part of `make test`; its own unit tests (statistics) run with `cargo test -p bass-bench`.
+- The bench is not part of `make test`; its own unit tests (statistics, part 7's parsing and goals) run with
+  `cargo test -p bass-bench`.
 ";
 
 /// Repetition count of the wake results.

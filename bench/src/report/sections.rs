@@ -56,6 +56,18 @@ pub(super) fn read_section(r: &Results, md: &mut String) {
             fmt_ratio(median(&c.atomic64) / median(&c.memcpy)),
         );
     }
+    if let Some(i) = &r.info_cost {
+        let _ = writeln!(
+            md,
+            "`bass_port_get_info` per call, same run: {} ns, against {} ns for `bass_get_audio_data` of one 441-frame \
+             chunk ({} of it); whether the writer lives comes from a pidfd opened once per writer. The /proc read it \
+             made on every call before (open, read, parse `/proc/PID/stat`) costs {} ns.\n",
+            spread(&i.info_ns, |v| format!("{v:.0}")),
+            spread(&i.read_chunk_ns, |v| format!("{v:.0}")),
+            fmt_ratio(median(&i.info_ns) / median(&i.read_chunk_ns)),
+            spread(&i.proc_ns, |v| format!("{v:.0}")),
+        );
+    }
     let _ = writeln!(md, "![read throughput](perf-read.png)\n");
 }
 
@@ -143,7 +155,7 @@ fn dist_row(md: &mut String, name: &str, d: &crate::wake::Dist, raw: f64) {
     );
 }
 
-/// Callback streams (issue 25): chunk published → block callback entered, against the
+/// Callback streams: chunk published → block callback entered, against the
 /// `Port::wait` readers and the raw futex interleaved with them in the same run.
 fn stream_table(w: &crate::wake::WakeResults, md: &mut String) {
     if w.stream.is_empty() {

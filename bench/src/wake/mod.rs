@@ -15,7 +15,7 @@
 //!
 //! - bass callback stream (`bassclient::stream::Stream`, one chunk per block): the time from
 //!   the chunk's stamp to the block callback being entered; interleaved with the raw futex
-//!   and the `Port::wait` readers at 1, 8 and 64 readers (issue 25).
+//!   and the `Port::wait` readers at 1, 8 and 64 readers.
 //!
 //! All publishes are spaced by a random 3–6 ms so that every waiter is really asleep.
 

@@ -1,5 +1,6 @@
 //! Simulated capture devices (`sim:NAME`), paced in real time with absolute-deadline sleeps
-//! (`clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME)`), any rate, chunk size and channel
+//! (`clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME)` on a thread without timer slack, see
+//! [`super::precise_timers`]), any rate, chunk size and channel
 //! count. Their content is deterministic:
 //!
 //! - `sim:pattern` — `bassclient::testsignal::pattern_sample(frame, channel)`: every sample
@@ -126,8 +127,7 @@ impl SimDevice {
         (self.rate / 2).max(1)
     }
 
-    /// Sleeps until `deadline` (CLOCK_MONOTONIC ns), returning false if the stop fired.
-    /// Long waits poll the stop eventfd until about 1 ms before the deadline; the last
+    /// Writes frames `first..first + frames` of the device's signal into `out`.
     fn fill(&self, out: &mut [i32], first: u64, frames: usize) {
         let ch = self.channels;
         for (i, frame) in out[..frames * ch].chunks_exact_mut(ch).enumerate() {
