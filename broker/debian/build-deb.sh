@@ -5,7 +5,8 @@
 #
 # A plain dpkg-deb layout, no debhelper or cargo-deb: `make install-files DESTDIR=STAGE
 # PREFIX=/usr` puts every file in place (binaries, library with its SONAME links, headers,
-# pkg-config, CMake, the MEX sources, the systemd units), this script adds the Debian parts
+# pkg-config, CMake, the MEX sources, the systemd units), this script adds the Python package
+# (/usr/lib/python3/dist-packages/bass) and the Debian parts
 # (DEBIAN/control with Depends computed by dpkg-shlibdeps, maintainer scripts, conffiles,
 # the ldconfig trigger, shlibs, md5sums; copyright and changelog.Debian.gz) and strips the
 # ELF files (their debug information stays in the build tree). docs/broker.md, "Running bass
@@ -29,6 +30,12 @@ done
 
 make -C "$ROOT" --no-print-directory install-files DESTDIR="$STAGE" PREFIX=/usr >"$WORK/install.log" 2>&1 \
   || { cat "$WORK/install.log" >&2; exit 1; }
+
+# The Python package (pure Python over ctypes) where Debian keeps modules for every python3
+# version; it loads /usr/lib/libbassclient.so.0 through the dynamic loader. No byte code is
+# shipped: postinst compiles it (py3compile), prerm removes it (py3clean), as dh_python3 does.
+install -d -m 0755 "$STAGE/usr/lib/python3/dist-packages/bass"
+install -m 0644 "$ROOT"/python/bass/*.py "$STAGE/usr/lib/python3/dist-packages/bass/"
 
 # The broker's configuration is a conffile in /etc/bass; the bridge's examples stay examples
 # (a bridge instance needs a configuration written for its network).
@@ -64,7 +71,7 @@ DEPENDS=${shlibs#shlibs:Depends=}
 install -d -m 0755 "$STAGE/DEBIAN"
 sed -e "s|@DEBVERSION@|$DEBVERSION|" -e "s|@ARCH@|$ARCH|" -e "s|@DEPENDS@|adduser, $DEPENDS|" \
     -e "s|@SIZE@|$(du -sk --exclude=DEBIAN "$STAGE" | cut -f1)|" "$HERE/control.in" >"$STAGE/DEBIAN/control"
-install -m 0755 "$HERE/postinst" "$HERE/postrm" "$STAGE/DEBIAN/"
+install -m 0755 "$HERE/postinst" "$HERE/prerm" "$HERE/postrm" "$STAGE/DEBIAN/"
 install -m 0644 "$HERE/triggers" "$STAGE/DEBIAN/triggers"
 echo "libbassclient 0 bass (>= $VERSION)" >"$STAGE/DEBIAN/shlibs"
 (cd "$STAGE" && find etc -type f | sed 's|^|/|' | sort) >"$STAGE/DEBIAN/conffiles"

@@ -2,9 +2,12 @@
 
 The library is found, in order: $BASS_LIB (a path to libbassclient.so), the workspace's
 build directory ($CARGO_TARGET_DIR or target/, release build) when this package runs from
-the source tree, then the dynamic loader's search (an installed libbassclient.so), then the
-libdir that pkg-config reports for `bassclient` (an install under a prefix the loader does
-not search, e.g. `make install PREFIX=/opt/bass` with PKG_CONFIG_PATH set).
+the source tree, then the dynamic loader's search (an installed library: by the name
+ctypes.util.find_library gives from ld.so.cache, then by its SONAME libbassclient.so.0, then
+as libbassclient.so), then the libdir that pkg-config reports for `bassclient` (an install
+under a prefix the loader does not search, e.g. `make install PREFIX=/opt/bass` with
+PKG_CONFIG_PATH set). Installed by the Debian package (in /usr/lib/python3/dist-packages),
+this package is not in a source tree and loads the package's /usr/lib/libbassclient.so.0.
 """
 
 import ctypes
@@ -29,12 +32,16 @@ def _candidates():
     if env:
         yield env
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    target = os.environ.get("CARGO_TARGET_DIR") or os.path.join(root, "target")
-    yield os.path.join(target, "release", "libbassclient.so")
-    yield os.path.join(root, "target", "release", "libbassclient.so")
+    # Only a source tree's python/bass looks for a build directory (an installed copy must
+    # not pick up a build tree's library through $CARGO_TARGET_DIR).
+    if os.path.isfile(os.path.join(root, "Cargo.toml")):
+        target = os.environ.get("CARGO_TARGET_DIR") or os.path.join(root, "target")
+        yield os.path.join(target, "release", "libbassclient.so")
+        yield os.path.join(root, "target", "release", "libbassclient.so")
     found = ctypes.util.find_library("bassclient")
     if found:
         yield found
+    yield "libbassclient.so.0"  # the SONAME: a runtime-only install has no libbassclient.so link
     yield "libbassclient.so"
     libdir = _pkg_config_libdir()
     if libdir:

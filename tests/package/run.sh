@@ -6,7 +6,9 @@
 # (the capability set, no_new_privs, the RT and memlock limits) on sim:pattern and check what
 # the unit promises (SCHED_FIFO capture thread, ports of group bass, every system call inside
 # @system-service), compile the README's C program against the installed header and
-# `pkg-config bassclient` and read blocks with it, run the installed bass-bridge serve and
+# `pkg-config bassclient` and read blocks with it, read blocks with the installed Python module
+# (system python3, no path set) and with the MEX gateway built by mkoctfile from the installed
+# sources, header and library (GNU Octave), run the installed bass-bridge serve and
 # mirror as their units do (no capability, calls inside @system-service ~@privileged), then
 # purge the package and check that none of its files is left. Every step is bounded in time; nothing skips; the machine is left as
 # it was found, also on failure (the group bass, if this test created it, is removed too).
@@ -17,9 +19,13 @@ say() { echo "test-package: $*"; }
 fail() { echo "test-package: FAIL: $*" >&2; exit 1; }
 
 [[ $(id -u) -eq 0 ]] || fail "needs root (dpkg -i, dpkg --purge)"
-for t in dpkg-deb dpkg-shlibdeps lintian systemd-analyze pkg-config cc strace setpriv prlimit timeout readelf python3 getent ss; do
-  command -v "$t" >/dev/null || fail "$t missing: scripts/install-deps.sh installs it"
+for t in dpkg-deb dpkg-shlibdeps lintian systemd-analyze pkg-config cc strace setpriv prlimit timeout readelf python3 getent ss octave mkoctfile; do
+  command -v "$t" >/dev/null || fail "$t missing: scripts/install-deps.sh (--with-octave) installs it"
 done
+# The Python reader is Debian's python3 (the one whose path has /usr/lib/python3/dist-packages)
+# with Debian's numpy, which the package recommends.
+SYSPY=/usr/bin/python3
+[[ -x $SYSPY ]] && "$SYSPY" -I -c 'import numpy' 2>/dev/null || fail "$SYSPY with numpy missing: apt-get install python3-numpy"
 # dpkg's state of the package bass: installed, config-files, ..., not-installed or empty.
 pkg_state() { dpkg-query -W -f='${db:Status-Status}' bass 2>/dev/null || true; }
 if [[ ! $(pkg_state) =~ ^(not-installed)?$ ]]; then
@@ -91,7 +97,13 @@ getent group bass >/dev/null || fail "postinst did not create the group bass"
 # (Outputs are taken whole before grep -q: with pipefail, grep quitting early could fail the pipe.)
 cache=$(ldconfig -p)
 grep -Eq 'libbassclient.so.0 .*=> (/usr)?/lib/libbassclient.so.0' <<<"$cache" || fail "libbassclient.so.0 not in ld.so.cache"
-say "installed: $(wc -l <"$WORK/dpkg-L") paths, group bass, ld.so.cache has libbassclient.so.0"
+# The Python module, byte-compiled by postinst (py3compile) when python3 is there.
+PYDIR=/usr/lib/python3/dist-packages/bass
+for f in __init__.py _lib.py stream.py; do grep -qxF "$PYDIR/$f" "$WORK/dpkg-L" || fail "package lacks $PYDIR/$f"; done
+if command -v py3compile >/dev/null; then
+  compgen -G "$PYDIR/__pycache__/__init__.cpython-*.pyc" >/dev/null || fail "postinst did not byte-compile $PYDIR (py3compile)"
+fi
+say "installed: $(wc -l <"$WORK/dpkg-L") paths, group bass, ld.so.cache has libbassclient.so.0, $PYDIR byte-compiled"
 
 # 4. The units: systemd-analyze verify (no output at all: a warning, an unknown key, a missing
 # binary fails), and the exposure systemd-analyze security gives them.
@@ -130,6 +142,25 @@ grep -q '^\. /usr/include/bass\.h$' "$WORK/cc.log" || fail "README program did n
 grep -q 'NEEDED.*\[libbassclient\.so\.0\]' <<<"$(readelf -d "$WORK/src/prog")" || fail "README program does not record libbassclient.so.0"
 grep -Eq 'libbassclient.so.0 => (/usr)?/lib/libbassclient.so.0' <<<"$(ldd "$WORK/src/prog")" || fail "README program does not load /usr/lib/libbassclient.so.0"
 
+# The MEX gateway as matlab/README.md has a user build it from the installed sources: in a
+# directory of one's own (/usr/share/bass/matlab is not writable), against the installed
+# header and library through pkg-config, no -I, -L or rpath of a build tree.
+MEXSRC=/usr/share/bass/matlab
+mkdir "$WORK/mex"
+find "$MEXSRC" | sort >"$WORK/mexsrc-before"
+# shellcheck disable=SC2046
+(cd "$WORK/mex" && CFLAGS="-std=c11 -Wall -Wextra -Wpedantic -Werror -fPIC -O2 -H" timeout 300 \
+   mkoctfile --mex $(pkg-config --cflags --libs bassclient) "$MEXSRC/bass_mex.c" -o bass_mex.mex \
+   >"$WORK/mkoctfile.log" 2>&1) || { cat "$WORK/mkoctfile.log"; fail "mkoctfile --mex of the installed bass_mex.c"; }
+[[ -f $WORK/mex/bass_mex.mex ]] || fail "mkoctfile made no bass_mex.mex"
+grep -q '^\. /usr/include/bass\.h$' "$WORK/mkoctfile.log" || fail "bass_mex.c did not include the installed /usr/include/bass.h"
+[[ $(find "$MEXSRC" | sort) == "$(cat "$WORK/mexsrc-before")" ]] || fail "mkoctfile wrote into $MEXSRC"
+mexdyn=$(readelf -d "$WORK/mex/bass_mex.mex")
+grep -q 'NEEDED.*\[libbassclient\.so\.0\]' <<<"$mexdyn" || fail "bass_mex.mex does not record libbassclient.so.0"
+! grep -Eq 'RPATH|RUNPATH' <<<"$mexdyn" || fail "bass_mex.mex has an rpath: $(grep -E 'RPATH|RUNPATH' <<<"$mexdyn")"
+grep -Eq 'libbassclient.so.0 => (/usr)?/lib/libbassclient.so.0' <<<"$(ldd "$WORK/mex/bass_mex.mex")" \
+  || fail "bass_mex.mex does not load /usr/lib/libbassclient.so.0"
+
 # 6. The installed bassd as its unit runs it, capturing from start-up (as BASSD_ARGS="--acquire
 # ..." does): only CAP_CHOWN, no_new_privs, RLIMIT_RTPRIO 99, memlock unlimited; under strace -f to collect its system calls. Raising RLIMIT_RTPRIO takes
 # CAP_SYS_RESOURCE, which systemd has but a container's root may lack: there the limits stay
@@ -160,6 +191,58 @@ BASSD_PID=$bpid
 out=$(env -u LD_LIBRARY_PATH timeout 30 "$WORK/src/prog") || fail "README program failed: $out"
 [[ $out == "12000 frames, 0 lost, next frame 12001" ]] || fail "README program printed: $out"
 say "README program (installed bass.h, pkg-config bassclient, /usr/lib/libbassclient.so.0): $out"
+# The installed Python module: Debian's python3 in isolated mode (-I: no PYTHONPATH, no user
+# site, not the current directory), from outside the source tree, -B so that no byte code is
+# written into dist-packages. It reads 3 consecutive blocks of fresh frames and checks them
+# against the pattern, pattern_sample(frame, ch) = ((frame & 0x3FFFFFF) << 6) | ch as int32.
+pyprog=$(cat <<'PY'
+import os
+import numpy as np
+import bass
+assert bass.__file__ == "/usr/lib/python3/dist-packages/bass/__init__.py", bass.__file__
+with open("/proc/self/maps") as maps:
+    libs = {line.split()[-1] for line in maps if "libbassclient" in line}
+assert libs == {os.path.realpath("/usr/lib/libbassclient.so.0")}, libs
+with bass.Port("pkgtest") as port:
+    start = nxt = port.last_frame_index + 1
+    frames = lost = 0
+    for b in port.blocks(4800, nfr=start, count=3, timeout=10):
+        assert b.loss == 0 and b.first_frame == nxt, (b.loss, b.first_frame, nxt)
+        idx = np.arange(b.first_frame, b.next_frame, dtype=np.uint64)
+        data = bass.Port.block_samples(b)
+        for ch in range(port.channels):
+            want = (((idx & np.uint64(0x3FFFFFF)) << np.uint64(6)) | np.uint64(ch)).astype(np.uint32).view(np.int32)
+            assert np.array_equal(data[ch], want), f"channel {ch} of frames {b.first_frame}.. is not the pattern"
+        frames += b.next_frame - b.first_frame
+        lost += b.loss
+        nxt = b.next_frame
+    print(f"{frames} frames from frame {start}, {lost} lost, {port.channels} channels = pattern;"
+          f" {bass.version()} from {os.path.dirname(bass.__file__)}, {libs.pop()}")
+PY
+)
+out=$(cd "$WORK" && env -u PYTHONPATH -u BASS_LIB -u CARGO_TARGET_DIR -u LD_LIBRARY_PATH \
+  timeout 60 "$SYSPY" -I -B -c "$pyprog" 2>&1) || fail "Python reader: $out"
+[[ $out == "14400 frames from frame "*", 0 lost, 2 channels = pattern;"* ]] || fail "Python reader printed: $out"
+say "Python reader (system python3 -I, installed module): $out"
+# The MEX gateway built above, in Octave: Bass.m from the installed sources, 12000 fresh frames
+# by one getAudioData after Wait, checked against the pattern.
+octprog="addpath('$MEXSRC'); addpath('$WORK/mex');
+assert(strcmp(which('bass_mex'), '$WORK/mex/bass_mex.mex'), which('bass_mex'));
+assert(strcmp(which('Bass'), '$MEXSRC/Bass.m'), which('Bass'));
+b = Bass('pkgtest'); info = b.PortInfo(); first = info.lastFrameIndex + 1; N = 12000;
+b.Wait(first + N - 1, 10);
+[l, r, nfr, n, loss] = b.getAudioData(N, first);
+assert(n == N && loss == 0 && nfr == first + N, 'n %d, loss %d, nfr %d', n, loss, nfr);
+f = bitshift(bitand(first + uint64(0:N-1)', uint64(67108863)), 6);
+assert(isequal(l, typecast(uint32(f), 'int32')), 'left is not the pattern');
+assert(isequal(r, typecast(uint32(bitor(f, uint64(1))), 'int32')), 'right is not the pattern');
+printf('%d frames from frame %d, %d lost, 2 channels = pattern\n', n, first, loss);"
+# (stderr apart: Octave 7.3 here says "error: ignoring const execution_exception& while
+# preparing to exit" on stderr after any --eval, with status 0, bass loaded or not.)
+out=$(cd "$WORK/mex" && env -u LD_LIBRARY_PATH -u OCTAVE_PATH timeout 120 octave --no-gui --norc -q --eval "$octprog" \
+  2>"$WORK/octave.err") || fail "Octave reader: $out $(cat "$WORK/octave.err")"
+[[ $out == "12000 frames from frame "*", 0 lost, 2 channels = pattern" ]] || fail "Octave reader printed: $out $(cat "$WORK/octave.err")"
+say "Octave reader (bass_mex.mex from $MEXSRC, pkg-config bassclient): $out"
 # The installed CLI reads the same broker.
 timeout 30 /usr/bin/bass --name pkgtest status >"$WORK/status.txt" || fail "bass --name pkgtest status"
 grep -qi 'capturing' "$WORK/status.txt" || fail "bass status: $(cat "$WORK/status.txt")"
