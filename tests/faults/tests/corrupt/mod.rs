@@ -26,7 +26,7 @@ macro_rules! fields {
     ($($f:ident),* $(,)?) => { [$((stringify!($f), offset_of!(Header, $f), width(|h| &h.$f))),*] };
 }
 
-pub fn fields() -> [(&'static str, usize, usize); 28] {
+pub fn fields() -> [(&'static str, usize, usize); 29] {
     fields![
         magic,
         version_major,
@@ -47,6 +47,7 @@ pub fn fields() -> [(&'static str, usize, usize); 28] {
         created_realtime_ns,
         error_code,
         futex,
+        restart_grace_ms,
         last_frame_index,
         write_intent,
         heartbeat_mono_ns,
