@@ -36,6 +36,9 @@ pub const VERSION_MAJOR: u32 = 2;
 /// 1 added state 5 (starting) and `lost_upstream_frames` (offset 192, zero in minor-0 ports);
 /// 2 added `restart_grace_ms` (offset 104, zero in older ports).
 pub const VERSION_MINOR: u32 = 2;
+/// The longest `restart_grace_ms` a reader honours (1 hour; `bassd --restart-grace-ms` allows
+/// no more): a larger value read from a header is taken as this.
+pub const MAX_RESTART_GRACE_MS: u32 = 3_600_000;
 /// Size of the header, one page.
 pub const HEADER_SIZE: usize = 4096;
 /// Size of one chunk-table entry.

@@ -514,7 +514,8 @@ impl Port {
         if self.watch.alive(pid, h.writer_start_time.load(Relaxed)) {
             return None;
         }
-        let grace_ns = u64::from(h.restart_grace_ms.load(Relaxed)) * 1_000_000;
+        let grace_ms = h.restart_grace_ms.load(Relaxed).min(format::MAX_RESTART_GRACE_MS);
+        let grace_ns = u64::from(grace_ms) * 1_000_000;
         let beat = h.heartbeat_mono_ns.load(Relaxed);
         if grace_ns > 0 && now.saturating_sub(beat) < grace_ns {
             return None;

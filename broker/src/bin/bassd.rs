@@ -52,7 +52,7 @@ struct BassdArgs {
     /// its port back from the fd store and go on (ms); 0 = do not use the fd store, a restart
     /// ends the acquisition (docs/broker.md, "Restarts that readers ride through")
     #[arg(long, value_name = "MS", default_value_t = bassd::supervise::DEFAULT_RESTART_GRACE_MS,
-          value_parser = clap::value_parser!(u32).range(0..=3_600_000))]
+          value_parser = clap::value_parser!(u32).range(0..=i64::from(bassclient::format::MAX_RESTART_GRACE_MS)))]
     restart_grace_ms: u32,
     /// Start capturing from DEVICE at start-up (with the acquisition options below)
     #[arg(short = 'D', long = "acquire", value_name = "DEVICE")]
