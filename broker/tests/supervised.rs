@@ -307,7 +307,7 @@ fn the_watchdog_is_fed_while_capturing_and_not_once_the_device_stalled() {
 fn without_a_service_manager_a_sigterm_stops_the_port_as_before() {
     let dir = TempDir::new("bass-supervised");
     let mut b = Bassd::start(dir.path(), "plain", &ACQUIRE, &[]);
-    let port = b.port();
+    let port = b.port_once_acquired();
     wait_frame(&port, 1);
     b.signal(libc::SIGTERM);
     b.wait_exit();

@@ -12,7 +12,6 @@ use std::time::Duration;
 use bass_faults::{fd_count, figure};
 use bass_test_support::{wait_until, Bassd, TempDir};
 use bassclient::control::Client;
-use bassclient::Port;
 
 const LIMIT: u64 = 40;
 const CONNECTIONS: usize = 60;
@@ -23,6 +22,8 @@ fn running_out_of_descriptors_refuses_connections_and_recovers_while_capture_goe
     let dir = TempDir::shm("emfile");
     let args = ["--acquire", "sim:pattern", "--rate", "48000", "--frames", "480", "--chunks", "20"];
     let mut b = Bassd::start_stock(dir.path(), "fd", &args, &[]);
+    // The acquisition's own descriptors are open before the limit is set.
+    let port = b.port_once_acquired();
     let pid = b.pid();
     let fds_before = fd_count(pid);
     assert!((fds_before as u64) < LIMIT - 10, "bassd already has {fds_before} descriptors");
@@ -55,7 +56,6 @@ fn running_out_of_descriptors_refuses_connections_and_recovers_while_capture_goe
         assert!(r.contains("out of file descriptors"), "unexpected refusal: {r}");
     }
     // Capture goes on while descriptors are exhausted.
-    let port = Port::open_path(&b.port_path()).expect("open the port");
     let lfi0 = port.info().unwrap().last_frame_index;
     let advanced =
         wait_until(Duration::from_secs(20), || port.info().unwrap().last_frame_index > lfi0 + 4800);

@@ -190,6 +190,23 @@ impl Bassd {
         Port::open_path(&self.port_path()).expect("open the port")
     }
 
+    /// The port of an acquisition still starting (`--acquire`: the control socket answers
+    /// before the device is open and the port is linked), opened once it appears.
+    pub fn port_once_acquired(&self) -> Port {
+        let deadline = Instant::now() + PATIENCE;
+        loop {
+            match Port::open_path(&self.port_path()) {
+                Ok(p) => return p,
+                Err(e) => assert!(
+                    Instant::now() < deadline,
+                    "no port within {PATIENCE:?}: {e}; log:\n{}",
+                    self.log_text()
+                ),
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
     /// What the broker has logged so far.
     pub fn log_text(&self) -> String {
         std::fs::read_to_string(self.log.path()).unwrap_or_default()
