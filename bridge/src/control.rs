@@ -193,8 +193,8 @@ pub fn spawn_forwarder(
                 rustix::net::sockopt::Timeout::Send,
                 Some(Duration::from_secs(1)),
             );
-            let peer_ok = rustix::net::sockopt::socket_peercred(&conn)
-                .is_ok_and(|c| c.uid.as_raw() == own || c.uid.is_root());
+            let peer_ok =
+                bassclient::control::peer_credentials(conn.as_fd()).is_ok_and(|c| c.uid == own || c.uid == 0);
             if !peer_ok {
                 let _ = send(
                     &conn,

@@ -165,6 +165,16 @@ impl Acquisition {
         }
     }
 
+    /// Stores a heartbeat: the broker is alive even while its device is silent or the
+    /// acquisition has ended. Readers in another pid namespace, which cannot look its pid up,
+    /// go by it. Called by the control loop at every tick; a publish (which stores one
+    /// itself) holding the writer is never made to wait for it.
+    pub fn heartbeat(&self) {
+        if let Ok(w) = self.shared.writer.try_lock() {
+            w.heartbeat();
+        }
+    }
+
     /// Restarts the stall watchdog's clock (the broker itself was frozen).
     pub fn rebase_watchdog(&self, now_ns: u64) {
         self.shared.progress_ns.fetch_max(now_ns, Ordering::AcqRel);

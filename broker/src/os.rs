@@ -124,8 +124,9 @@ pub fn set_realtime(priority: i32) -> io::Result<()> {
 /// Credentials of the peer of a connected Unix socket.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Peer {
-    /// Process id.
-    pub pid: i32,
+    /// Process id (0: not visible in the broker's pid namespace, e.g. a client outside the
+    /// broker's container).
+    pub pid: u32,
     /// Effective user id.
     pub uid: u32,
     /// Effective group id.
@@ -139,7 +140,7 @@ const SO_PEERGROUPS: libc::c_int = 59;
 
 /// Reads SO_PEERCRED (and SO_PEERGROUPS where available) of a connected socket.
 pub fn peer_credentials(fd: BorrowedFd<'_>) -> io::Result<Peer> {
-    let cred = rustix::net::sockopt::socket_peercred(fd)?;
+    let cred = bassclient::control::peer_credentials(fd)?;
     let mut groups = vec![0u32; 256];
     let mut glen = (groups.len() * 4) as libc::socklen_t;
     // SAFETY: `groups` is valid for `glen` bytes; `fd` is an open socket; failure (old
@@ -154,7 +155,7 @@ pub fn peer_credentials(fd: BorrowedFd<'_>) -> io::Result<Peer> {
         )
     };
     groups.truncate(if r == 0 { glen as usize / 4 } else { 0 });
-    Ok(Peer { pid: cred.pid.as_raw_nonzero().get(), uid: cred.uid.as_raw(), gid: cred.gid.as_raw(), groups })
+    Ok(Peer { pid: cred.pid, uid: cred.uid, gid: cred.gid, groups })
 }
 
 /// This process's effective user id.

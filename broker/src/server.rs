@@ -230,6 +230,7 @@ impl Broker {
             self.pins.prune();
         }
         if let Some(a) = &self.current {
+            a.heartbeat();
             if late {
                 a.rebase_watchdog(now);
             } else {

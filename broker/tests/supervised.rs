@@ -150,7 +150,7 @@ fn ride_through(backing: &str, kills: &[i32]) -> (Seen, Bassd, TempDir, Vec<Dura
     stored(&mut mgr);
     let port = open(&b);
     let info = port.info().unwrap();
-    assert_eq!(info.version_minor, 2);
+    assert_eq!(info.version_minor, bassclient::format::VERSION_MINOR);
     wait_frame(&port, info.last_frame_index + u64::from(NFPC));
     let epoch = port.epoch();
     let stop = Arc::new(AtomicBool::new(false));

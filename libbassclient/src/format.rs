@@ -1,4 +1,4 @@
-//! The port format (version 2.1: [`VERSION_MAJOR`], [`VERSION_MINOR`]): the one definition of
+//! The port format (version 2.3: [`VERSION_MAJOR`], [`VERSION_MINOR`]): the one definition of
 //! the shared-memory layout.
 //!
 //! A port is one file (by default in `/dev/shm`) holding one acquisition.
@@ -34,8 +34,9 @@ pub const MAGIC: u64 = u64::from_le_bytes(*b"BASSPORT");
 pub const VERSION_MAJOR: u32 = 2;
 /// Minor version: additions that old readers may ignore.
 /// 1 added state 5 (starting) and `lost_upstream_frames` (offset 192, zero in minor-0 ports);
-/// 2 added `restart_grace_ms` (offset 104, zero in older ports).
-pub const VERSION_MINOR: u32 = 2;
+/// 2 added `restart_grace_ms` (offset 104, zero in older ports); 3 added `writer_pid_ns`
+/// (offset 112, zero in older ports).
+pub const VERSION_MINOR: u32 = 3;
 /// The longest `restart_grace_ms` a reader honours (1 hour; `bassd --restart-grace-ms` allows
 /// no more): a larger value read from a header is taken as this.
 pub const MAX_RESTART_GRACE_MS: u32 = 3_600_000;
@@ -201,7 +202,11 @@ pub struct Header {
     /// taking the same port back (a broker restarted by its service manager); readers wait
     /// that long before they report the writer gone. 0 = a dead writer is gone (minor 2).
     pub restart_grace_ms: AtomicU32,
-    _pad0: [u8; 20],
+    _pad0: [u8; 4],
+    /// The writer's pid namespace (the inode of its `/proc/self/ns/pid`; 0 = unknown): a reader
+    /// in another pid namespace cannot look `writer_pid` up and goes by the heartbeat (minor 3).
+    pub writer_pid_ns: AtomicU64,
+    _pad1: [u8; 8],
     /// Index of the newest published frame (frames are numbered from 1).
     pub last_frame_index: AtomicU64,
     /// Highest frame index the writer may be writing now (>= last_frame_index).
@@ -221,7 +226,7 @@ pub struct Header {
     /// Frames lost before they reached this port's writer (upstream of a replica, or on the
     /// network) and published as zero-filled GAP frames (minor 1; 0 in older ports).
     pub lost_upstream_frames: AtomicU64,
-    _pad1: [u8; 56],
+    _pad2: [u8; 56],
     /// Error message, UTF-8, NUL padded.
     pub message: [AtomicU64; MESSAGE_LEN / 8],
     /// ALSA (or simulated) device name, UTF-8, NUL padded.
@@ -236,6 +241,7 @@ const _: () = assert!(offset_of!(Header, chunks_on_port) == 36);
 const _: () = assert!(offset_of!(Header, epoch) == 64);
 const _: () = assert!(offset_of!(Header, futex) == 100);
 const _: () = assert!(offset_of!(Header, restart_grace_ms) == 104);
+const _: () = assert!(offset_of!(Header, writer_pid_ns) == 112);
 const _: () = assert!(offset_of!(Header, last_frame_index) == 128);
 const _: () = assert!(offset_of!(Header, write_intent) == 136);
 const _: () = assert!(offset_of!(Header, started_mono_ns) == 184);

@@ -25,6 +25,10 @@ mod types;
 
 pub use types::{ChunkInfo, PortInfo, Read, View};
 
+/// How long a writer in another pid namespace may leave its heartbeat unrefreshed (plus two
+/// chunk periods) before its readers count it as gone: its pid cannot be looked up there.
+pub const FOREIGN_WRITER_SILENCE: Duration = Duration::from_secs(2);
+
 /// Longest futex wait between two checks that the writer process still exists.
 pub const LIVENESS_SLICE: Duration = Duration::from_millis(100);
 const LIVENESS_SLICE_NS: u64 = LIVENESS_SLICE.as_nanos() as u64;
@@ -503,6 +507,23 @@ impl Port {
         }
     }
 
+    /// Whether the writer process is running. In this pid namespace: its pidfd (see
+    /// `reader/liveness.rs`). A writer in another pid namespace (`writer_pid_ns`, minor 3)
+    /// cannot be looked up by pid: it counts as running while its heartbeat is younger than
+    /// [`FOREIGN_WRITER_SILENCE`] plus two chunk periods (bassd refreshes it every 25 ms, also
+    /// while its device is silent). `now` is CLOCK_MONOTONIC (ns).
+    pub(crate) fn writer_alive(&self, now: u64) -> bool {
+        let h = self.header();
+        let ns = h.writer_pid_ns.load(Relaxed);
+        if ns != 0 && sys::own_pid_ns().is_some_and(|own| own != ns) {
+            let g = &self.geometry;
+            let chunk_ns = u64::from(g.frames_per_chunk) * 1_000_000_000 / u64::from(g.sample_rate.max(1));
+            let silence = FOREIGN_WRITER_SILENCE.as_nanos() as u64 + 2 * chunk_ns;
+            return now.saturating_sub(h.heartbeat_mono_ns.load(Relaxed)) < silence;
+        }
+        self.watch.alive(h.writer_pid.load(Relaxed), h.writer_start_time.load(Relaxed))
+    }
+
     /// The writer's pid if it is gone for good: its process has ended and no successor can
     /// take the port back any more. A port whose writer left it to a successor (a broker
     /// restarted by its service manager: `restart_grace_ms` in the header, minor 2) keeps
@@ -511,7 +532,7 @@ impl Port {
     pub(crate) fn writer_gone(&self, now: u64) -> Option<u32> {
         let h = self.header();
         let pid = h.writer_pid.load(Relaxed);
-        if self.watch.alive(pid, h.writer_start_time.load(Relaxed)) {
+        if self.writer_alive(now) {
             return None;
         }
         let grace_ms = h.restart_grace_ms.load(Relaxed).min(format::MAX_RESTART_GRACE_MS);
@@ -607,7 +628,7 @@ impl Port {
             chunks_published: h.chunks_published.load(Relaxed),
             rate_estimate_hz: h.rate_estimate_mhz.load(Relaxed) as f64 / 1000.0,
             writer_pid: pid,
-            writer_alive: self.watch.alive(pid, h.writer_start_time.load(Relaxed)),
+            writer_alive: self.writer_alive(sys::monotonic_ns()),
             started_mono_ns: h.started_mono_ns.load(Relaxed),
             heartbeat_mono_ns: h.heartbeat_mono_ns.load(Relaxed),
             version_minor: self.version_minor,

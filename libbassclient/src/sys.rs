@@ -96,7 +96,12 @@ pub fn realtime_ns() -> u64 {
 
 /// Start time (clock ticks after boot) and state letter of process `pid`, from /proc.
 pub fn process_start(pid: u32) -> Option<(u64, char)> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    stat_start(&format!("/proc/{pid}/stat"))
+}
+
+/// Start time and state from a `/proc/.../stat` file.
+fn stat_start(path: &str) -> Option<(u64, char)> {
+    let stat = std::fs::read_to_string(path).ok()?;
     // The command name may contain spaces and parentheses: parse after the last ')'.
     let rest = &stat[stat.rfind(')')? + 1..];
     let mut fields = rest.split_whitespace();
@@ -106,9 +111,17 @@ pub fn process_start(pid: u32) -> Option<(u64, char)> {
     Some((start, state))
 }
 
-/// This process's start time, for the port header.
+/// This process's start time, for the port header. Read from `/proc/self`: in a pid
+/// namespace of its own whose /proc is its parent's, `/proc/<getpid()>` is another process.
 pub fn own_start_time() -> u64 {
-    process_start(std::process::id()).map(|(s, _)| s).unwrap_or(0)
+    stat_start("/proc/self/stat").map(|(s, _)| s).unwrap_or(0)
+}
+
+/// This process's pid namespace: the inode number of `/proc/self/ns/pid` (None where it
+/// cannot be read). Asked once per process.
+pub fn own_pid_ns() -> Option<u64> {
+    static NS: std::sync::OnceLock<Option<u64>> = std::sync::OnceLock::new();
+    *NS.get_or_init(|| rustix::fs::stat("/proc/self/ns/pid").ok().map(|st| st.st_ino))
 }
 
 /// Whether the writer `pid` that started at `start_time` is still running.

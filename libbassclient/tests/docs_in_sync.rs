@@ -134,7 +134,7 @@ fn owned(v: Vec<(&str, usize, usize)>) -> Vec<(String, usize, usize)> {
 fn the_docs_header_table_has_every_field_of_format_rs_at_its_offset_and_size() {
     let layout = fields![Header: magic, version_major, version_minor, header_size, channels, sample_format,
         sample_rate, frames_per_chunk, chunks_on_port, chunk_table_offset, samples_offset, total_size, epoch,
-        writer_pid, state, writer_start_time, created_realtime_ns, error_code, futex, restart_grace_ms, last_frame_index,
+        writer_pid, state, writer_start_time, created_realtime_ns, error_code, futex, restart_grace_ms, writer_pid_ns, last_frame_index,
         write_intent, heartbeat_mono_ns, xruns, gap_frames, chunks_published, rate_estimate_mhz,
         started_mono_ns, lost_upstream_frames, message, device];
     // The list above is complete: a field added to format.rs fails here until it is listed.

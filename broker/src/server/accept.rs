@@ -31,13 +31,13 @@ pub(super) struct Conn {
     pub(super) id: u64,
     pub(super) fd: OwnedFd,
     /// Peer process (for the logs).
-    pub(super) pid: i32,
+    pub(super) pid: u32,
     /// CLOCK_MONOTONIC (ns) of the accept or of the last request.
     pub(super) last_ns: u64,
 }
 
 impl Conn {
-    pub(super) fn new(fd: OwnedFd, pid: i32) -> Conn {
+    pub(super) fn new(fd: OwnedFd, pid: u32) -> Conn {
         static NEXT_ID: AtomicU64 = AtomicU64::new(1);
         Conn { id: NEXT_ID.fetch_add(1, Ordering::Relaxed), fd, pid, last_ns: monotonic_ns() }
     }

@@ -76,15 +76,15 @@ impl Client {
         let fd = socket::connect(path).map_err(no_broker)?;
         // Who serves this socket? The peer credentials are those of the process that called
         // listen(): a socket planted by another user is refused before anything is sent.
-        let peer = rustix::net::sockopt::socket_peercred(&fd).map_err(|e| no_broker(e.into()))?;
-        let owner = peer.uid.as_raw();
+        let peer = socket::peer_credentials(fd.as_fd()).map_err(no_broker)?;
+        let owner = peer.uid;
         if !paths::expected_owner_ok(owner) {
             return Err(no_broker(std::io::Error::new(
                 std::io::ErrorKind::PermissionDenied,
                 format!(
                     "the socket is served by uid {owner} (pid {}), not by root or this user; \
                      set {}={owner} to trust that broker",
-                    peer.pid.as_raw_nonzero().get(),
+                    peer.pid,
                     paths::BROKER_UID_ENV
                 ),
             )));

@@ -32,7 +32,7 @@ pub use messages::{
     DEFAULT_CHUNKS_ON_PORT, DEFAULT_DEVICE, DEFAULT_FRAMES_PER_CHUNK, DEFAULT_SAMPLE_RATE,
 };
 pub use socket::{
-    recv_datagram, recv_reply, recv_reply_with_fd, send_datagram, send_reply, send_reply_with_fd,
-    send_request, seqpacket_socket,
+    peer_credentials, recv_datagram, recv_reply, recv_reply_with_fd, send_datagram, send_reply,
+    send_reply_with_fd, send_request, seqpacket_socket, PeerCred,
 };
 pub use wire::{WireError, MAX_MESSAGE, PROTOCOL};

@@ -177,6 +177,7 @@ pub(super) fn finish_header(h: &Header, epoch: u64) {
     h.epoch.store(epoch, Relaxed);
     h.writer_pid.store(std::process::id(), Relaxed);
     h.writer_start_time.store(sys::own_start_time(), Relaxed);
+    h.writer_pid_ns.store(sys::own_pid_ns().unwrap_or(0), Relaxed);
     h.created_realtime_ns.store(sys::realtime_ns(), Relaxed);
     let now = sys::monotonic_ns();
     h.started_mono_ns.store(now, Relaxed);

@@ -99,6 +99,7 @@ impl Writer {
         // The start time before the pid: a reader that sees the new pid with the old start
         // time takes the writer for dead, which the restart grace covers.
         h.writer_start_time.store(sys::own_start_time(), Relaxed);
+        h.writer_pid_ns.store(sys::own_pid_ns().unwrap_or(0), Relaxed);
         h.writer_pid.store(std::process::id(), Relaxed);
         h.heartbeat_mono_ns.store(sys::monotonic_ns(), Relaxed);
         if matches!(State::from_u32(state), Some(State::Stopped | State::Error)) {

@@ -31,9 +31,17 @@ pub struct BassdBuilder {
     stall_ms: Option<u64>,
     log_level: String,
     handed: Vec<(String, std::os::fd::OwnedFd)>,
+    wrapper: Vec<OsString>,
 }
 
 impl BassdBuilder {
+    /// Runs bassd under a wrapper command, e.g. `["unshare", "--pid", "--fork"]`: the
+    /// process the test holds (and signals) is then the wrapper's.
+    pub fn wrapper(mut self, cmd: &[&str]) -> BassdBuilder {
+        self.wrapper = cmd.iter().map(OsString::from).collect();
+        self
+    }
+
     /// Extra command-line arguments (after the rig's own; a repeated option wins).
     pub fn args(mut self, args: &[&str]) -> BassdBuilder {
         self.args.extend(args.iter().map(OsString::from));
@@ -88,6 +96,10 @@ impl BassdBuilder {
                 pass_fds(&mut c, &self.handed);
             }
             c
+        } else if let Some((first, rest)) = self.wrapper.split_first() {
+            let mut c = Command::new(first);
+            c.args(rest).arg(bassd_bin());
+            c
         } else {
             Command::new(bassd_bin())
         };
@@ -132,6 +144,7 @@ impl Bassd {
             stall_ms: Some(1500),
             log_level: "info".into(),
             handed: Vec::new(),
+            wrapper: Vec::new(),
         }
     }
 

@@ -26,7 +26,7 @@ macro_rules! fields {
     ($($f:ident),* $(,)?) => { [$((stringify!($f), offset_of!(Header, $f), width(|h| &h.$f))),*] };
 }
 
-pub fn fields() -> [(&'static str, usize, usize); 29] {
+pub fn fields() -> [(&'static str, usize, usize); 30] {
     fields![
         magic,
         version_major,
@@ -48,6 +48,7 @@ pub fn fields() -> [(&'static str, usize, usize); 29] {
         error_code,
         futex,
         restart_grace_ms,
+        writer_pid_ns,
         last_frame_index,
         write_intent,
         heartbeat_mono_ns,
