@@ -109,6 +109,7 @@ impl Port {
     /// assert_eq!((left, right), (vec![10, 11, 12, 13], vec![20, 21, 22, 23]));
     /// # drop(port);
     /// # w.remove()?;
+    /// # std::fs::remove_dir_all(&dir).ok();
     /// # Ok::<(), bassclient::Error>(())
     /// ```
     pub fn open(name: &str) -> Result<Port> {
@@ -156,6 +157,7 @@ impl Port {
     /// assert_eq!((port.geometry(), port.frames_on_port()), (&geometry, 1000));
     /// # drop(port);
     /// # w.remove()?;
+    /// # std::fs::remove_dir_all(&dir).ok();
     /// # Ok::<(), bassclient::Error>(())
     /// ```
     pub fn open_path(path: &Path) -> Result<Port> {
@@ -348,6 +350,7 @@ impl Port {
     /// assert_eq!((r.frames, r.loss, nfr), (0, 0, 7));
     /// # drop(port);
     /// # w.remove()?;
+    /// # std::fs::remove_dir_all(&dir).ok();
     /// # Ok::<(), bassclient::Error>(())
     /// ```
     pub fn get_audio_data(&self, max: usize, nfr: &mut u64, out: &mut [&mut [i32]]) -> Result<Read> {
@@ -436,6 +439,7 @@ impl Port {
     /// assert!(matches!(port.wait(3, Duration::from_secs(10)), Err(Error::Stopped { last: 2 })));
     /// # drop(port);
     /// # w.remove()?;
+    /// # std::fs::remove_dir_all(&dir).ok();
     /// # Ok::<(), bassclient::Error>(())
     /// ```
     pub fn wait(&self, frame: u64, timeout: Duration) -> Result<u64> {
@@ -567,6 +571,7 @@ impl Port {
     /// assert!(matches!(port.chunk_info(3), Err(Error::FrameNotYet { frame: 3, last: 2 })));
     /// # drop(port);
     /// # w.remove()?;
+    /// # std::fs::remove_dir_all(&dir).ok();
     /// # Ok::<(), bassclient::Error>(())
     /// ```
     pub fn chunk_info(&self, frame: u64) -> Result<ChunkInfo> {

@@ -108,6 +108,7 @@ impl Writer {
     /// let info = Port::open_path(&path)?.info()?;
     /// assert_eq!((info.state, info.last_frame_index, info.chunks_published), (Some(State::Capturing), 960, 2));
     /// w.remove()?;
+    /// # std::fs::remove_dir_all(&dir).ok();
     /// # Ok::<(), bassclient::Error>(())
     /// ```
     pub fn create_at(path: &Path, params: &PortParams) -> Result<Writer> {
@@ -274,6 +275,7 @@ impl Writer {
     /// assert_eq!((l, r), (vec![1, 2, 3, 4], vec![-1, -2, -3, -4]));
     /// # drop(port);
     /// # w.remove()?;
+    /// # std::fs::remove_dir_all(&dir).ok();
     /// # Ok::<(), bassclient::Error>(())
     /// ```
     pub fn publish(&mut self, src: Source<'_>, meta: ChunkMeta) -> Result<u64> {

@@ -55,6 +55,7 @@ fn closed_without_reply() -> Error {
 /// use bassclient::{control::Client, Error};
 /// let e = Client::connect("nobody-here").err().unwrap();
 /// assert!(matches!(e, Error::NoBroker { ref name, .. } if name == "nobody-here"));
+/// # std::fs::remove_dir_all(&dir).ok();
 /// ```
 pub struct Client {
     fd: OwnedFd,

@@ -38,6 +38,7 @@
 //! )?;
 //! assert_eq!(seen, [(1, 0, vec![1, 2], vec![-1, -2]), (3, 0, vec![3, 4], vec![-3, -4])]);
 //! # w.remove()?;
+//! # std::fs::remove_dir_all(&dir).ok();
 //! # Ok::<(), bassclient::Error>(())
 //! ```
 

@@ -40,6 +40,7 @@ impl Writer {
     /// let r = port.get_audio_data(16, &mut nfr, &mut [&mut out])?;
     /// assert_eq!((r.frames, r.loss, &out[..4]), (4, 0, &[1, 2, 3, 4][..]));
     /// # w.remove()?;
+    /// # std::fs::remove_dir_all(&dir).ok();
     /// # Ok::<(), bassclient::Error>(())
     /// ```
     pub fn start_at(&mut self, first_frame: u64) -> Result<()> {
@@ -97,6 +98,7 @@ impl Writer {
     /// let r = port.get_audio_data(4, &mut nfr, &mut [&mut out])?;
     /// assert_eq!((r.frames, &out[..2]), (2, &[15, 16][..]));
     /// # w.remove()?;
+    /// # std::fs::remove_dir_all(&dir).ok();
     /// # Ok::<(), bassclient::Error>(())
     /// ```
     pub fn skip_to(&mut self, first: u64) -> Result<u64> {

@@ -58,6 +58,7 @@ impl Writer {
     /// assert_eq!(s, vec![1, 2, 3, 4]);
     /// # drop(port);
     /// # w2.remove()?;
+    /// # std::fs::remove_dir_all(&dir).ok();
     /// # Ok::<(), bassclient::Error>(())
     /// ```
     pub fn resume(file: File, path: &Path) -> Result<Writer> {
