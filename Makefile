@@ -90,7 +90,7 @@ install: build build-bridge
 # The files only, from binaries built before (make deb, tests/package): no cargo run.
 install-files:
 	install -d $(INSTALL_ROOT)/bin $(INSTALL_ROOT)/lib/pkgconfig $(INSTALL_ROOT)/lib/cmake/bassclient \
-	  $(INSTALL_ROOT)/include $(INSTALL_ROOT)/share/bass/matlab
+	  $(INSTALL_ROOT)/include $(INSTALL_ROOT)/share/bass/matlab $(INSTALL_ROOT)/share/bass/ros2/bass_msgs/msg
 	install -m 0755 $(BUILT_DIR)/bassd $(BUILT_DIR)/bass $(BUILT_DIR)/bass-bridge $(INSTALL_ROOT)/bin/
 	install -m 0755 $(BUILT_DIR)/libbassclient.so $(INSTALL_ROOT)/lib/libbassclient.so.$(VERSION)
 	ln -sf libbassclient.so.$(VERSION) $(INSTALL_ROOT)/lib/libbassclient.so.0
@@ -103,6 +103,8 @@ install-files:
 	sed -e 's|@VERSION@|$(VERSION)|' cmake/bassclientConfigVersion.cmake.in \
 	  > $(INSTALL_ROOT)/lib/cmake/bassclient/bassclientConfigVersion.cmake
 	install -m 0644 matlab/bass_mex.c matlab/bass_mex_tables.h matlab/Bass.m matlab/README.md $(INSTALL_ROOT)/share/bass/matlab/
+	install -m 0644 ros2/bass_msgs/package.xml ros2/bass_msgs/CMakeLists.txt $(INSTALL_ROOT)/share/bass/ros2/bass_msgs/
+	install -m 0644 ros2/bass_msgs/msg/ChunkInfo.msg $(INSTALL_ROOT)/share/bass/ros2/bass_msgs/msg/
 	broker/systemd/install-units.sh $(INSTALL_ROOT) $(PREFIX)
 	@echo "installed bass $(VERSION) into $(INSTALL_ROOT)"
 

@@ -233,9 +233,10 @@ typedef struct {
   uint64_t chunks_published;
   // Estimated device sample rate in Hz (0 = no estimate yet).
   double rate_estimate_hz;
-  // Broker process id.
+  // Broker process id (in the broker's own pid namespace).
   uint32_t writer_pid;
-  // 1 if the broker process is alive.
+  // 1 if the broker process is alive (in another pid namespace: if its heartbeat is
+  // younger than 2 s plus two chunk periods).
   uint32_t writer_alive;
   // CLOCK_MONOTONIC (ns) when the acquisition started.
   uint64_t started_mono_ns;

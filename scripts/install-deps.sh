@@ -60,3 +60,7 @@ fi
 if ! python3 -c 'import importlib.metadata as m, mcap, mcap_ros2, rosbags; assert (m.version("mcap"), m.version("mcap-ros2-support"), m.version("rosbags")) == ("1.6.0", "0.6.0", "0.11.9")' 2>/dev/null; then
   python3 -m pip install -q mcap==1.6.0 mcap-ros2-support==0.6.0 rosbags==0.11.9 2>/dev/null || python3 -m pip install -q --break-system-packages mcap==1.6.0 mcap-ros2-support==0.6.0 rosbags==0.11.9
 fi
+# ROS's own parser of package.xml, for the bass_msgs package (tests/bridge/cases/ros2.sh).
+if ! python3 -c 'import importlib.metadata as m, catkin_pkg; assert m.version("catkin_pkg") == "1.0.0"' 2>/dev/null; then
+  python3 -m pip install -q catkin_pkg==1.0.0 2>/dev/null || python3 -m pip install -q --break-system-packages catkin_pkg==1.0.0
+fi

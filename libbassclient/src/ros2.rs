@@ -94,29 +94,8 @@ string coding_format
 ";
 
 /// Complete `ros2msg` definition of [`CHUNK_INFO`].
-pub const CHUNK_INFO_DEFINITION: &str = concat!(
-    "# bass's account of the audio message with the same header.stamp on the companion topic.
-# Frame indices count from 1 since the acquisition started (the port's lastFrameIndex).
-
-# Chunk flags
-uint32 GAP=1
-uint32 DISCONTINUITY=2
-uint32 TIME_ESTIMATED=4
-uint32 LATE=8
-
-std_msgs/Header header
-uint64 epoch                # acquisition counter of the port
-uint64 first_frame          # index of the audio message's first frame
-uint32 frames               # frames in the audio message
-uint64 chunk_first_frame    # first frame of the port chunk holding them; 0: row not known
-uint32 chunk_frames         # frames per chunk of the port
-uint32 flags                # the chunk's flags (GAP ...); 0 when its row is not known
-uint64 monotonic_ns         # CLOCK_MONOTONIC of the chunk's first frame
-uint64 realtime_ns          # CLOCK_REALTIME of the chunk's first frame
-uint64 lost_before          # frames lost between the previous message and this one
-",
-    header_deps!()
-);
+pub const CHUNK_INFO_DEFINITION: &str =
+    concat!(include_str!("../../ros2/bass_msgs/msg/ChunkInfo.msg"), header_deps!());
 
 /// Why a CDR payload was refused.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

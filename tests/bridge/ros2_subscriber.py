@@ -29,7 +29,7 @@ ENDPOINT, MODE, ZID, DOMAIN, NODE, TOPIC = sys.argv[1:7]
 SECONDS, CHANNELS, RATE = float(sys.argv[7]), int(sys.argv[8]), int(sys.argv[9])
 
 # Upstream definitions: audio_common_msgs (ROS 2 branch of ros-drivers/audio_common), and
-# bass's own companion message (docs/ros2.md); std_msgs/Header and builtin_interfaces/Time
+# bass's own companion message (the ROS package ros2/bass_msgs); std_msgs/Header and builtin_interfaces/Time
 # come with rosbags' Jazzy store.
 DEFS = {
     "audio_common_msgs/msg/AudioData": "uint8[] data\n",
@@ -37,12 +37,9 @@ DEFS = {
     "audio_common_msgs/msg/AudioInfo": (
         "uint8 channels\nuint32 sample_rate\nstring sample_format\nuint32 bitrate\nstring coding_format\n"
     ),
-    "bass_msgs/msg/ChunkInfo": (
-        "uint32 GAP=1\nuint32 DISCONTINUITY=2\nuint32 TIME_ESTIMATED=4\nuint32 LATE=8\n"
-        "std_msgs/Header header\nuint64 epoch\nuint64 first_frame\nuint32 frames\n"
-        "uint64 chunk_first_frame\nuint32 chunk_frames\nuint32 flags\nuint64 monotonic_ns\n"
-        "uint64 realtime_ns\nuint64 lost_before\n"
-    ),
+    # The file a ROS user builds (ros2/bass_msgs, colcon): its hash must be the one bass
+    # puts on its key expression.
+    "bass_msgs/msg/ChunkInfo": open("ros2/bass_msgs/msg/ChunkInfo.msg").read(),
 }
 store = get_typestore(Stores.ROS2_JAZZY)
 types = {}

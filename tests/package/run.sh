@@ -103,6 +103,10 @@ for f in __init__.py _lib.py stream.py; do grep -qxF "$PYDIR/$f" "$WORK/dpkg-L" 
 if command -v py3compile >/dev/null; then
   compgen -G "$PYDIR/__pycache__/__init__.cpython-*.pyc" >/dev/null || fail "postinst did not byte-compile $PYDIR (py3compile)"
 fi
+# The ROS package of bass's companion message, for a colcon workspace (docs/ros2.md).
+for f in package.xml CMakeLists.txt msg/ChunkInfo.msg; do
+  cmp -s "/usr/share/bass/ros2/bass_msgs/$f" "$ROOT/ros2/bass_msgs/$f" || fail "package lacks /usr/share/bass/ros2/bass_msgs/$f (or it differs)"
+done
 say "installed: $(wc -l <"$WORK/dpkg-L") paths, group bass, ld.so.cache has libbassclient.so.0, $PYDIR byte-compiled"
 
 # 4. The units: systemd-analyze verify (no output at all: a warning, an unknown key, a missing

@@ -47,9 +47,10 @@ pub struct bass_port_info {
     pub chunks_published: u64,
     /// Estimated device sample rate in Hz (0 = no estimate yet).
     pub rate_estimate_hz: f64,
-    /// Broker process id.
+    /// Broker process id (in the broker's own pid namespace).
     pub writer_pid: u32,
-    /// 1 if the broker process is alive.
+    /// 1 if the broker process is alive (in another pid namespace: if its heartbeat is
+    /// younger than 2 s plus two chunk periods).
     pub writer_alive: u32,
     /// CLOCK_MONOTONIC (ns) when the acquisition started.
     pub started_mono_ns: u64,

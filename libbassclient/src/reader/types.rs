@@ -40,9 +40,10 @@ pub struct PortInfo {
     pub chunks_published: u64,
     /// Device rate estimate in Hz (0 = none yet).
     pub rate_estimate_hz: f64,
-    /// Writer pid.
+    /// Writer pid (in the writer's own pid namespace).
     pub writer_pid: u32,
-    /// Whether the writer process is alive.
+    /// Whether the writer process is alive (in another pid namespace: whether its heartbeat
+    /// is younger than [`crate::reader::FOREIGN_WRITER_SILENCE`] plus two chunk periods).
     pub writer_alive: bool,
     /// CLOCK_MONOTONIC (ns) of the acquisition start.
     pub started_mono_ns: u64,

@@ -21,6 +21,24 @@ sub() { # ENDPOINT MODE ZID DOMAIN NODE TOPIC: the subscriber's JSON line; its e
   inB timeout 60 python3 tests/bridge/ros2_subscriber.py "$@" $SECS 2 $RATE
 }
 
+echo "== 0. the bass_msgs ROS package (ros2/bass_msgs), read by ROS's own package parser"
+if P=$(python3 - <<'PY' 2>&1
+from catkin_pkg.package import parse_package
+from rosbags.typesys import get_types_from_msg
+p = parse_package("ros2/bass_msgs")
+p.validate()
+assert p.package_format == 3 and p.name == "bass_msgs", (p.package_format, p.name)
+assert "rosidl_interface_packages" in [g.name for g in p.member_of_groups], p.member_of_groups
+assert "std_msgs" in [d.name for d in p.build_depends] and "std_msgs" in [d.name for d in p.exec_depends]
+cmake = open("ros2/bass_msgs/CMakeLists.txt").read()
+assert '"msg/ChunkInfo.msg"' in cmake and "DEPENDENCIES std_msgs" in cmake
+fields = get_types_from_msg(open("ros2/bass_msgs/msg/ChunkInfo.msg").read(), "bass_msgs/msg/ChunkInfo")
+consts, names = fields["bass_msgs/msg/ChunkInfo"]
+print(f"{p.name} {p.version}, format {p.package_format}: valid; ChunkInfo: {len(consts)} constants, "
+      f"{len(names)} fields ({', '.join(n for n, _ in names)})")
+PY
+); then ok "bass_msgs: $P"; else bad "bass_msgs package: $P"; fi
+
 echo "== 1. peer to peer: serve --ros2 beside a mirror"
 start_bassd; wait_port "$DIR_A" src
 start_serve --ros2; start_mirror; wait_replica
