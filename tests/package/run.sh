@@ -58,7 +58,7 @@ trap cleanup EXIT
 DEB=$(timeout 300 "$ROOT/broker/debian/build-deb.sh" "$WORK/deb" | tail -1) || fail "build-deb.sh failed"
 [[ -f $DEB ]] || fail "no package built"
 say "built $(basename "$DEB") ($(du -k "$DEB" | cut -f1) KiB) in $((SECONDS - T0)) s"
-dpkg-deb -f "$DEB" Depends | grep -q 'libasound2' || fail "Depends lacks libasound2: $(dpkg-deb -f "$DEB" Depends)"
+grep -q 'libasound2' <<<"$(dpkg-deb -f "$DEB" Depends)" || fail "Depends lacks libasound2: $(dpkg-deb -f "$DEB" Depends)"
 say "Depends: $(dpkg-deb -f "$DEB" Depends)"
 # Every path of the package, and which of its directories exist before it is installed (those
 # may stay after the purge; no other path may).

@@ -122,12 +122,15 @@ read -r _ _ frames _ loss _ zero _ gaps _ epoch _ gapf _ errors <<<"$sum"
 ((zero == gapf)) || fail "zeros read ($zero) != the port's gap_frames ($gapf)"
 restarts=$(in_root systemctl show -p NRestarts --value bassd.service)
 ((restarts >= 1)) || fail "the killed bassd was not restarted (NRestarts $restarts)"
-in_root journalctl -u bassd --no-pager | grep -q "resuming the acquisition" || fail "no resume in bassd's journal"
+# The journal is taken whole before grep -q: with pipefail, grep quitting at its first match
+# could end journalctl by SIGPIPE and fail the pipe (a long journal).
+journal=$(in_root journalctl -u bassd --no-pager)
+grep -q "resuming the acquisition" <<<"$journal" || { tail -40 <<<"$journal"; fail "no resume in bassd's journal"; }
 say "the reader rode through: $frames frames, loss 0, epoch $epoch kept, $zero zero frames = gap_frames; NRestarts $restarts"
 
 # 3. The watchdog fires when the capture stalls.
 t=$SECONDS
-until in_root journalctl -u bassd@stall --no-pager 2>/dev/null | grep -q "Watchdog timeout"; do
+until grep -q "Watchdog timeout" <<<"$(in_root journalctl -u bassd@stall --no-pager 2>/dev/null)"; do
   ((SECONDS - t < 30)) || { in_root journalctl -u bassd@stall --no-pager | tail -20; fail "no watchdog timeout for bassd@stall"; }
   sleep 0.5
 done

@@ -36,7 +36,8 @@ echo "  serve 1: instance $I1, Zenoh id $Z1; serve 2: instance $I2, Zenoh id $Z2
 
 echo "== each serve names both instances, and the other's Zenoh id, in an error"
 says_conflict() { # LOG OTHER_INSTANCE OTHER_ZID OWN_INSTANCE
-  grep 'ERROR' "$1" | grep 'two sources with one name' | grep "$2" | grep "$3" | grep -q "$4"
+  # The last grep reads all its input (no -q): under pipefail an early exit would fail the pipe.
+  grep 'ERROR' "$1" | grep 'two sources with one name' | grep "$2" | grep "$3" | grep "$4" >/dev/null
 }
 for k in 1 2; do
   if [[ $k == 1 ]]; then LOG=$WORK/serve.log; O=$I2; OZ=$Z2; OWN=$I1; else LOG=$WORK/serve2.log; O=$I1; OZ=$Z1; OWN=$I2; fi
