@@ -7,7 +7,8 @@ cd "$(dirname "$0")/.."
 # Part 7 compares bass with PipeWire: its daemon and libpipewire (skipped, and said so, without).
 scripts/install-deps.sh --with-bench
 target="${CARGO_TARGET_DIR:-target}"
-cargo build --release -p bass-bench -p bass-broker
+# The one feature set of the workspace (the network parts build the same: nothing twice).
+cargo build --release --workspace --all-targets --features "$(cat scripts/bridge-features)"
 "$target/release/bass-bench" --docs docs "$@"
 # The network part (bass-bridge between two network namespaces; needs root).
 if [[ $(id -u) -eq 0 ]]; then
