@@ -28,14 +28,15 @@ fn acquire(device: &str) -> Vec<&str> {
     vec!["--acquire", device, "--rate", "48000", "--frames", "480", "--chunks", "100", "--channels", "2"]
 }
 
-/// Whether this machine lets us make pid namespaces (root, util-linux's unshare).
+/// Whether this machine lets us make pid namespaces (util-linux's unshare). As root (CI) it
+/// must: there a failure is the test's failure, not a skip.
 fn can_unshare() -> bool {
-    Command::new(UNSHARE[0])
-        .args(&UNSHARE[1..])
-        .arg("true")
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
+    let out = Command::new(UNSHARE[0]).args(&UNSHARE[1..]).arg("true").output();
+    let ok = out.as_ref().is_ok_and(|o| o.status.success());
+    if !ok && rustix::process::geteuid().is_root() {
+        panic!("as root, `unshare --pid --fork` failed: {out:?}");
+    }
+    ok
 }
 
 /// Waits for a frame far ahead: the port's end, whatever it is, and how long it took.
