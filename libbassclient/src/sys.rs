@@ -127,8 +127,9 @@ pub fn own_pid_ns() -> Option<u64> {
 /// Whether the writer `pid` that started at `start_time` is still running.
 ///
 /// A pid that does not exist, a zombie, or a pid recycled by another process
-/// (different start time) all count as gone. Where /proc cannot tell (another pid
-/// namespace), `kill(pid, 0)` decides.
+/// (different start time) all count as gone. Where /proc has no entry for the pid,
+/// `kill(pid, 0)` decides. The pid must be of this pid namespace (`Port::writer_alive`
+/// handles a writer of another one by its heartbeat).
 pub fn writer_alive(pid: u32, start_time: u64) -> bool {
     if pid == 0 || pid > i32::MAX as u32 {
         return false;

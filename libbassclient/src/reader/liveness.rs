@@ -5,8 +5,10 @@
 //! start time: if it does, the pidfd is that very process (a recycled pid would show another
 //! start time), and from then on one `poll` of the pidfd (readable once the process has
 //! ended) answers. A writer found dead stays dead: a (pid, start time) pair never lives
-//! again. Where /proc cannot tell (the writer is in another pid namespace), every question
-//! falls back to [`sys::writer_alive`], as before.
+//! again. Where /proc cannot tell (no /proc entry for the pid, or no start time to pin it to),
+//! every question falls back to [`sys::writer_alive`]. A writer in another pid namespace
+//! never gets here: its pid means nothing in ours, and `Port::writer_alive` judges it by its
+//! heartbeat (`writer_pid_ns` in the header).
 //!
 //! A writer replaced by its successor (a broker restarted with the same port, see
 //! `restart_grace_ms` in docs/port-format.md) changes the pid and start time in the header:
@@ -26,7 +28,7 @@ enum Known {
     Watched(OwnedFd),
     /// Ended: it never comes back.
     Dead,
-    /// /proc cannot tell (another pid namespace): asked again every time.
+    /// /proc cannot tell (no entry, or no start time): asked again every time.
     Unknown,
 }
 
