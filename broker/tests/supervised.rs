@@ -124,6 +124,21 @@ fn ready(mgr: &mut FakeManager) {
     assert!(mgr.wait_for("READY=1", PATIENCE).is_some(), "no READY=1; got {:?}", mgr.notices);
 }
 
+/// The broker's Status once its acquisition runs: READY comes when the control socket
+/// serves, while the device of the start-up (or taken-back) acquisition may still be opening
+/// (Status shows epoch 0 until then).
+fn acquired(b: &Bassd) -> bassclient::control::Status {
+    let t0 = Instant::now();
+    loop {
+        let st = b.client().status().unwrap();
+        if st.epoch != 0 {
+            return st;
+        }
+        assert!(t0.elapsed() < PATIENCE, "no acquisition running; log:\n{}", b.log_text());
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
 /// Waits until the store holds the port and its record.
 fn stored(mgr: &mut FakeManager) {
     let t0 = Instant::now();
@@ -158,13 +173,15 @@ fn ride_through(backing: &str, kills: &[i32]) -> (Seen, Bassd, TempDir, Vec<Dura
     let mut downtimes = Vec::new();
     for &sig in kills {
         std::thread::sleep(Duration::from_millis(400));
+        // From the signal: the gap starts at the end of the last chunk published before it
+        // (wait_exit notices the exit up to 10 ms late, so it cannot be the start).
+        let gone = Instant::now();
         b.signal(sig);
         b.wait_exit();
-        let gone = Instant::now();
         std::thread::sleep(Duration::from_millis(300));
         b = start(dir.path(), "sup", &mgr, &args, mgr.handed());
         ready(&mut mgr);
-        let st = b.client().status().unwrap();
+        let st = acquired(&b);
         assert_eq!(
             st.epoch,
             epoch,
@@ -195,14 +212,17 @@ fn check_ridden(seen: &Seen, b: &Bassd, restarts: usize, downtimes: &[Duration])
     assert_eq!(seen.zero_frames, info.gap_frames, "zero frames read vs the port's gap_frames");
     for (i, d) in downtimes.iter().enumerate() {
         eprintln!(
-            "restart {}: {} frames missed as GAP in all so far; restart to first new chunk {d:?}",
+            "restart {}: {} frames missed as GAP in all so far; signal to first new chunk {d:?}",
             i + 1,
             info.gap_frames
         );
     }
-    // No more missed than the time no broker ran (bounded by the measured downtimes, which
-    // include the new broker's start and its first chunk), and at least the 300 ms pause.
-    let max: u64 = downtimes.iter().map(|d| frames_in(*d) + u64::from(2 * NFPC)).sum();
+    // No more missed than the time no broker ran, and at least the 300 ms pause. The time no
+    // broker ran is bounded by the measured downtimes (signal to the new broker's first chunk)
+    // plus what the old capture thread may have owed when the signal came: 5 chunks (50 ms)
+    // for a loaded machine. A timeline error (a gap counted twice, a restart measured from
+    // the wrong chunk) is a whole downtime, over 14 000 frames.
+    let max: u64 = downtimes.iter().map(|d| frames_in(*d) + u64::from(5 * NFPC)).sum();
     assert!(info.gap_frames >= frames_in(Duration::from_millis(300)) * restarts as u64, "{info:?}");
     assert!(info.gap_frames <= max, "gap {} > {max} frames for downtimes {downtimes:?}", info.gap_frames);
     assert!(seen.gap_chunks > 0, "whole missed chunks are flagged GAP");
@@ -238,7 +258,7 @@ fn a_restart_with_another_command_line_is_a_new_epoch_readers_are_told() {
     let b2 = start(dir.path(), "cfg", &mgr, &other, mgr.handed());
     ready(&mut mgr);
     assert!(matches!(port.wait(last + 100 * u64::from(NFPC), PATIENCE), Err(Error::Restarted)));
-    let st = b2.client().status().unwrap();
+    let st = acquired(&b2);
     assert_eq!(st.epoch, port.epoch() + 1, "a new acquisition: the next epoch");
     assert!(b2.log_text().contains("another command line"), "{}", b2.log_text());
 }
