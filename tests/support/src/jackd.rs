@@ -130,16 +130,18 @@ impl JackRig {
 
 impl Drop for JackRig {
     /// Removes the POSIX semaphores libjack leaves in /dev/shm for clients of this rig's
-    /// server (`jack_sem.<uid>_<server>_<client>...`) when a client or the server was killed:
-    /// a test deletes what it creates. The registry (`jack-shm-registry`) is shared by every
-    /// server on the machine and stays.
+    /// server (`jack_sem.<uid>_<server>_<client>...`) and the server's own request socket
+    /// (`jack_<server>_<uid>_<n>`) when a client or the server was killed: a test deletes what
+    /// it creates. The registry (`jack-shm-registry`) is shared by every server on the machine
+    /// and stays.
     fn drop(&mut self) {
         let infix = format!("_{}_", self.jack_name);
+        let socket = format!("jack_{}_", self.jack_name);
         let Ok(entries) = std::fs::read_dir("/dev/shm") else { return };
         for e in entries.flatten() {
             let name = e.file_name();
             let name = name.to_string_lossy();
-            if name.starts_with("jack_sem.") && name.contains(&infix) {
+            if (name.starts_with("jack_sem.") && name.contains(&infix)) || name.starts_with(&socket) {
                 let _ = std::fs::remove_file(e.path());
             }
         }
