@@ -515,15 +515,16 @@ impl Port {
     /// `reader/liveness.rs`). A writer in another pid namespace (`writer_pid_ns`, minor 3)
     /// cannot be looked up by pid: it counts as running while its heartbeat is younger than
     /// [`FOREIGN_WRITER_SILENCE`] plus two chunk periods (bassd refreshes it every 25 ms, also
-    /// while its device is silent). `now` is CLOCK_MONOTONIC (ns).
-    pub(crate) fn writer_alive(&self, now: u64) -> bool {
+    /// while its device is silent). `now` gives CLOCK_MONOTONIC (ns), read only for such a
+    /// writer (the pidfd path needs no clock).
+    pub(crate) fn writer_alive(&self, now: impl FnOnce() -> u64) -> bool {
         let h = self.header();
         let ns = h.writer_pid_ns.load(Relaxed);
         if ns != 0 && sys::own_pid_ns().is_some_and(|own| own != ns) {
             let g = &self.geometry;
             let chunk_ns = u64::from(g.frames_per_chunk) * 1_000_000_000 / u64::from(g.sample_rate.max(1));
             let silence = FOREIGN_WRITER_SILENCE.as_nanos() as u64 + 2 * chunk_ns;
-            return now.saturating_sub(h.heartbeat_mono_ns.load(Relaxed)) < silence;
+            return now().saturating_sub(h.heartbeat_mono_ns.load(Relaxed)) < silence;
         }
         self.watch.alive(h.writer_pid.load(Relaxed), h.writer_start_time.load(Relaxed))
     }
@@ -536,7 +537,7 @@ impl Port {
     pub(crate) fn writer_gone(&self, now: u64) -> Option<u32> {
         let h = self.header();
         let pid = h.writer_pid.load(Relaxed);
-        if self.writer_alive(now) {
+        if self.writer_alive(|| now) {
             return None;
         }
         let grace_ms = h.restart_grace_ms.load(Relaxed).min(format::MAX_RESTART_GRACE_MS);
@@ -633,7 +634,7 @@ impl Port {
             chunks_published: h.chunks_published.load(Relaxed),
             rate_estimate_hz: h.rate_estimate_mhz.load(Relaxed) as f64 / 1000.0,
             writer_pid: pid,
-            writer_alive: self.writer_alive(sys::monotonic_ns()),
+            writer_alive: self.writer_alive(sys::monotonic_ns),
             started_mono_ns: h.started_mono_ns.load(Relaxed),
             heartbeat_mono_ns: h.heartbeat_mono_ns.load(Relaxed),
             version_minor: self.version_minor,
