@@ -12,6 +12,9 @@ pkgs=(build-essential pkg-config libasound2-dev libasound2-plugins alsa-utils ja
       libfontconfig1-dev libfreetype-dev fonts-dejavu-core)
 # The Python client and its tests (tests/clients, python/tests, tests/conformance).
 pkgs+=(python3 python3-numpy python3-pytest)
+# The C ABI suite (make test-c, tests/c/run.sh): strace counts the library's opens of /proc,
+# valgrind runs the C test programs and examples under memcheck.
+pkgs+=(strace valgrind)
 with_octave="" with_bench=""
 for a in "$@"; do
   case "$a" in
@@ -26,9 +29,9 @@ if [[ -n "$with_bench" ]]; then
 fi
 if [[ -n "$with_octave" ]]; then
   # What make test needs on top (make deps): the package test (tests/package) lints the
-  # package, verifies the systemd units (systemd-analyze) and traces bassd; the systemd test
-  # (tests/systemd) boots the package in a Debian root made by debootstrap.
-  pkgs+=(lintian systemd strace adduser debootstrap)
+  # package, verifies the systemd units (systemd-analyze) and traces bassd (strace: above);
+  # the systemd test (tests/systemd) boots the package in a Debian root made by debootstrap.
+  pkgs+=(lintian systemd adduser debootstrap)
   pkgs+=(octave liboctave-dev)
 fi
 for p in "${pkgs[@]}"; do have_pkg "$p" || need+=("$p"); done
