@@ -229,6 +229,45 @@ impl Fit {
     }
 }
 
+/// Serve's side of keyed clock answers: a probe's attachment is `user_len u8, user, nonce
+/// [16]`; the answer's is HMAC-SHA256(pair secret of (source, user) for "clock", key ‖ nonce ‖
+/// time), so only the source can answer a mirror's probe (a peer that answers beside it is
+/// refused).
+pub struct ReplyKeys {
+    keys: std::collections::HashMap<String, [u8; 32]>,
+}
+
+impl ReplyKeys {
+    /// The keys for every identity `cred` trusts (one key agreement each, at start).
+    pub fn new(cred: &crate::credentials::Credentials) -> ReplyKeys {
+        let keys = cred
+            .trusted
+            .iter()
+            .filter_map(|t| Some((t.name.clone(), cred.pair_secret(&cred.user, &t.name, "clock")?)))
+            .collect();
+        ReplyKeys { keys }
+    }
+
+    /// The answer's attachment for a probe with attachment `probe`, if it names a trusted user.
+    pub fn answer(&self, key: &str, probe: &[u8], now: &[u8; 8]) -> Option<Vec<u8>> {
+        let (&n, rest) = probe.split_first()?;
+        let n = usize::from(n);
+        if rest.len() != n + 16 {
+            return None;
+        }
+        let k = self.keys.get(std::str::from_utf8(&rest[..n]).ok()?)?;
+        Some(crate::credentials::mac(k, &[key.as_bytes(), &rest[n..], now]).to_vec())
+    }
+}
+
+/// The mirror's side: its name and the key it shares with the source for clock answers.
+pub struct ProbeKey {
+    /// The mirror's identity.
+    pub user: String,
+    /// The pair secret of (source, mirror) for "clock".
+    pub key: [u8; 32],
+}
+
 /// Probes in a thread and shares the fit.
 pub struct ClockEstimator {
     fit: Arc<Mutex<Fit>>,
@@ -236,14 +275,19 @@ pub struct ClockEstimator {
 
 impl ClockEstimator {
     /// Starts probing `key` every `interval`.
-    pub fn spawn(session: &zenoh::Session, key: String, interval: Duration) -> Result<ClockEstimator> {
+    pub fn spawn(
+        session: &zenoh::Session,
+        key: String,
+        interval: Duration,
+        auth: Option<ProbeKey>,
+    ) -> Result<ClockEstimator> {
         let fit = Arc::new(Mutex::new(Fit::default()));
         let shared = fit.clone();
         let session = session.clone();
         std::thread::Builder::new()
             .name("clock-probe".into())
             .spawn(move || loop {
-                let (samples, malformed) = probe_burst(&session, &key);
+                let (samples, malformed) = probe_burst(&session, &key, auth.as_ref());
                 let mut f = shared.lock().unwrap_or_else(|e| e.into_inner());
                 f.count_refused(malformed);
                 let n = samples.len();
@@ -296,13 +340,23 @@ impl ClockEstimator {
 /// One burst: every answer of every probe (all of them: another peer may answer beside
 /// the source) whose answers agree, and the number of answers refused (not 8 bytes, or
 /// disagreeing with another answer to the same probe).
-fn probe_burst(session: &zenoh::Session, key: &str) -> (Vec<Round>, u64) {
+fn probe_burst(session: &zenoh::Session, key: &str, auth: Option<&ProbeKey>) -> (Vec<Round>, u64) {
     let mut samples = Vec::new();
     let mut malformed = 0;
-    for _ in 0..BURST {
+    for i in 0..BURST {
+        let mut nonce = [0u8; 16];
+        nonce[..8].copy_from_slice(&bassclient::sys::monotonic_ns().to_le_bytes());
+        nonce[8..].copy_from_slice(&(i as u64 ^ crate::net::instance_id()).to_le_bytes());
+        let attachment = auth.map(|a| {
+            let mut b = vec![a.user.len() as u8];
+            b.extend_from_slice(a.user.as_bytes());
+            b.extend_from_slice(&nonce);
+            b
+        });
         let t0 = bassclient::sys::monotonic_ns();
         let Ok(replies) = session
             .get(key)
+            .attachment(attachment)
             .consolidation(zenoh::query::ConsolidationMode::None)
             .timeout(Duration::from_millis(500))
             .wait()
@@ -323,6 +377,14 @@ fn probe_burst(session: &zenoh::Session, key: &str) -> (Vec<Round>, u64) {
                 malformed += 1;
                 continue;
             };
+            if let Some(a) = auth {
+                let want = crate::credentials::mac(&a.key, &[key.as_bytes(), &nonce, &b]);
+                let got = sample.attachment().map(|x| x.to_bytes().into_owned()).unwrap_or_default();
+                if got != want {
+                    malformed += 1;
+                    continue;
+                }
+            }
             let remote = u64::from_le_bytes(b) as i128;
             let mid = t0 + (t1 - t0) / 2;
             let offset = (remote - mid as i128).clamp(i64::MIN as i128, i64::MAX as i128) as i64;

@@ -9,14 +9,17 @@
 //! reply when nobody answers, built by the library (`control::Reply::error`, encoded by `control::wire`).
 
 use std::os::fd::{AsFd, OwnedFd};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use anyhow::{anyhow, Context, Result};
 use bassclient::control::{wire, ErrorKind, Reply, MAX_MESSAGE};
 use rustix::net::{AddressFamily, RecvFlags, SendFlags, SocketAddrUnix, SocketFlags, SocketType};
 use zenoh::Wait;
+
+use crate::credentials::Credentials;
+use crate::net::UsageError;
 
 /// How long a forwarded request may take end to end (an Acquire opens a device).
 const REQUEST_TIMEOUT: Duration = Duration::from_secs(10);
@@ -75,7 +78,205 @@ fn error_reply(kind: ErrorKind, text: &str) -> Vec<u8> {
     wire::encode_reply(&Reply::error(kind, text))
 }
 
-/// `serve --allow-control`: answers control requests from mirrors with the local broker's reply.
+/// How far a signed request's time may be from serve's (CLOCK_REALTIME, both sides).
+pub const FRESHNESS: Duration = Duration::from_secs(60);
+/// Requests remembered against replay (their nonces, for [`FRESHNESS`] on either side).
+const MAX_NONCES: usize = 4096;
+
+/// `--allow-control NAMES` as given: names, and credentials to check them with.
+pub fn check_allowed(names: &[String], have_credentials: bool) -> Result<()> {
+    if names.iter().all(|n| n.is_empty()) {
+        return Err(UsageError(
+            "--allow-control needs the identities allowed, comma-separated (e.g. --allow-control \
+             ws1,ws2): names of public cards that --credentials trusts"
+                .into(),
+        )
+        .into());
+    }
+    if !have_credentials {
+        return Err(UsageError(
+            "--allow-control needs --credentials: a request is authorized by the identity whose key \
+             signs it (docs/network.md, \"Remote control\")"
+                .into(),
+        )
+        .into());
+    }
+    for n in names {
+        crate::credentials::check_user(n).context("--allow-control")?;
+    }
+    Ok(())
+}
+
+/// Every `--allow-control` name is a trusted identity.
+pub fn check_trusted(names: &[String], cred: &Credentials) -> Result<()> {
+    for n in names {
+        if cred.trusted(n).is_none() {
+            return Err(UsageError(format!(
+                "--allow-control {n}: the credentials trust no such identity (they trust: {})",
+                cred.trusted_names()
+            ))
+            .into());
+        }
+    }
+    Ok(())
+}
+
+/// Who may control, checked with what.
+pub struct Policy {
+    /// The identities allowed.
+    pub allowed: Vec<String>,
+    /// Serve's credentials (the allowed identities' public keys).
+    pub credentials: Arc<Credentials>,
+    /// The control key expression (signatures are bound to it).
+    pub key: String,
+}
+
+/// Counts of remote requests, for serve's status.
+#[derive(Default)]
+pub struct Audit {
+    answered: AtomicU64,
+    refused: AtomicU64,
+}
+
+impl Audit {
+    /// Requests passed to the broker.
+    pub fn answered(&self) -> u64 {
+        self.answered.load(Ordering::Relaxed)
+    }
+    /// Requests refused.
+    pub fn refused(&self) -> u64 {
+        self.refused.load(Ordering::Relaxed)
+    }
+}
+
+/// A signed request's attachment: `user_len u8, user, realtime_ns u64 LE, nonce [16],
+/// signature [64]`; the signature covers the time, the nonce, the user and the request, on
+/// the control key.
+struct Signed {
+    user: String,
+    time_ns: u64,
+    nonce: [u8; 16],
+    signature: [u8; 64],
+}
+
+fn signed_part(time_ns: u64, nonce: &[u8; 16], user: &str, request: &[u8]) -> Vec<u8> {
+    let mut m = Vec::with_capacity(8 + 16 + user.len() + 1 + request.len());
+    m.extend_from_slice(&time_ns.to_le_bytes());
+    m.extend_from_slice(nonce);
+    m.extend_from_slice(user.as_bytes());
+    m.push(0);
+    m.extend_from_slice(request);
+    m
+}
+
+impl Signed {
+    fn encode(&self) -> Vec<u8> {
+        let mut b = vec![self.user.len() as u8];
+        b.extend_from_slice(self.user.as_bytes());
+        b.extend_from_slice(&self.time_ns.to_le_bytes());
+        b.extend_from_slice(&self.nonce);
+        b.extend_from_slice(&self.signature);
+        b
+    }
+
+    fn decode(b: &[u8]) -> Option<Signed> {
+        let (&n, rest) = b.split_first()?;
+        let n = usize::from(n);
+        if rest.len() != n + 8 + 16 + 64 {
+            return None;
+        }
+        let user = std::str::from_utf8(&rest[..n]).ok()?.to_owned();
+        crate::credentials::check_user(&user).ok()?;
+        let time_ns = u64::from_le_bytes(rest[n..n + 8].try_into().ok()?);
+        let nonce = rest[n + 8..n + 24].try_into().ok()?;
+        let signature = rest[n + 24..].try_into().ok()?;
+        Some(Signed { user, time_ns, nonce, signature })
+    }
+}
+
+/// Nonces of recent requests, against replay.
+#[derive(Default)]
+struct Seen(std::collections::HashMap<[u8; 16], u64>);
+
+impl Seen {
+    /// Whether `nonce` is new (then remembered); false for a replay or when full.
+    fn fresh(&mut self, nonce: [u8; 16], now: u64) -> bool {
+        let keep = 2 * FRESHNESS.as_nanos() as u64;
+        self.0.retain(|_, t| now.saturating_sub(*t) <= keep);
+        if self.0.len() >= MAX_NONCES || self.0.contains_key(&nonce) {
+            return false;
+        }
+        self.0.insert(nonce, now);
+        true
+    }
+}
+
+impl Policy {
+    /// The identity a request comes from, or why it is refused.
+    fn authorize(
+        &self,
+        request: &[u8],
+        attachment: Option<&[u8]>,
+        seen: &Mutex<Seen>,
+    ) -> Result<(String, [u8; 16]), String> {
+        let Some(a) = attachment.and_then(Signed::decode) else {
+            return Err("an unsigned request (a mirror without --credentials, or not bass-bridge)".into());
+        };
+        let Some(id) = self.credentials.trusted(&a.user) else {
+            return Err(format!("{:?} is not an identity this serve trusts", a.user));
+        };
+        if !id.verify(&self.key, &signed_part(a.time_ns, &a.nonce, &a.user, request), &a.signature) {
+            return Err(format!("a request that claims to be {:?} with a signature that is not its", a.user));
+        }
+        if !self.allowed.contains(&a.user) {
+            return Err(format!(
+                "{:?} is not allowed to control this broker (--allow-control {})",
+                a.user,
+                self.allowed.join(",")
+            ));
+        }
+        let now = bassclient::sys::realtime_ns();
+        if now.abs_diff(a.time_ns) > FRESHNESS.as_nanos() as u64 {
+            return Err(format!(
+                "a request from {:?} signed {:.0} s away from this machine's clock (more than {} s: a replay, or clocks apart)",
+                a.user,
+                (a.time_ns as f64 - now as f64) / 1e9,
+                FRESHNESS.as_secs()
+            ));
+        }
+        if !seen.lock().unwrap_or_else(|e| e.into_inner()).fresh(a.nonce, now) {
+            return Err(format!("a replayed request of {:?} (its nonce was seen)", a.user));
+        }
+        Ok((a.user, a.nonce))
+    }
+}
+
+/// What a request asks, for the log (never its raw bytes).
+fn describe_request(bytes: &[u8]) -> String {
+    match wire::decode_request(bytes) {
+        Ok(r) => crate::text::escape(&format!("{r:?}")).chars().take(300).collect(),
+        Err(_) => format!("{} bytes that are not a control request", bytes.len()),
+    }
+}
+
+/// What a reply says, for the log.
+fn describe_reply(bytes: &[u8]) -> String {
+    match wire::decode_reply(bytes) {
+        Ok(Reply::Error { message, .. }) => {
+            format!("refused by the broker: {}", crate::text::escape(&message))
+        }
+        Ok(Reply::Stopped { message }) => format!("stopped: {}", crate::text::escape(&message)),
+        Ok(Reply::Acquired(a)) => format!("acquired, epoch {}", a.epoch),
+        Ok(Reply::Devices { devices }) => format!("{} devices", devices.len()),
+        Ok(Reply::Status(_)) => "status".into(),
+        Ok(_) => "answered".into(),
+        Err(_) => format!("{} bytes", bytes.len()),
+    }
+}
+
+/// `serve --allow-control`: answers control requests from the identities `policy` allows with
+/// the local broker's reply; every request is logged at INFO with its identity, what it asked
+/// and the outcome, and counted in `audit`. Replies are signed (bound to the request's nonce).
 /// `hold` delays every request before it goes to the broker (fault injection for the tests;
 /// zero otherwise).
 pub fn declare_queryable(
@@ -83,18 +284,51 @@ pub fn declare_queryable(
     key: &str,
     broker: &str,
     hold: Duration,
+    policy: Policy,
+    audit: Arc<Audit>,
 ) -> Result<zenoh::query::Queryable<()>> {
     let broker = broker.to_owned();
     let in_flight = Arc::new(AtomicUsize::new(0));
+    let policy = Arc::new(policy);
+    let seen = Arc::new(Mutex::new(Seen::default()));
     session
         .declare_queryable(key)
         .callback(move |q| {
+            let sign_reply = {
+                let policy = policy.clone();
+                move |nonce: &[u8], reply: &[u8]| {
+                    let mut m = nonce.to_vec();
+                    m.extend_from_slice(reply);
+                    policy.credentials.sign(&policy.key, &m).to_vec()
+                }
+            };
+            let request = q.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
+            let attachment = q.attachment().map(|a| a.to_bytes().into_owned());
+            let (user, nonce) = match policy.authorize(&request, attachment.as_deref(), &seen) {
+                Ok(x) => x,
+                Err(why) => {
+                    audit.refused.fetch_add(1, Ordering::Relaxed);
+                    tracing::info!("remote control refused: {why}; asked: {}", describe_request(&request));
+                    let text = format!("bass-bridge serve: remote control refused: {why}");
+                    let reply = error_reply(ErrorKind::Permission, &text);
+                    let nonce = attachment.as_deref().and_then(Signed::decode).map(|a| a.nonce).unwrap_or_default();
+                    let sig = sign_reply(&nonce, &reply);
+                    if let Err(e) = q.reply(q.key_expr().clone(), reply).attachment(sig).wait() {
+                        tracing::debug!("control reply: {e}");
+                    }
+                    return;
+                }
+            };
             if in_flight.fetch_add(1, Ordering::AcqRel) >= MAX_CONCURRENT_QUERIES {
                 in_flight.fetch_sub(1, Ordering::AcqRel);
+                audit.refused.fetch_add(1, Ordering::Relaxed);
                 let text = format!(
                     "bass-bridge serve: busy ({MAX_CONCURRENT_QUERIES} control requests in progress); try again"
                 );
-                if let Err(e) = q.reply(q.key_expr().clone(), error_reply(ErrorKind::Internal, &text)).wait() {
+                tracing::info!("remote control from {user:?} refused: busy; asked: {}", describe_request(&request));
+                let reply = error_reply(ErrorKind::Internal, &text);
+                let sig = sign_reply(&nonce, &reply);
+                if let Err(e) = q.reply(q.key_expr().clone(), reply).attachment(sig).wait() {
                     tracing::debug!("control reply: {e}");
                 }
                 return;
@@ -103,16 +337,20 @@ pub fn declare_queryable(
             // its own, never from Zenoh's runtime, which also carries the chunks.
             let broker = broker.clone();
             let done = in_flight.clone();
+            let audit = audit.clone();
             let spawned = std::thread::Builder::new().name("control-query".into()).spawn(move || {
-                let request = q.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
                 if !hold.is_zero() {
                     std::thread::sleep(hold);
                 }
+                let asked = describe_request(&request);
                 let reply = ask_local_broker(&broker, &request).unwrap_or_else(|e| {
                     tracing::warn!("remote control: {e:#}");
                     error_reply(ErrorKind::Internal, &format!("bass-bridge serve: {e:#}"))
                 });
-                if let Err(e) = q.reply(q.key_expr().clone(), reply).wait() {
+                audit.answered.fetch_add(1, Ordering::Relaxed);
+                tracing::info!("remote control from {user:?}: {asked}: {}", describe_reply(&reply));
+                let sig = sign_reply(&nonce, &reply);
+                if let Err(e) = q.reply(q.key_expr().clone(), reply).attachment(sig).wait() {
                     tracing::debug!("control reply: {e}");
                 }
                 done.fetch_sub(1, Ordering::AcqRel);
@@ -158,6 +396,7 @@ impl Forwarder {
 pub fn spawn_forwarder(
     session: &zenoh::Session,
     key: String,
+    signer: Option<Arc<Signer>>,
     instance: &bassclient::instance::Instance,
     stop: Arc<AtomicBool>,
 ) -> Result<Forwarder> {
@@ -214,8 +453,8 @@ pub fn spawn_forwarder(
                 }
                 continue;
             }
-            let (session, key, done, stop) =
-                (session.clone(), key.clone(), open.clone(), stop_accept.clone());
+            let (session, key, done, stop, signer) =
+                (session.clone(), key.clone(), open.clone(), stop_accept.clone(), signer.clone());
             let spawned = std::thread::Builder::new().name("control-conn".into()).spawn(move || {
                 let _ = rustix::net::sockopt::set_socket_timeout(
                     &conn,
@@ -224,7 +463,7 @@ pub fn spawn_forwarder(
                 );
                 while !stop.load(Ordering::Relaxed) {
                     let Ok(Some(request)) = recv(&conn) else { break };
-                    let reply = forward(&session, &key, request);
+                    let reply = forward(&session, &key, request, signer.as_deref());
                     if send(&conn, &reply).is_err() {
                         break;
                     }
@@ -266,8 +505,37 @@ pub fn sanitize_reply(bytes: &[u8]) -> Vec<u8> {
     }
 }
 
-fn forward(session: &zenoh::Session, key: &str, request: Vec<u8>) -> Vec<u8> {
-    let replies = match session.get(key).payload(request).timeout(REQUEST_TIMEOUT).wait() {
+/// The mirror's side of signed control: its credentials (to sign requests) and the source
+/// identity whose signature a reply must carry.
+pub struct Signer {
+    /// The mirror's credentials.
+    pub credentials: Arc<Credentials>,
+    /// The source's identity.
+    pub source: String,
+}
+
+fn random_nonce() -> [u8; 16] {
+    let mut n = [0u8; 16];
+    let read =
+        std::fs::File::open("/dev/urandom").and_then(|mut f| std::io::Read::read_exact(&mut f, &mut n));
+    if read.is_err() {
+        // A nonce need only be unique, not secret.
+        n[..8].copy_from_slice(&bassclient::sys::monotonic_ns().to_le_bytes());
+        n[8..].copy_from_slice(&crate::net::instance_id().to_le_bytes());
+    }
+    n
+}
+
+fn forward(session: &zenoh::Session, key: &str, request: Vec<u8>, signer: Option<&Signer>) -> Vec<u8> {
+    let mut get = session.get(key).timeout(REQUEST_TIMEOUT);
+    let mut nonce = [0u8; 16];
+    if let Some(s) = signer {
+        nonce = random_nonce();
+        let (user, time_ns) = (s.credentials.user.clone(), bassclient::sys::realtime_ns());
+        let signature = s.credentials.sign(key, &signed_part(time_ns, &nonce, &user, &request));
+        get = get.attachment(Signed { user, time_ns, nonce, signature }.encode());
+    }
+    let replies = match get.payload(request).wait() {
         Ok(r) => r,
         Err(e) => {
             return error_reply(
@@ -278,7 +546,22 @@ fn forward(session: &zenoh::Session, key: &str, request: Vec<u8>) -> Vec<u8> {
     };
     match replies.recv() {
         Ok(reply) => match reply.result() {
-            Ok(sample) => sanitize_reply(&sample.payload().to_bytes()),
+            Ok(sample) => {
+                let bytes = sample.payload().to_bytes();
+                if let Some(s) = signer {
+                    let sig = sample.attachment().map(|a| a.to_bytes().into_owned()).unwrap_or_default();
+                    let mut m = nonce.to_vec();
+                    m.extend_from_slice(&bytes);
+                    let ok = s.credentials.trusted(&s.source).is_some_and(|id| id.verify(key, &m, &sig));
+                    if !ok {
+                        return error_reply(
+                            ErrorKind::Protocol,
+                            &format!("bass-bridge mirror: a control reply not signed by the source {:?}: ignored", s.source),
+                        );
+                    }
+                }
+                sanitize_reply(&bytes)
+            }
             Err(e) => error_reply(
                 ErrorKind::Internal,
                 &format!("bass-bridge: {}", crate::text::escape_bytes(&e.payload().to_bytes())),
@@ -286,7 +569,7 @@ fn forward(session: &zenoh::Session, key: &str, request: Vec<u8>) -> Vec<u8> {
         },
         Err(_) => error_reply(
             ErrorKind::Permission,
-            "remote control is not enabled on the source (bass-bridge serve --allow-control), or the source is unreachable",
+            "remote control is not enabled on the source (bass-bridge serve --allow-control NAMES), or the source is unreachable",
         ),
     }
 }

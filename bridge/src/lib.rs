@@ -13,6 +13,7 @@ pub mod fault;
 pub mod iox;
 pub mod mirror;
 pub mod net;
+pub mod redact;
 pub mod ros2;
 pub mod serve;
 pub mod text;
@@ -43,7 +44,7 @@ pub fn main_with(cmd: Cmd, faults: fault::Faults) -> ! {
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_env("BASS_LOG").unwrap_or_else(|_| DEFAULT_LOG.into()),
         )
-        .with_writer(std::io::stderr)
+        .with_writer(redact::Stderr)
         // Colour codes only on a terminal: logs are mostly read from files and journals.
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
@@ -55,7 +56,7 @@ pub fn main_with(cmd: Cmd, faults: fault::Faults) -> ! {
     match r {
         Ok(()) => std::process::exit(0),
         Err(e) => {
-            eprintln!("bass-bridge: {}", text::escape(&format!("{e:#}")));
+            eprintln!("bass-bridge: {}", redact::redact(&text::escape(&format!("{e:#}"))));
             // What the user asked for cannot be done as asked: 2, as for a bad option.
             let usage = e.chain().any(|c| c.downcast_ref::<net::UsageError>().is_some());
             std::process::exit(if usage { 2 } else { 1 });

@@ -36,10 +36,14 @@ pub struct NetOpts {
     /// Key prefix separating labs or set-ups sharing one network.
     #[arg(long, default_value = "bass")]
     pub namespace: String,
-    /// Credentials file: this machine's `user:password` on its first line, then the identities
-    /// it accepts (docs/network.md, "Security"; made with `bass-bridge credentials`).
+    /// Credentials file: this machine's identity and keys, and the public cards of the machines
+    /// it trusts (docs/network.md, "Security"; made with `bass-bridge credentials`).
     #[arg(long, value_name = "FILE")]
     pub credentials: Option<PathBuf>,
+    /// The identity (one that --credentials trusts) of the machine this side connects to;
+    /// default: the only identity the file trusts.
+    #[arg(long, value_name = "NAME")]
+    pub peer: Option<String>,
     /// Run without authentication on a network: anyone who reaches an endpoint can read the
     /// audio, and feed or stop a replica. Shown in the log and the status.
     #[arg(long)]
@@ -50,6 +54,104 @@ pub struct NetOpts {
 #[derive(Debug, thiserror::Error)]
 #[error("{0}")]
 pub struct UsageError(pub String);
+
+/// A Zenoh configuration checked against the security policy, with what it was made from.
+pub struct Prepared {
+    /// The configuration.
+    pub config: zenoh::Config,
+    /// The in-memory dictionary file Zenoh reads while the session opens.
+    pub dictionary: Option<std::os::fd::OwnedFd>,
+    /// The credentials, when given.
+    pub credentials: Option<crate::credentials::Credentials>,
+    /// The trusted identity this side presents itself to, if any.
+    pub peer: Option<String>,
+}
+
+/// A `--zenoh-config` Zenoh refused: named by file and, where the parser says it, line and
+/// column, never with its content (the parser quotes the text around the error, which may
+/// be a password).
+fn config_error(p: &std::path::Path, zenoh_error: &str) -> anyhow::Error {
+    let mut at = String::new();
+    let b = zenoh_error.as_bytes();
+    for (i, w) in zenoh_error.char_indices() {
+        if w.is_ascii_digit() && (i == 0 || !b[i - 1].is_ascii_alphanumeric()) {
+            let num: String = zenoh_error[i..].chars().take_while(char::is_ascii_digit).collect();
+            let rest = &zenoh_error[i + num.len()..];
+            if let Some(col) = rest.strip_prefix(':') {
+                let col: String = col.chars().take_while(char::is_ascii_digit).collect();
+                if !col.is_empty() {
+                    at = format!(" at line {num}, column {col}");
+                    break;
+                }
+            }
+            if zenoh_error[..i].ends_with("line ") {
+                at = format!(" at line {num}");
+                break;
+            }
+        }
+    }
+    UsageError(format!(
+        "zenoh config {}: not a valid Zenoh configuration{at} (a syntax error or a value of the \
+         wrong type; Zenoh's message is not shown, as it quotes the file, which may hold a password)",
+        p.display()
+    ))
+    .into()
+}
+
+/// Who opens a session: what [`NetOpts::open`] guards.
+pub enum Role {
+    /// `serve`: no trusted identity may publish under the namespace here.
+    Serve,
+    /// `mirror`, with its `--source-identity`: only that identity may.
+    Mirror(Option<String>),
+}
+
+/// An open session and the credentials it was opened with.
+pub struct Opened {
+    /// The session.
+    pub session: zenoh::Session,
+    /// The credentials, when given.
+    pub credentials: Option<crate::credentials::Credentials>,
+    /// A mirror's source identity (with credentials): whose signatures it requires.
+    pub source_identity: Option<String>,
+}
+
+/// Messages that only the source publishes under the namespace: what [`guard_namespace`]
+/// refuses from the trusted identities.
+const SOURCE_ONLY: &str = r#"["put", "delete", "reply", "declare_queryable", "liveliness_token"]"#;
+
+/// With credentials, unless `--zenoh-config` brings its own access control: the identities
+/// this side accepts connections from may not put, delete, reply, or declare queryables or
+/// liveliness tokens under `NS/**` here (a mirror subscribes and queries only; serve is the
+/// only publisher of its keys, and a mirror checks every message's signature anyway). So an
+/// authenticated peer cannot feed this process, nor others through it, nor fake a second
+/// source with a token. `BASS_BRIDGE_NO_ACL` (tests only) leaves it out.
+fn guard_namespace(
+    c: &mut zenoh::Config,
+    ns: &str,
+    cred: &crate::credentials::Credentials,
+    exempt: Option<&str>,
+) -> Result<()> {
+    if c.get_json("access_control/enabled").is_ok_and(|j| j == "true") {
+        tracing::info!("access control: the one of --zenoh-config (bass adds none)");
+        return Ok(());
+    }
+    let users: Vec<&str> =
+        cred.trusted.iter().map(|t| t.name.as_str()).filter(|n| Some(*n) != exempt).collect();
+    if users.is_empty() {
+        return Ok(());
+    }
+    let users = serde_json::to_string(&users)?;
+    let acl = format!(
+        r#"{{ enabled: true, default_permission: "allow",
+             rules: [{{ id: "bass-source-only", messages: {SOURCE_ONLY}, flows: ["ingress"],
+                        permission: "deny", key_exprs: ["{ns}/**"] }}],
+             subjects: [{{ id: "bass-trusted", usernames: {users} }}],
+             policies: [{{ rules: ["bass-source-only"], subjects: ["bass-trusted"] }}] }}"#
+    );
+    c.insert_json5("access_control", &acl).map_err(|e| anyhow!("access control: {e}"))?;
+    Ok(())
+}
 
 /// Zenoh settings that hold a session through link outages of any length (docs/network.md,
 /// "Outages"); each applies only where the user's `--zenoh-config` leaves Zenoh's default.
@@ -83,10 +185,9 @@ pub const CHUNK_CONGESTION: zenoh::qos::CongestionControl = zenoh::qos::Congesti
 impl NetOpts {
     /// The Zenoh configuration these options make, checked against the security policy:
     /// without authentication only loopback is allowed, unless `--insecure`.
-    pub fn config(&self) -> Result<zenoh::Config> {
+    pub fn config(&self) -> Result<Prepared> {
         let mut c = match &self.zenoh_config {
-            Some(p) => zenoh::Config::from_file(p)
-                .map_err(|e| UsageError(format!("zenoh config {}: {e}", p.display())))?,
+            Some(p) => zenoh::Config::from_file(p).map_err(|e| config_error(p, &e.to_string()))?,
             None => zenoh::Config::default(),
         };
         let set = |c: &mut zenoh::Config, k: &str, v: String| {
@@ -110,15 +211,82 @@ impl NetOpts {
             set(&mut c, "scouting/multicast/enabled", "false".into())?;
             set(&mut c, "scouting/gossip/enabled", "false".into())?;
         }
+        let mut prepared =
+            Prepared { config: zenoh::Config::default(), dictionary: None, credentials: None, peer: None };
         if let Some(path) = &self.credentials {
             let cred = crate::credentials::Credentials::load(path)?;
-            set(&mut c, "transport/auth/usrpwd/user", serde_json::to_string(&cred.user)?)?;
-            set(&mut c, "transport/auth/usrpwd/password", serde_json::to_string(&cred.password)?)?;
-            let dict = path.canonicalize().with_context(|| format!("credentials {}", path.display()))?;
-            set(&mut c, "transport/auth/usrpwd/dictionary_file", serde_json::to_string(&dict)?)?;
+            crate::redact::add(cred.secrets());
+            let file = path.display();
+            let peer = match &self.peer {
+                Some(p) if cred.trusted(p).is_some() => Some(p.clone()),
+                // Not echoed: a value given by mistake here may be a secret.
+                Some(_) => {
+                    return Err(UsageError(format!(
+                        "--peer: {file} trusts no identity of that name (it trusts: {})",
+                        cred.trusted_names()
+                    ))
+                    .into())
+                }
+                None if cred.trusted.len() == 1 => Some(cred.trusted[0].name.clone()),
+                None => None,
+            };
+            let connects = !connect_endpoints(&c).is_empty();
+            match (&peer, connects) {
+                (Some(p), _) => {
+                    let pw = cred.pair_password(&cred.user, p).ok_or_else(|| {
+                        anyhow!("{file}: no key agreement with {p:?} (a degenerate public key in its card)")
+                    })?;
+                    set(&mut c, "transport/auth/usrpwd/user", serde_json::to_string(&cred.user)?)?;
+                    set(&mut c, "transport/auth/usrpwd/password", serde_json::to_string(&pw)?)?;
+                }
+                (None, true) if cred.trusted.is_empty() => {
+                    return Err(UsageError(format!(
+                        "{file} trusts no identity: trust the public card of the machine this side connects \
+                         to (`bass-bridge credentials {file} --trust OTHER.pub`)"
+                    ))
+                    .into())
+                }
+                (None, true) => {
+                    return Err(UsageError(format!(
+                        "{file} trusts {} identities ({}): give --peer NAME, the one this side connects to",
+                        cred.trusted.len(),
+                        cred.trusted_names()
+                    ))
+                    .into())
+                }
+                (None, false) => {}
+            }
+            if !cred.trusted.is_empty() {
+                // Zenoh's dictionary, made here and held in memory only: Zenoh reads it once
+                // while the session opens ([`Prepared`] keeps it until then).
+                let fd = rustix::fs::memfd_create("bass-bridge-dictionary", rustix::fs::MemfdFlags::CLOEXEC)
+                    .context("memfd_create for the Zenoh dictionary")?;
+                let dict = cred.zenoh_dictionary();
+                let mut f = std::fs::File::from(fd);
+                std::io::Write::write_all(&mut f, dict.as_bytes()).context("write the Zenoh dictionary")?;
+                let fd = std::os::fd::OwnedFd::from(f);
+                let path = format!("/proc/self/fd/{}", std::os::fd::AsRawFd::as_raw_fd(&fd));
+                set(&mut c, "transport/auth/usrpwd/dictionary_file", serde_json::to_string(&path)?)?;
+                prepared.dictionary = Some(fd);
+            }
+            prepared.peer = peer;
+            prepared.credentials = Some(cred);
+        }
+        if let Ok(j) = c.get_json("transport/auth/usrpwd/password") {
+            if let Ok(Some(pw)) = serde_json::from_str::<Option<String>>(&j) {
+                crate::redact::add([pw]);
+            }
         }
         let exposure = exposure(&c);
-        let auth = authentication(&c);
+        let auth = match &prepared.credentials {
+            Some(cred) => Some(format!(
+                "bass credentials, as {:?}{}; trusting {}",
+                cred.user,
+                prepared.peer.as_ref().map(|p| format!(" to {p:?}")).unwrap_or_default(),
+                cred.trusted_names()
+            )),
+            None => authentication(&c),
+        };
         match (exposure.is_empty(), auth, self.insecure) {
             (_, Some(how), _) => tracing::info!("authentication: {how}"),
             (true, None, _) => tracing::info!("loopback only: no authentication needed"),
@@ -138,13 +306,51 @@ impl NetOpts {
                 .into())
             }
         }
-        Ok(c)
+        prepared.config = c;
+        Ok(prepared)
     }
 
     /// Opens a Zenoh session with these options; says at the default log level which
     /// endpoints it uses.
-    pub fn open(&self) -> Result<zenoh::Session> {
-        let c = self.config()?;
+    pub fn open(&self, role: Role) -> Result<Opened> {
+        let mut prepared = self.config()?;
+        let mut source_identity = None;
+        if let Some(cred) = &prepared.credentials {
+            let exempt = match role {
+                Role::Serve => None,
+                Role::Mirror(explicit) => {
+                    let id = match explicit {
+                        Some(n) if cred.trusted(&n).is_some() => n,
+                        Some(_) => {
+                            return Err(UsageError(format!(
+                                "--source-identity: the credentials trust no identity of that name (they trust: {})",
+                                cred.trusted_names()
+                            ))
+                            .into())
+                        }
+                        None => match (&prepared.peer, &cred.trusted[..]) {
+                            (Some(p), _) => p.clone(),
+                            (None, [one]) => one.name.clone(),
+                            (None, _) => {
+                                return Err(UsageError(format!(
+                                    "the credentials trust {} identities ({}): give --source-identity NAME, \
+                                     the machine whose serve feeds this mirror",
+                                    cred.trusted.len(),
+                                    cred.trusted_names()
+                                ))
+                                .into())
+                            }
+                        },
+                    };
+                    source_identity = Some(id.clone());
+                    Some(id)
+                }
+            };
+            if std::env::var_os("BASS_BRIDGE_NO_ACL").is_none() {
+                guard_namespace(&mut prepared.config, &self.namespace, cred, exempt.as_deref())?;
+            }
+        }
+        let c = prepared.config;
         let eps = |k: &str| for_mode(&c, k).to_string();
         let session = zenoh::open(c.clone()).wait().map_err(|e| anyhow!("{e}")).with_context(|| {
             format!(
@@ -163,7 +369,9 @@ impl NetOpts {
         if !connect.is_empty() {
             watch_connections(&session, connect, "bass-bridge".into(), std::time::Duration::from_secs(3))?;
         }
-        Ok(session)
+        // Zenoh has read its dictionary: the in-memory file goes.
+        drop(prepared.dictionary);
+        Ok(Opened { session, credentials: prepared.credentials, source_identity })
     }
 
     /// `true` when this process runs open (`--insecure`) on a network.
@@ -252,6 +460,38 @@ pub struct SourceState {
     /// `serve` runs open on a network (`--insecure`): no authentication.
     #[serde(default)]
     pub insecure: bool,
+    /// Remote control requests serve passed to its broker (`--allow-control`), and those it
+    /// refused (identity not named, bad or replayed signature).
+    #[serde(default)]
+    pub control_requests: u64,
+    /// See `control_requests`.
+    #[serde(default)]
+    pub control_refused: u64,
+}
+
+/// Checks a broker or replica name used in key expressions (`--name`, `--source`): a port
+/// name (`bassclient::paths::check_name`), so no `* $ # / ?` or spaces, which would make a
+/// key expression match other sources.
+pub fn check_key_name(option: &str, name: &str) -> Result<(), UsageError> {
+    bassclient::paths::check_name(name).map_err(|_| {
+        UsageError(format!(
+            "{option} {}: use 1 to 64 characters of A-Z a-z 0-9 . _ - (not starting with '.'): \
+             no wildcard or key-expression characters such as * $ # / ?",
+            crate::text::escape(&format!("{name:?}"))
+        ))
+    })
+}
+
+/// Checks `--namespace`: chunks of [`check_key_name`]'s characters separated by `/`.
+pub fn check_namespace(ns: &str) -> Result<(), UsageError> {
+    if ns.split('/').all(|c| bassclient::paths::check_name(c).is_ok()) {
+        return Ok(());
+    }
+    Err(UsageError(format!(
+        "--namespace {}: use chunks of A-Z a-z 0-9 . _ - separated by /, no wildcard or key-expression \
+         characters such as * $ # ?",
+        crate::text::escape(&format!("{ns:?}"))
+    )))
 }
 
 /// A random instance id (not cryptographic: it only tells two `serve` runs apart).

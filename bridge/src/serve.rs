@@ -68,10 +68,11 @@ pub struct ServeOpts {
     /// (docs/network.md, "Small chunks"). Mirrors of this version or later read any N.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub chunks_per_message: u32,
-    /// Let mirrors forward control requests (ListDevices, Acquire, Stop, Status) to the local
-    /// broker (docs/network.md, "Remote control"). Off: the path is read-only.
-    #[arg(long)]
-    pub allow_control: bool,
+    /// Let the named identities (of --credentials, comma-separated: `--allow-control ws1,ws2`)
+    /// forward control requests (ListDevices, Acquire, Stop, Status) to the local broker
+    /// (docs/network.md, "Remote control"). Without it the path is read-only.
+    #[arg(long, value_name = "NAMES", num_args = 0..=1, default_missing_value = "", value_delimiter = ',')]
+    pub allow_control: Option<Vec<String>>,
     /// Also offer each chunk on the iceoryx2 service `bass/<name>/chunks` (feature `iceoryx2`, on by default).
     #[arg(long)]
     pub iceoryx2: bool,
@@ -94,8 +95,17 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
     if o.ros2.ros2 {
         crate::ros2::check(&o.ros2, &o.name)?;
     }
+    net::check_key_name("--name", &o.name)?;
+    net::check_namespace(&o.net.namespace)?;
+    if let Some(names) = &o.allow_control {
+        crate::control::check_allowed(names, o.net.credentials.is_some())?;
+    }
     let term = net::termination_flag()?;
-    let session = o.net.open()?;
+    let opened = o.net.open(net::Role::Serve)?;
+    let (session, cred) = (opened.session, opened.credentials.map(Arc::new));
+    if let (Some(names), Some(cred)) = (&o.allow_control, &cred) {
+        crate::control::check_trusted(names, cred)?;
+    }
     let instance = net::instance_id();
     let instance_hex = format!("{instance:016x}");
     let zid = session.zid().to_string();
@@ -153,33 +163,59 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
         .map_err(|e| anyhow!("declare state publisher: {e}"))?;
     let shared = Arc::new(Mutex::new(SourceState { ..Default::default() }));
     let info_shared = shared.clone();
+    let (info_key, info_cred) = (o.net.key(&o.name, "info"), cred.clone());
     let info = session
-        .declare_queryable(o.net.key(&o.name, "info"))
+        .declare_queryable(info_key.clone())
         .callback(move |q| {
             let s = serde_json::to_vec(&*info_shared.lock().unwrap_or_else(|e| e.into_inner()))
                 .unwrap_or_default();
-            if let Err(e) = q.reply(q.key_expr().clone(), s).wait() {
+            let sig = info_cred.as_ref().map(|c| c.sign(&info_key, &s).to_vec());
+            if let Err(e) = q.reply(q.key_expr().clone(), s).attachment(sig).wait() {
                 tracing::debug!("info reply: {e}");
             }
         })
         .wait()
         .map_err(|e| anyhow!("declare info queryable: {e}"))?;
+    let (clock_key, clock_keys) =
+        (o.net.key(&o.name, "clock"), cred.as_deref().map(crate::clock::ReplyKeys::new));
     let clock = session
-        .declare_queryable(o.net.key(&o.name, "clock"))
-        .callback(|q| {
+        .declare_queryable(clock_key.clone())
+        .callback(move |q| {
             let now = bassclient::sys::monotonic_ns().to_le_bytes();
-            if let Err(e) = q.reply(q.key_expr().clone(), now.to_vec()).wait() {
+            // A keyed answer (HMAC, ~1 us, not a signature's ~20 us that would skew the probe).
+            let sig = clock_keys.as_ref().and_then(|k| {
+                k.answer(
+                    &clock_key,
+                    q.attachment().map(|a| a.to_bytes()).as_deref().unwrap_or_default(),
+                    &now,
+                )
+            });
+            if let Err(e) = q.reply(q.key_expr().clone(), now.to_vec()).attachment(sig).wait() {
                 tracing::debug!("clock reply: {e}");
             }
         })
         .wait()
         .map_err(|e| anyhow!("declare clock queryable: {e}"))?;
 
-    let control = if o.allow_control {
-        let key = o.net.key(&o.name, "control");
-        Some(crate::control::declare_queryable(&session, &key, &o.name, faults.control_delay())?)
-    } else {
-        None
+    let control_stats = Arc::new(crate::control::Audit::default());
+    let control = match (&o.allow_control, &cred) {
+        (Some(allowed), Some(cred)) => {
+            let key = o.net.key(&o.name, "control");
+            let policy = crate::control::Policy {
+                allowed: allowed.clone(),
+                credentials: cred.clone(),
+                key: key.clone(),
+            };
+            Some(crate::control::declare_queryable(
+                &session,
+                &key,
+                &o.name,
+                faults.control_delay(),
+                policy,
+                control_stats.clone(),
+            )?)
+        }
+        _ => None,
     };
     #[cfg(feature = "iceoryx2")]
     let mut iox = if o.iceoryx2 { Some(crate::iox::Exporter::new(&o.name)?) } else { None };
@@ -198,11 +234,13 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
         false => (None, None),
     };
     let (tx, rx) = sync_channel::<Outgoing>(o.queue as usize);
+    let (chunk_key, mut chunk_signer) = (o.net.key(&o.name, "chunks"), cred.as_ref().map(|c| c.signer()));
     let sender = std::thread::Builder::new().name("bridge-send".into()).spawn(move || {
         let mut faults = faults;
         for out in rx {
             for bytes in faults.apply(out.sequence, out.bytes) {
-                if let Err(e) = publisher.put(bytes).wait() {
+                let sig = chunk_signer.as_mut().map(|s| s.sign(&chunk_key, &bytes).to_vec());
+                if let Err(e) = publisher.put(bytes).attachment(sig).wait() {
                     tracing::warn!("put: {e}");
                 }
             }
@@ -210,9 +248,11 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
     })?;
 
     let (state_tx, state_rx) = sync_channel::<Vec<u8>>(1);
+    let (state_key, state_cred) = (o.net.key(&o.name, "state"), cred.clone());
     let state_sender = std::thread::Builder::new().name("bridge-state".into()).spawn(move || {
         for b in state_rx {
-            if let Err(e) = state_pub.put(b).wait() {
+            let sig = state_cred.as_ref().map(|c| c.sign(&state_key, &b).to_vec());
+            if let Err(e) = state_pub.put(b).attachment(sig).wait() {
                 tracing::debug!("state put: {e}");
             }
         }
@@ -229,6 +269,7 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
         zid,
         insecure: o.net.insecure,
         last: None,
+        control: control_stats,
     };
     let publish_state = &mut |s: &SourceState, force: bool| states.publish(s, force);
     while !term.load(Ordering::Relaxed) {

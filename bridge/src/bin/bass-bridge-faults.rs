@@ -12,14 +12,32 @@ struct Cli {
     /// `control-delay=MS` holds each forwarded control request.
     #[arg(long)]
     fault: Option<String>,
+    /// Print the Zenoh password FROM presents to TO, derived from credentials FILE (one of
+    /// FROM, TO must be FILE's identity): what the security case tries as a colleague would.
+    #[arg(long, num_args = 3, value_names = ["FILE", "FROM", "TO"])]
+    print_pair_password: Option<Vec<String>>,
     #[command(subcommand)]
-    cmd: bass_bridge::Cmd,
+    cmd: Option<bass_bridge::Cmd>,
 }
 
 fn main() {
     let cli = Cli::parse();
+    if let Some([file, from, to]) = cli.print_pair_password.as_deref() {
+        let pw = bass_bridge::credentials::Credentials::load(std::path::Path::new(file))
+            .ok()
+            .and_then(|c| c.pair_password(from, to));
+        match pw {
+            Some(pw) => println!("{pw}"),
+            None => std::process::exit(3),
+        }
+        std::process::exit(0);
+    }
+    let Some(cmd) = cli.cmd else {
+        eprintln!("bass-bridge-faults: give a command");
+        std::process::exit(2);
+    };
     match bass_bridge::fault::Faults::parse(cli.fault.as_deref()) {
-        Ok(f) => bass_bridge::main_with(cli.cmd, f),
+        Ok(f) => bass_bridge::main_with(cmd, f),
         Err(e) => {
             eprintln!("bass-bridge-faults: {e:#}");
             std::process::exit(2);

@@ -180,6 +180,24 @@ impl Core {
         self.last_stamp.take()
     }
 
+    /// The serve instance followed, if any.
+    pub fn followed_instance(&self) -> Option<u64> {
+        self.followed.map(|(id, _)| id)
+    }
+
+    /// A message on the source's keys without its signature: dropped, counted, logged (rate
+    /// limited). `what`: chunks or state.
+    pub fn on_forged(&mut self, what: &str, now: u64) {
+        self.st.forged_messages += 1;
+        if let Some(n) = self.logs.invalid.allow(now) {
+            tracing::warn!(
+                "refused a {what} message not signed by the source identity {:?}{}",
+                self.st.source_identity,
+                held(n)
+            );
+        }
+    }
+
     /// The replica's writer, if there is one (tests).
     pub fn writer(&self) -> Option<&Writer> {
         self.replica.as_ref().map(|r| &r.writer)

@@ -51,6 +51,10 @@ pub struct MirrorOpts {
     /// Seconds between clock probes.
     #[arg(long, default_value = "0.5", value_parser = parse_seconds)]
     pub probe_interval: f64,
+    /// The identity (of --credentials) whose signature every chunk, state, clock answer and
+    /// control reply must carry; default: --peer, or the only identity the file trusts.
+    #[arg(long, value_name = "NAME")]
+    pub source_identity: Option<String>,
     #[command(flatten)]
     pub bounds: Bounds,
     #[command(flatten)]
@@ -60,6 +64,8 @@ pub struct MirrorOpts {
 /// What the subscribers other than the chunks' report to the main loop.
 enum Event {
     State(Vec<u8>),
+    /// A state message without the source's signature.
+    Forged,
     /// A liveliness token of the source appeared or went (its serve instance, if it says).
     Alive(Option<u64>, bool),
 }
@@ -85,6 +91,11 @@ fn take_name(name: &str) -> Result<Instance> {
 
 /// Runs `mirror` until SIGTERM/SIGINT.
 pub fn run(o: MirrorOpts) -> Result<()> {
+    net::check_key_name("--source", &o.source)?;
+    net::check_namespace(&o.net.namespace)?;
+    if let Some(n) = &o.name {
+        net::check_key_name("--name", n)?;
+    }
     let term = net::termination_flag()?;
     let name = o.name.clone().unwrap_or_else(|| format!("{}-{}", hostname(), o.source));
     let instance = take_name(&name)?;
@@ -108,26 +119,50 @@ fn run_named(
     instance: &Instance,
     term: Arc<std::sync::atomic::AtomicBool>,
 ) -> Result<()> {
-    let session = o.net.open()?;
+    let opened = o.net.open(net::Role::Mirror(o.source_identity.clone()))?;
+    let session = opened.session;
+    let cred = opened.credentials.map(Arc::new);
+    // With credentials: the source's public identity, whose signature everything must carry.
+    let source_id = match (&cred, &opened.source_identity) {
+        (Some(c), Some(n)) => c.trusted(n).cloned().map(Arc::new),
+        _ => None,
+    };
+    let probe_key = match (&cred, &source_id) {
+        (Some(c), Some(id)) => c
+            .pair_secret(&id.name, &c.user, "clock")
+            .map(|key| crate::clock::ProbeKey { user: c.user.clone(), key }),
+        _ => None,
+    };
     let clock = Arc::new(ClockEstimator::spawn(
         &session,
         o.net.key(&o.source, "clock"),
         Duration::from_secs_f64(o.probe_interval.max(0.01)),
+        probe_key,
     )?);
     let st = MirrorStatus {
         replica: name.to_owned(),
         source: o.source.clone(),
         insecure: o.net.insecure,
+        source_identity: source_id.as_ref().map(|i| i.name.clone()).unwrap_or_default(),
         ..Default::default()
     };
     let core = Arc::new(Mutex::new(Core::new(instance.port_path(), o.bounds.clone(), st, monotonic_ns())));
     let (chunk_core, chunk_clock) = (core.clone(), clock.clone());
+    let (chunk_key, chunk_id) = (o.net.key(&o.source, "chunks"), source_id.clone());
     let chunks = session
-        .declare_subscriber(o.net.key(&o.source, "chunks"))
+        .declare_subscriber(chunk_key.clone())
         .callback(move |s| {
             let (offset, _) = chunk_clock.estimate();
+            let bytes = s.payload().to_bytes();
+            if let Some(id) = &chunk_id {
+                let sig = s.attachment().map(|a| a.to_bytes()).unwrap_or_default();
+                if !id.verify(&chunk_key, &bytes, &sig) {
+                    lock(&chunk_core).on_forged("chunks", monotonic_ns());
+                    return;
+                }
+            }
             let mut c = lock(&chunk_core);
-            c.on_message(&s.payload().to_bytes(), monotonic_ns(), offset);
+            c.on_message(&bytes, monotonic_ns(), offset);
             if let Some((source, local)) = c.take_stamp() {
                 chunk_clock.observe_chunk(source, local);
             }
@@ -136,10 +171,15 @@ fn run_named(
         .map_err(|e| anyhow!("subscribe to chunks: {e}"))?;
     let (tx, rx) = channel::<Event>();
     let state_tx = tx.clone();
+    let (state_key, state_id) = (o.net.key(&o.source, "state"), source_id.clone());
     let _state = session
-        .declare_subscriber(o.net.key(&o.source, "state"))
+        .declare_subscriber(state_key.clone())
         .callback(move |s| {
-            let _ = state_tx.send(Event::State(s.payload().to_bytes().into_owned()));
+            let bytes = s.payload().to_bytes().into_owned();
+            let signed = state_id.as_ref().map_or(true, |id| {
+                id.verify(&state_key, &bytes, &s.attachment().map(|a| a.to_bytes()).unwrap_or_default())
+            });
+            let _ = state_tx.send(if signed { Event::State(bytes) } else { Event::Forged });
         })
         .wait()
         .map_err(|e| anyhow!("subscribe to state: {e}"))?;
@@ -157,8 +197,20 @@ fn run_named(
         .wait()
         .map_err(|e| anyhow!("liveliness subscriber: {e}"))?;
 
-    let forwarder =
-        crate::control::spawn_forwarder(&session, o.net.key(&o.source, "control"), instance, term.clone())?;
+    let signer = match (&cred, &source_id) {
+        (Some(c), Some(id)) => {
+            Some(Arc::new(crate::control::Signer { credentials: c.clone(), source: id.name.clone() }))
+        }
+        _ => None,
+    };
+    let forwarder = crate::control::spawn_forwarder(
+        &session,
+        o.net.key(&o.source, "control"),
+        signer,
+        instance,
+        term.clone(),
+    )?;
+    let signed = source_id.is_some();
     let timeout_ns = (o.timeout * 1e9) as u64;
     let endpoints = match (&o.net.connect[..], &o.net.listen[..], &o.net.zenoh_config) {
         ([], [], Some(p)) => format!("endpoints of {}", p.display()),
@@ -177,6 +229,14 @@ fn run_named(
         let mut c = lock(&core);
         match ev {
             Ok(Event::State(bytes)) => c.on_state(&bytes, now),
+            Ok(Event::Forged) => c.on_forged("state", now),
+            // With credentials a token proves nothing (anyone admitted can declare one): only
+            // the followed instance's, known from its signed messages, is taken.
+            Ok(Event::Alive(instance, _))
+                if signed && (instance.is_none() || instance != c.followed_instance()) =>
+            {
+                tracing::debug!(instance, "liveliness token of an instance not (yet) heard signed: ignored");
+            }
             Ok(Event::Alive(instance, a)) => {
                 // Bounded: a peer declaring many tokens cannot grow it past the cap.
                 let id = instance.unwrap_or(0);

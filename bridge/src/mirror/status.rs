@@ -36,6 +36,11 @@ pub struct MirrorStatus {
     pub late_or_duplicate: u64,
     /// Messages refused by the decoder or outside this mirror's bounds.
     pub invalid_messages: u64,
+    /// Messages on the source's keys without the source identity's signature (with
+    /// credentials): never decoded, never written.
+    pub forged_messages: u64,
+    /// Whose signature every chunk and state must carry (with credentials; empty otherwise).
+    pub source_identity: String,
     /// Chunks refused for a frame index further ahead than the elapsed time allows.
     pub refused_far_frames: u64,
     /// Chunks refused because they asked for a new replica sooner than the rate limit allows.

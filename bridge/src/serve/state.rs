@@ -33,6 +33,8 @@ pub struct StatePublisher {
     pub insecure: bool,
     /// When a state was last handed to the state thread.
     pub last: Option<Instant>,
+    /// Remote control requests answered and refused so far.
+    pub control: Arc<crate::control::Audit>,
 }
 
 impl StatePublisher {
@@ -53,6 +55,8 @@ impl StatePublisher {
             zid: self.zid.clone(),
             conflict,
             insecure: self.insecure,
+            control_requests: self.control.answered(),
+            control_refused: self.control.refused(),
             ..s.clone()
         };
         if changed || force || self.last.map_or(true, |t| t.elapsed() >= REPUBLISH) {

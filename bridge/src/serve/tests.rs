@@ -184,6 +184,9 @@ const TEXT: &[&str] = &[
     "connect",
     "namespace",
     "credentials",
+    "peer",
+    // Identity names, checked against the credentials at start.
+    "allow-control",
     // `serve --ros2`: names, checked by crate::ros2::check (its own tests), and an enum.
     "ros2-topic",
     "ros2-node",

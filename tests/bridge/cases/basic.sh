@@ -99,10 +99,19 @@ check_exact "$J" "batched messages"
 [[ $(field "$J" gap) == 0 && $(field "$J" lost) == 0 ]] && ok "batched messages: no gap, no loss" || bad "batched messages lost frames: $J"
 
 echo "== 10. remote control: refused without serve --allow-control, forwarded with it"
+# From here on serve and mirror run with credentials (remote control needs them): chunks,
+# states, clock answers and control replies signed, control requests signed by ws1.
+C=$WORK/cred; mkdir -p "$C"
+"$BIN/bass-bridge" credentials "$C/robot.cred" --user robot 2>/dev/null
+"$BIN/bass-bridge" credentials "$C/ws1.cred" --user ws1 --trust "$C/robot.pub" 2>/dev/null
+"$BIN/bass-bridge" credentials "$C/robot.cred" --trust "$C/ws1.pub" 2>/dev/null
+kill $SERVE $MIRROR 2>/dev/null || true; wait $SERVE $MIRROR 2>/dev/null || true
+INSECURE=()
+start_serve --credentials "$C/robot.cred"; start_mirror --credentials "$C/ws1.cred"; sleep 1.5
 if OUT=$(inB timeout 20 "$BIN/bass" --name rep status 2>&1); then bad "status without --allow-control succeeded: $OUT"
 elif grep -q "allow-control" <<<"$OUT"; then ok "remote control refused by default ($(tail -1 <<<"$OUT"))"
 else bad "unexpected refusal: $OUT"; fi
-kill $SERVE 2>/dev/null || true; wait $SERVE 2>/dev/null || true; start_serve --allow-control; sleep 1.5
+kill $SERVE 2>/dev/null || true; wait $SERVE 2>/dev/null || true; start_serve --credentials "$C/robot.cred" --allow-control ws1; sleep 1.5
 OUT=$(inB timeout 20 "$BIN/bass" --name rep status 2>&1) && grep -q "capturing" <<<"$OUT" \
   && ok "Status forwarded to the source's bassd" || bad "status through the bridge: $OUT"
 inB timeout 20 "$BIN/bass" --name rep acquire sim:pattern --rate $RATE --frames 960 --chunks 20 --channels 2 >/dev/null 2>&1 || true
@@ -116,7 +125,7 @@ echo "== 10b. a flood of remote control requests: 8 answered at once, the rest r
 # are all in progress together: 8 are answered, 4 get serve's busy error, none is lost.
 kill $SERVE 2>/dev/null || true; wait $SERVE 2>/dev/null || true
 SERVE_BIN=("$BIN/bass-bridge-faults" --fault control-delay=2000)
-start_serve --allow-control; SERVE_BIN=(); sleep 1.5
+start_serve --credentials "$C/robot.cred" --allow-control ws1; SERVE_BIN=(); sleep 1.5
 FLOOD=()
 for k in $(seq 12); do
   inB timeout 20 "$BIN/bass" --name rep status >"$WORK/flood.$k" 2>&1 & FLOOD+=($!)
@@ -133,7 +142,7 @@ echo "== 11. iceoryx2 export: a PyPI iceoryx2 subscriber checks frame indices an
 iox_files() { { ls /dev/shm; ls /tmp/iceoryx2/nodes /tmp/iceoryx2/services 2>/dev/null; } | grep iox2 | grep -vc 'global_mgmt$' || true; }
 BEFORE=$(iox_files)
 kill $SERVE 2>/dev/null || true; wait $SERVE 2>/dev/null || true
-start_serve --iceoryx2; sleep 1
+start_serve --iceoryx2 --credentials "$C/robot.cred"; sleep 1
 if inA timeout 30 python3 tests/bridge/iox_subscriber.py src 200 20; then ok "iceoryx2: 200 chunks, every sample right"; else bad "iceoryx2 subscriber"; fi
 kill -TERM $SERVE 2>/dev/null || true; wait $SERVE 2>/dev/null || true
 AFTER=$(iox_files)
