@@ -264,8 +264,17 @@ impl McapOut {
         w.into_inner().into_inner().map_err(|e| e.into_error())?.sync_all()?;
         let size = std::fs::metadata(&self.path)?.len();
         let yaml = self.metadata_yaml(size);
+        // Never through a planted link: whatever is at the temporary name is removed (a link
+        // itself, not its target), the file made new (O_EXCL), then renamed over
+        // metadata.yaml (a link there is replaced, not followed).
         let tmp = self.dir.join(".metadata.yaml.tmp");
-        std::fs::write(&tmp, yaml)?;
+        match std::fs::remove_file(&tmp) {
+            Err(e) if e.kind() != io::ErrorKind::NotFound => return Err(e),
+            _ => {}
+        }
+        let mut f = std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp)?;
+        io::Write::write_all(&mut f, yaml.as_bytes())?;
+        f.sync_all()?;
         std::fs::rename(&tmp, self.dir.join("metadata.yaml"))?;
         Ok(size)
     }

@@ -217,6 +217,14 @@ fn an_mcap_recording_holds_every_frame_once_and_a_loss_in_no_message() {
     let f = File::create(mcap_out::file_in(&bag)).unwrap();
     rec.out =
         Out::Mcap(Box::new(mcap_out::McapOut::new(&bag, f, "unit", 1, 8000, 10, port.epoch()).unwrap()));
+    // Issue 31: links planted at metadata.yaml's temporary name and at metadata.yaml itself
+    // are not followed: their targets stay as they were.
+    let victims = [dir.join("victim-tmp"), dir.join("victim-yaml")];
+    for v in &victims {
+        std::fs::write(v, "keep").unwrap();
+    }
+    std::os::unix::fs::symlink(&victims[0], bag.join(".metadata.yaml.tmp")).unwrap();
+    std::os::unix::fs::symlink(&victims[1], bag.join("metadata.yaml")).unwrap();
     let mut peaks = [0.0];
     publish(&mut w, 3);
     assert!(rec.step(&port, None, &mut peaks).is_ok()); // frames 5..=20
@@ -227,6 +235,10 @@ fn an_mcap_recording_holds_every_frame_once_and_a_loss_in_no_message() {
     let (side, _) = rec.finish("limit").unwrap();
     assert_eq!((side.recording.first_frame, side.recording.frames, side.recording.lost_frames), (5, 126, 70));
     assert!(bag.join("metadata.yaml").exists());
+    assert!(!std::fs::symlink_metadata(bag.join("metadata.yaml")).unwrap().file_type().is_symlink());
+    for v in &victims {
+        assert_eq!(std::fs::read_to_string(v).unwrap(), "keep", "{} written through a link", v.display());
+    }
     let msgs = mcap_messages(&mcap_out::file_in(&bag));
     assert_eq!(msgs[0].0, "/bass/unit/audio_info");
     assert_eq!(AudioInfo::decode(&msgs[0].2).unwrap(), AudioInfo::s32le(1, 8000));
