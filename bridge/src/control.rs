@@ -578,6 +578,61 @@ fn forward(session: &zenoh::Session, key: &str, request: Vec<u8>, signer: Option
 mod tests {
     use super::*;
 
+    /// A lab of three machines' credentials (robot trusts ws1 and ws2; each trusts robot).
+    fn lab() -> (tempfile::TempDir, Credentials, Credentials, Credentials) {
+        use crate::credentials::{run, CredentialsOpts};
+        let d = tempfile::tempdir().unwrap();
+        let f = |n: &str| d.path().join(n);
+        let mk = |file: &str, user: Option<&str>, trust: Vec<std::path::PathBuf>| {
+            let o = CredentialsOpts { file: f(file), user: user.map(str::to_owned), trust, forget: vec![], export: false };
+            run(o).unwrap()
+        };
+        mk("robot.cred", Some("robot"), vec![]);
+        mk("ws1.cred", Some("ws1"), vec![f("robot.pub")]);
+        mk("ws2.cred", Some("ws2"), vec![f("robot.pub")]);
+        mk("robot.cred", None, vec![f("ws1.pub"), f("ws2.pub")]);
+        let load = |n: &str| Credentials::load(&f(n)).unwrap();
+        let (r, w1, w2) = (load("robot.cred"), load("ws1.cred"), load("ws2.cred"));
+        (d, r, w1, w2)
+    }
+
+    fn signed(c: &Credentials, key: &str, request: &[u8], time_ns: u64, nonce: [u8; 16]) -> Vec<u8> {
+        let signature = c.sign(key, &signed_part(time_ns, &nonce, &c.user, request));
+        Signed { user: c.user.clone(), time_ns, nonce, signature }.encode()
+    }
+
+    #[test]
+    fn control_is_for_the_named_identities_signed_fresh_and_once() {
+        let (_d, robot, ws1, ws2) = lab();
+        let key = "bass/src/control";
+        let policy = Policy { allowed: vec!["ws1".into()], credentials: Arc::new(robot), key: key.into() };
+        let seen = Mutex::new(Seen::default());
+        let now = bassclient::sys::realtime_ns();
+        let stop = wire::encode_request(&bassclient::control::Request::Stop);
+        let a = signed(&ws1, key, &stop, now, [1; 16]);
+        assert_eq!(policy.authorize(&stop, Some(&a), &seen).unwrap().0, "ws1");
+        let e = policy.authorize(&stop, Some(&a), &seen).unwrap_err();
+        assert!(e.contains("replayed"), "{e}");
+        // Trusted but not named.
+        let e = policy.authorize(&stop, Some(&signed(&ws2, key, &stop, now, [2; 16])), &seen).unwrap_err();
+        assert!(e.contains("\"ws2\" is not allowed"), "{e}");
+        // ws2 claiming to be ws1: its own key does not make ws1's signature.
+        let mut forged = Signed::decode(&signed(&ws2, key, &stop, now, [3; 16])).unwrap();
+        forged.user = "ws1".into();
+        let e = policy.authorize(&stop, Some(&forged.encode()), &seen).unwrap_err();
+        assert!(e.contains("signature that is not its"), "{e}");
+        // ws1's signature over another request, or for another broker's key.
+        let status = wire::encode_request(&bassclient::control::Request::Status);
+        assert!(policy.authorize(&status, Some(&signed(&ws1, key, &stop, now, [4; 16])), &seen).is_err());
+        assert!(policy.authorize(&stop, Some(&signed(&ws1, "bass/other/control", &stop, now, [5; 16])), &seen).is_err());
+        // Stale, and unsigned.
+        let old = now - 2 * FRESHNESS.as_nanos() as u64;
+        let e = policy.authorize(&stop, Some(&signed(&ws1, key, &stop, old, [6; 16])), &seen).unwrap_err();
+        assert!(e.contains("away from this machine's clock"), "{e}");
+        assert!(policy.authorize(&stop, None, &seen).unwrap_err().contains("unsigned"));
+        assert!(policy.authorize(&stop, Some(b"\x03ws1"), &seen).unwrap_err().contains("unsigned"));
+    }
+
     fn message(bytes: &[u8]) -> String {
         match wire::decode_reply(bytes).unwrap() {
             Reply::Error { message, .. } => message,

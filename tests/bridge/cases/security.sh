@@ -72,6 +72,22 @@ L=$(inB timeout 60 python3 $S lines "$EP" "$C"/robot.cred "$C"/ws1.cred "$C"/ws2
   && ok "serve: $(field "$L" tried) identities tried (the version-1 comment line included), none admitted" || bad "serve admitted: $L"
 L=$(inB timeout 60 python3 $S lines "$WS1_EP" "$C"/robot.cred "$C"/ws1.cred "$C"/ws2.cred "$C"/*.pub) || true
 [[ $(field "$L" admitted) == "[]" ]] && ok "ws1's mirror: $(field "$L" tried) identities tried, none admitted" || bad "mirror admitted: $L"
+# A peer without credentials, and one whose keys the robot does not know (its own "robot" card
+# trusted: a wrong derived password), get no replica; the latter says why.
+"${IN_B[@]}" $BB mirror --source src --name open --connect "$EP" --no-scouting --insecure >"$WORK/open-mirror.log" 2>&1 &
+OPEN=$!; PIDS+=($OPEN)
+mkdir -p "$C/fake"
+$BB credentials "$C/fake/robot.cred" --user robot 2>/dev/null
+$BB credentials "$C/fake/ws1.cred" --user ws1 --trust "$C/fake/robot.pub" 2>/dev/null
+"${IN_B[@]}" $BB mirror --source src --name wrong --connect "$EP" --no-scouting --credentials "$C/fake/ws1.cred" \
+  >"$WORK/wrong-mirror.log" 2>&1 &
+WRONG=$!; PIDS+=($WRONG)
+sleep 5
+[[ ! -e $DIR_B/bass-open.port && ! -e $DIR_B/bass-wrong.port ]] \
+  && ok "no replica for a peer without credentials nor for unknown keys" || bad "an unauthenticated mirror got a replica: $(ls "$DIR_B")"
+grep -q "it answers TCP but no Zenoh session came up: credentials" "$WORK/wrong-mirror.log" \
+  && ok "the mirror with unknown keys says why" || bad "the wrong-key mirror said: $(tail -3 "$WORK/wrong-mirror.log")"
+kill "$OPEN" "$WRONG" 2>/dev/null || true
 PW2=$($BF --print-pair-password "$C/ws2.cred" ws2 robot); echo "$PW2" >"$C/pw2"
 inC timeout 20 python3 $S try "$EP_C" ws2 "$PW2" && ok "the check can see a session: ws2 with its own pair password is admitted by the robot" \
   || bad "ws2's own identity was not admitted by the robot"
