@@ -12,12 +12,15 @@
 #define BASS_HPP
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <exception>
 #include <functional>
 #include <cstdint>
+#include <memory>
 #include <stdexcept>
 #include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -245,9 +248,19 @@ class block_reader {
 // bass_stream_event &) with every acquisition event (true: go on, e.g. wait for a restart;
 // none given: every event ends the stream). mode::own_thread starts it on bass's thread;
 // mode::caller_thread waits for run(). The destructor stops and joins it. Not copyable or
-// movable: the callbacks live in the object. An exception thrown by a callback stops the
-// stream and is rethrown by run() or join(). Realtime: calling the std::function does not
-// allocate; the callables must not either (see the rules in docs/c-api.md).
+// movable. Realtime: calling the std::function does not allocate; the callables must not
+// either (see the rules in docs/c-api.md).
+//
+// Exceptions: nothing a callable throws reaches the C ABI (where it would abort the process:
+// see docs/c-api.md). The wrapper catches it, stops the stream, and run() or join() rethrows
+// it; a stream destroyed without join() drops it.
+//
+// Destroyed inside its own callback (`delete s;` from on_block or on_event): the stream is
+// stopped — no callback is made after the destructor returns — and released once the running
+// callback has returned (an own_thread stream by a short-lived thread of the wrapper's, a
+// caller_thread stream by the run() below it, which then returns without touching the
+// object). The callables are destroyed only then, so the running callback may still use its
+// captures after the delete; it must not touch the deleted stream itself.
 class stream {
   public:
     using block_fn = std::function<bool(const bass_block &)>;
@@ -256,58 +269,90 @@ class stream {
 
     stream(const port &p, const bass_stream_config &cfg, block_fn on_block, event_fn on_event = {},
            mode m = mode::own_thread)
-        : on_block_(std::move(on_block)), on_event_(std::move(on_event)) {
+        : st_(std::make_shared<state>(std::move(on_block), std::move(on_event), m == mode::own_thread)) {
         if (m == mode::own_thread)
-            check("bass_stream_start", bass_stream_start(p.handle(), &cfg, block_tramp, event_tramp, this, &h_));
+            check("bass_stream_start",
+                  bass_stream_start(p.handle(), &cfg, block_tramp, event_tramp, st_.get(), &st_->h));
         else
-            check("bass_stream_create", bass_stream_create(p.handle(), &cfg, block_tramp, event_tramp, this, &h_));
+            check("bass_stream_create",
+                  bass_stream_create(p.handle(), &cfg, block_tramp, event_tramp, st_.get(), &st_->h));
     }
-    ~stream() { bass_stream_close(h_); }
+    ~stream() {
+        bass_stream *h = st_->h;
+        if (h == nullptr || bass_stream_close(h) != BASS_ERR_INVALID_ARGUMENT) return;
+        // Inside one of its own callbacks, where the library refuses to close it: stop it here,
+        // release it once the callback has returned.
+        st_->detached.store(true, std::memory_order_release);
+        bass_stream_stop(h);
+        if (!st_->own_thread) return;  // the run() on this thread's stack closes it
+        std::shared_ptr<state> st = std::move(st_);
+        try {
+            std::thread([st] { bass_stream_close(st->h); }).detach();
+        } catch (...) {
+            new std::shared_ptr<state>(std::move(st));  // no thread to release it: stopped, kept
+        }
+    }
     stream(const stream &) = delete;
     stream &operator=(const stream &) = delete;
 
     // Runs a caller_thread stream here until a callback or stop() ends it.
     void run() {
-        check("bass_stream_run", bass_stream_run(h_));
-        rethrow();
+        std::shared_ptr<state> st = st_;  // a callback may destroy the stream meanwhile
+        bass_result r = bass_stream_run(st->h);
+        if (st->detached.load(std::memory_order_acquire)) {
+            bass_stream_close(st->h);  // destroyed by its callback: released here, `this` untouched
+            return;
+        }
+        check("bass_stream_run", r);
+        if (st->failure) std::rethrow_exception(std::exchange(st->failure, nullptr));
     }
     // Asks the stream to stop; from any thread, also inside a callback.
-    void stop() noexcept { bass_stream_stop(h_); }
-    // Stops an own_thread stream and waits for it; rethrows a callback's exception.
+    void stop() noexcept { bass_stream_stop(st_->h); }
+    // Stops an own_thread stream and waits for it; rethrows a callback's exception. Not from
+    // inside its own callbacks (bass::error BASS_ERR_INVALID_ARGUMENT; the stream goes on).
     void join() {
-        bass_result r = bass_stream_close(h_);
-        h_ = nullptr;
+        bass_result r = bass_stream_close(st_->h);
+        if (r != BASS_ERR_INVALID_ARGUMENT) st_->h = nullptr;
         check("bass_stream_close", r);
         rethrow();
     }
 
   private:
+    // What the callbacks use: owned by the stream, and by whoever releases it after it was
+    // destroyed inside a callback.
+    struct state {
+        state(block_fn b, event_fn e, bool own) : on_block(std::move(b)), on_event(std::move(e)), own_thread(own) {}
+        block_fn on_block;
+        event_fn on_event;
+        bool own_thread;
+        std::exception_ptr failure;
+        std::atomic<bool> detached{false};
+        bass_stream *h = nullptr;
+    };
     static int block_tramp(const bass_block *b, void *user) {
-        auto *s = static_cast<stream *>(user);
+        auto *st = static_cast<state *>(user);
+        if (st->detached.load(std::memory_order_acquire)) return 1;
         try {
-            return s->on_block_(*b) ? 0 : 1;
+            return st->on_block(*b) ? 0 : 1;
         } catch (...) {
-            s->failure_ = std::current_exception();
+            st->failure = std::current_exception();
             return 1;
         }
     }
     static int event_tramp(const bass_stream_event *e, void *user) {
-        auto *s = static_cast<stream *>(user);
-        if (!s->on_event_) return 1;
+        auto *st = static_cast<state *>(user);
+        if (!st->on_event || st->detached.load(std::memory_order_acquire)) return 1;
         try {
-            return s->on_event_(*e) ? 0 : 1;
+            return st->on_event(*e) ? 0 : 1;
         } catch (...) {
-            s->failure_ = std::current_exception();
+            st->failure = std::current_exception();
             return 1;
         }
     }
     void rethrow() {
-        if (failure_) std::rethrow_exception(std::exchange(failure_, nullptr));
+        if (st_->failure) std::rethrow_exception(std::exchange(st_->failure, nullptr));
     }
-    block_fn on_block_;
-    event_fn on_event_;
-    std::exception_ptr failure_;
-    bass_stream *h_ = nullptr;
+    std::shared_ptr<state> st_;
 };
 
 inline const char *version() noexcept { return bass_version(); }

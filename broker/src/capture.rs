@@ -370,6 +370,24 @@ struct Replay {
 }
 
 impl Replay {
+    /// A recorded loss running to the recording's end: the port moves on to frame `to` (the
+    /// first frame after the loss), so that readers count the whole loss, lost upstream.
+    fn skip_to(&mut self, shared: &Shared, to: u64) {
+        let mut w = shared.writer();
+        let lfi = w.last_frame_index();
+        if to <= lfi + 1 {
+            return;
+        }
+        match w.skip_to(to) {
+            Ok(_) => {
+                if lfi > 0 {
+                    w.add_lost_upstream(to - lfi - 1);
+                }
+            }
+            Err(e) => tracing::warn!("replay: the loss to the end of the recording was not skipped: {e}"),
+        }
+    }
+
     /// Publishes one recorded chunk, first skipping to its readable frame; false once the
     /// acquisition has ended.
     fn publish(&mut self, shared: &Shared, samples: &[i32], c: &RecordedChunk) -> bool {
@@ -532,7 +550,10 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
                 shared.fail(code, &message);
                 break;
             }
-            ReadEvent::Ended { message } => {
+            ReadEvent::Ended { message, lost_to } => {
+                if let Some(to) = lost_to {
+                    replay.skip_to(shared, to);
+                }
                 shared.end(&message);
                 break;
             }

@@ -218,3 +218,198 @@ fn another_chunk_size_or_a_sidecar_that_disagrees_is_refused_by_name() {
     assert_eq!(o.status.code(), Some(4), "{}", text(&o));
     assert!(text(&o).contains("losses[0]: frames 700..=1199 are not inside the file"), "{}", text(&o));
 }
+
+/// An MCAP recording as `bass record --format mcap` writes it, built here: 1 channel at
+/// 8000 Hz, 100-frame chunks, the audio `runs` (first frame, chunks, frames lost before it;
+/// sample = frame index) and `frames` frames in all from frame 1 (the rest lost at the end).
+fn mcap_recording(dir: &Path, name: &str, runs: &[(u64, u64, u64)], frames: u64) -> std::path::PathBuf {
+    use bassclient::ros2::{self, AudioDataStamped, ChunkInfo, Header, Time};
+    use bassclient::sidecar::{Acquisition, Lost, Recording, Sidecar};
+    use std::collections::BTreeMap;
+    let mut w = mcap::WriteOptions::new()
+        .profile("ros2")
+        .compression(None)
+        .create(std::io::Cursor::new(Vec::new()))
+        .unwrap();
+    let meta = BTreeMap::new();
+    let s1 = w.add_schema(ros2::CHUNK_INFO, "ros2msg", ros2::CHUNK_INFO_DEFINITION.as_bytes()).unwrap();
+    let c1 = w.add_channel(s1, "/bass/t/chunk_info", "cdr", &meta).unwrap();
+    let def = ros2::AUDIO_DATA_STAMPED_DEFINITION.as_bytes();
+    let s2 = w.add_schema(ros2::AUDIO_DATA_STAMPED, "ros2msg", def).unwrap();
+    let c2 = w.add_channel(s2, "/bass/t/audio", "cdr", &meta).unwrap();
+    let (mut buf, mut seq, mut losses) = (Vec::new(), 0u32, Vec::new());
+    for &(first, chunks, lost_before) in runs {
+        if lost_before > 0 {
+            losses.push(Lost { first_frame: first - lost_before, frames: lost_before });
+        }
+        for k in 0..chunks {
+            let f = first + 100 * k;
+            let info = ChunkInfo {
+                header: Header { stamp: Time::from_ns(f * 125_000), frame_id: String::new() },
+                epoch: 1,
+                first_frame: f,
+                frames: 100,
+                chunk_first_frame: f,
+                chunk_frames: 100,
+                flags: 0,
+                monotonic_ns: f * 125_000,
+                realtime_ns: f * 125_000,
+                lost_before: if k == 0 { lost_before } else { 0 },
+            };
+            let h = |channel_id| mcap::records::MessageHeader {
+                channel_id,
+                sequence: seq,
+                log_time: f,
+                publish_time: f,
+            };
+            info.encode(&mut buf);
+            w.write_to_known_channel(&h(c1), &buf).unwrap();
+            let s: Vec<i32> = (f..f + 100).map(|x| x as i32).collect();
+            AudioDataStamped::encode_samples(&info.header, &s, &mut buf);
+            w.write_to_known_channel(&h(c2), &buf).unwrap();
+            seq += 1;
+        }
+    }
+    let (last_run, chunks, _) = *runs.last().unwrap();
+    let end = last_run + 100 * chunks;
+    if end <= frames {
+        losses.push(Lost { first_frame: end, frames: frames - end + 1 });
+    }
+    let lost_frames = losses.iter().map(|l| l.frames).sum();
+    let facts = Sidecar {
+        acquisition: Acquisition {
+            device: "sim:pattern".into(),
+            format: "S32_LE".into(),
+            sample_rate: 8000,
+            channels: 1,
+            frames_per_chunk: 100,
+            chunks_on_port: 200,
+            epoch: 1,
+        },
+        recording: Recording {
+            file: name.into(),
+            first_frame: 1,
+            frames,
+            seconds: frames as f64 / 8000.0,
+            bytes: 0,
+            bits: 32,
+            channels: vec![0],
+            gap_frames: 0,
+            lost_frames,
+            end: "limit".into(),
+            requested_first_frame: None,
+            started_after_requested: 0,
+            wav_format: None,
+            in_progress: false,
+        },
+        losses,
+        chunks: Vec::new(),
+    };
+    let md = BTreeMap::from([("sidecar".to_string(), serde_json::to_string(&facts).unwrap())]);
+    w.write_metadata(&mcap::records::Metadata { name: "bass".into(), metadata: md }).unwrap();
+    w.finish().unwrap();
+    let p = dir.join(name);
+    std::fs::write(&p, w.into_inner().into_inner()).unwrap();
+    p
+}
+
+/// Reads the port from frame 1 until the replay has ended and every frame is read: the
+/// frames delivered (checked: sample = frame index) and the loss reported, as (first frame
+/// of a block after a loss, loss) pairs and the frames delivered.
+fn read_to_the_end(port: &bassclient::Port) -> (Vec<(u64, u64)>, Vec<u64>) {
+    let (mut out, mut nfr, mut losses, mut got) = (vec![0; 20_000], 1u64, Vec::new(), Vec::new());
+    let deadline = std::time::Instant::now() + PATIENCE;
+    loop {
+        let ended = port.info().unwrap().state == Some(State::Stopped);
+        let r = port.get_audio_data(out.len(), &mut nfr, &mut [&mut out[..]]).unwrap();
+        let first = nfr - r.frames as u64;
+        if r.loss > 0 {
+            losses.push((first, r.loss));
+        }
+        for (k, &s) in out[..r.frames].iter().enumerate() {
+            assert_eq!(s, (first + k as u64) as i32, "frame {}", first + k as u64);
+            got.push(first + k as u64);
+        }
+        if ended && r.frames == 0 && r.loss == 0 {
+            return (losses, got);
+        }
+        assert!(std::time::Instant::now() < deadline, "the replay did not end: {:?}", port.info().unwrap());
+        if r.frames == 0 {
+            let _ = port.wait(nfr, std::time::Duration::from_millis(20));
+        }
+    }
+}
+
+/// The capture threads of process `pid` (by name, from /proc/PID/task/*/comm).
+fn capture_threads(pid: u32) -> usize {
+    std::fs::read_dir(format!("/proc/{pid}/task"))
+        .unwrap()
+        .filter_map(|t| std::fs::read_to_string(t.unwrap().path().join("comm")).ok())
+        .filter(|c| c.trim() == "bassd-capture")
+        .count()
+}
+
+#[test]
+fn an_hour_long_loss_inside_a_recording_is_replayed_as_that_loss_at_once() {
+    // Frames 1..=200, a loss of 60 minutes at 8000 Hz (28.8 M frames), frames ..=28_800_400.
+    // Before the fix the replay stepped through the lost frames one by one, then waited out
+    // the hour: no frame after the loss within any patience.
+    const LOST: u64 = 60 * 60 * 8000;
+    let dir = TempDir::new("replay-long-loss");
+    let b = Bassd::start_replaying(dir.path(), "default");
+    let p = mcap_recording(dir.path(), "hour.mcap", &[(1, 2, 0), (201 + LOST, 2, LOST)], 400 + LOST);
+    let dev = format!("sim:file:{}", p.display());
+    b.client().acquire(&acquire_req(&dev, 8000, 100, 200, 1)).unwrap();
+    let port = b.port();
+    let (losses, got) = read_to_the_end(&port);
+    let info = port.info().unwrap();
+    assert_eq!(info.error_code, error_code::NONE, "{}", info.message);
+    assert!(info.message.contains(&format!("{LOST} lost as in the recording")), "{}", info.message);
+    assert_eq!((info.last_frame_index, info.lost_upstream_frames), (400 + LOST, LOST));
+    // Every frame read or counted lost; the frames after the loss at their recorded indices.
+    let lost: u64 = losses.iter().map(|l| l.1).sum();
+    assert_eq!(got.len() as u64 + lost, 400 + LOST);
+    let after: Vec<u64> = got.iter().copied().filter(|&f| f > 200).collect();
+    assert_eq!(after, (201 + LOST..=400 + LOST).collect::<Vec<_>>());
+    assert!(lost >= LOST && losses.iter().all(|&(f, _)| f == 201 + LOST || f <= 201), "{losses:?}");
+    assert!(!b.log_text().contains("stalled"), "{}", b.log_text());
+}
+
+#[test]
+fn a_loss_to_the_end_of_a_recording_is_replayed_and_leaves_no_capture_thread_behind() {
+    // Frames 1..=200, then lost to the end: 180 minutes at 8000 Hz, and a forged recording
+    // lost to frame 2^53 (the largest a replay accepts). Before the fix the replay stepped
+    // through the lost frames one by one, on a thread a Stop could not end ("leaving it behind").
+    let dir = TempDir::new("replay-loss-to-end");
+    let mut b = Bassd::start_replaying(dir.path(), "default");
+    for (name, frames) in [("end.mcap", 200 + 180 * 60 * 8000), ("forged.mcap", 1u64 << 53)] {
+        let p = mcap_recording(dir.path(), name, &[(1, 2, 0)], frames);
+        let dev = format!("sim:file:{}", p.display());
+        b.client().acquire(&acquire_req(&dev, 8000, 100, 200, 1)).unwrap();
+        let port = b.port();
+        let (losses, got) = read_to_the_end(&port);
+        let info = port.info().unwrap();
+        assert_eq!(info.error_code, error_code::NONE, "{name}: {}", info.message);
+        // The port moved on to the loss's last whole chunk; readers count all of it lost.
+        let last = frames / 100 * 100;
+        assert_eq!((info.last_frame_index, info.lost_upstream_frames), (last, frames - 200), "{name}");
+        assert!(
+            info.message.contains(&format!("{} lost as in the recording", frames - 200)),
+            "{}",
+            info.message
+        );
+        let lost: u64 = losses.iter().map(|l| l.1).sum();
+        assert_eq!(got.len() as u64 + lost, frames, "{name}: {losses:?}");
+        assert!(got.iter().all(|&f| f <= 200), "{name}: {got:?}");
+        b.client().stop().unwrap();
+        assert_eq!(capture_threads(b.pid()), 0, "{name}: a capture thread is left");
+    }
+    // One frame further is refused by name.
+    let p = mcap_recording(dir.path(), "past.mcap", &[(1, 2, 0)], (1 << 53) + 1);
+    let dev = format!("sim:file:{}", p.display());
+    let e = b.client().acquire(&acquire_req(&dev, 8000, 100, 200, 1)).unwrap_err().to_string();
+    assert!(e.contains("runs past frame 9007199254740992 (2^53)"), "{e}");
+    assert!(!b.log_text().contains("leaving it behind"), "{}", b.log_text());
+    b.signal(libc::SIGTERM);
+    assert!(b.wait_exit().success());
+}

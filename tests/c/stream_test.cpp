@@ -1,10 +1,14 @@
 // The C++ callback stream (bass::stream in include/bass.hpp): a lambda's blocks tile the
 // stream of a real port written with bass_writer_*, sample by
 // sample against the pattern, across a lapped callback, on the caller's thread and on bass's
-// own; an exception thrown by the lambda stops the stream and reaches run(). Run by
+// own; an exception thrown by the lambda stops the stream and reaches run() or join(); a
+// stream deleted inside its own callback delivers no block after the delete and is released
+// once the callback returns (run under ASan by run.sh: no use after free). Run by
 // tests/c/run.sh with BASS_RUNTIME_DIR set to a fresh directory.
 #include <atomic>
+#include <chrono>
 #include <cstdio>
+#include <memory>
 #include <cstdlib>
 #include <stdexcept>
 #include <thread>
@@ -130,6 +134,83 @@ void exception_reaches_run() {
     }
     CHECK(caught);
 }
+void exception_reaches_join() {
+    feed f("cppthrowj");
+    for (int i = 0; i < 4; i++) f.publish();
+    bass::port p("cppthrowj");
+    bass_stream_config cfg{};
+    std::atomic<bool> thrown{false};
+    bass::stream s(p, cfg, [&](const bass_block &) -> bool {
+        thrown = true;
+        throw std::runtime_error("from bass's thread");
+    });
+    while (!thrown) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    bool caught = false;
+    try {
+        s.join();
+    } catch (const std::runtime_error &e) {
+        caught = std::string(e.what()) == "from bass's thread";
+    }
+    CHECK(caught);
+}
+
+// `delete s` inside on_block while blocks flow: no block after the delete has returned; the
+// stream is released (its callables destroyed) once the callback has returned.
+void delete_inside_its_callback(bass::stream::mode m, const char *name) {
+    feed f(name);
+    for (int i = 0; i < 4; i++) f.publish();
+    bass::port p(name);
+    std::atomic<bool> deleted{false}, done{false};
+    std::atomic<unsigned> before{0}, after{0}, published{0};
+    std::atomic<bass::stream *> self{nullptr};
+    auto token = std::make_shared<int>(0);  // held by the callable only: gone once released
+    std::weak_ptr<int> callable_alive = token;
+    std::thread feeder([&] {
+        for (int i = 0; i < 2000 && !done; i++) {
+            f.publish();
+            published++;
+            std::this_thread::sleep_for(std::chrono::microseconds(300));
+        }
+    });
+    bass_stream_config cfg{};
+    cfg.start = BASS_START_OLDEST;
+    auto *s = new bass::stream(
+        p, cfg,
+        [&, token = std::move(token)](const bass_block &) {
+            (void)token;
+            if (deleted) {
+                after++;
+                return true;
+            }
+            if (++before == 3) {
+                while (self.load() == nullptr) std::this_thread::yield();
+                delete self.load();
+                deleted = true;  // the captures live on until the callback has returned
+            }
+            return true;
+        },
+        {}, m);
+    self = s;
+    if (m == bass::stream::mode::caller_thread) s->run();  // returns once it deleted itself
+    auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+    while (!deleted && std::chrono::steady_clock::now() < deadline)
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    // Frames keep coming after the delete (40 chunks more): none of them may reach the callback.
+    unsigned at = published;
+    while (published < at + 40 && std::chrono::steady_clock::now() < deadline)
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    while (!callable_alive.expired() && std::chrono::steady_clock::now() < deadline)
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    done = true;
+    feeder.join();
+    CHECK(deleted && before == 3);
+    CHECK(published >= at + 40);
+    CHECK(after == 0);
+    CHECK(callable_alive.expired());
+    std::printf("C++ %s: deleted in its callback at block %u; %u blocks after the delete (of %u chunks); released: %s\n",
+                m == bass::stream::mode::own_thread ? "own thread" : "caller's thread", before.load(), after.load(),
+                published.load() - at, callable_alive.expired() ? "yes" : "no");
+}
 }  // namespace
 
 int main() {
@@ -140,6 +221,9 @@ int main() {
     caller_thread();
     own_thread();
     exception_reaches_run();
+    exception_reaches_join();
+    delete_inside_its_callback(bass::stream::mode::own_thread, "cppdelete");
+    delete_inside_its_callback(bass::stream::mode::caller_thread, "cppdeletec");
     std::printf("stream_test_cpp: %d failures\n", failures);
     return failures != 0;
 }

@@ -13,6 +13,13 @@
 //!   (`Writer::skip_to`), so a reader keeping up gets the same `loss` at the same frame as the
 //!   recorder did (a reader further behind also loses what was still before it, as when a
 //!   live port overtakes it). That needs the recording's chunk size; another is refused.
+//!   A loss of any length is passed over **in one step**: the chunk after it follows the chunk
+//!   before it one chunk period later (the replay does not wait out the time of the loss, so a
+//!   loss of hours neither stalls the port nor keeps the replay waiting); the CLOCK_MONOTONIC
+//!   stamps keep the recorded spacing, so after a loss they are ahead of the replay's clock by
+//!   the time it did not wait. A loss that runs to the recording's end moves the port on over
+//!   it one chunk period after the last chunk, then the replay ends. A recording whose frames
+//!   (lost or not) pass frame [`MAX_REPLAY_FRAME`] is refused.
 //!   Without a sidecar: WAV frame 0 becomes frame 1, flags 0, the replay's own timestamps.
 //! - `sim:file-renumber:PATH.wav` — the same, but WAV frame 0 becomes frame 1 (the recorded
 //!   flags and times are kept where the chunk grids agree; elsewhere GAP frames still replay as
@@ -40,6 +47,10 @@ use bassclient::sidecar::Sidecar;
 const NS_PER_MS: u64 = 1_000_000;
 /// Longest sleep of one read: a longer wait returns `Pending` in between.
 const PENDING_SLICE_NS: u64 = 100 * NS_PER_MS;
+/// Largest frame index a replay accepts, lost frames included: 2^53, the last integer a double
+/// holds exactly (Matlab, Python floats), 5.9 thousand years of frames at 48 kHz. A recording
+/// past it is a forged one.
+pub const MAX_REPLAY_FRAME: u64 = 1 << 53;
 
 /// How a file is replayed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -127,6 +138,10 @@ pub struct FileDevice {
     done: Replayed,
     /// The chunk prepared while waiting for its time.
     ready: Option<(u64, u64, Counts)>,
+    /// Frames of the recorded losses passed over in one step: the pacing leaves out their time.
+    skipped: u64,
+    /// CLOCK_MONOTONIC at which the last chunk was due.
+    last_due: u64,
 }
 
 /// Opens `path` for an Acquire at `rate` Hz with `channels` channels and `nfpc` frames per chunk.
@@ -242,6 +257,7 @@ fn device(
             Mode::Loop => {}
         }
     }
+    check_bound(name, sidecar.as_ref(), rec_first, total)?;
     let origin = (base - 1) / nfpc * nfpc + 1;
     Ok(FileDevice {
         path: path.to_owned(),
@@ -261,6 +277,29 @@ fn device(
         mono_offset: None,
         done: Replayed::default(),
         ready: None,
+        skipped: 0,
+        last_due: 0,
+    })
+}
+
+/// Refuses a recording whose frames `rec_first ..` (`total` of them, lost ones included) pass
+/// [`MAX_REPLAY_FRAME`], naming the loss that does if one does.
+fn check_bound(name: &str, sidecar: Option<&Sidecar>, rec_first: u64, total: u64) -> Result<(), String> {
+    let last = rec_first.saturating_add(total - 1);
+    if last <= MAX_REPLAY_FRAME {
+        return Ok(());
+    }
+    let loss = sidecar.and_then(|sc| {
+        sc.losses.iter().find(|l| l.first_frame.saturating_add(l.frames - 1) > MAX_REPLAY_FRAME)
+    });
+    Err(match loss {
+        Some(l) => format!(
+            "{name}: its loss of {} frames from frame {} runs past frame {MAX_REPLAY_FRAME} (2^53), the largest frame index a replay accepts",
+            l.frames, l.first_frame
+        ),
+        None => format!(
+            "{name}: its frames {rec_first}..={last} run past frame {MAX_REPLAY_FRAME} (2^53), the largest frame index a replay accepts"
+        ),
     })
 }
 
@@ -301,10 +340,21 @@ fn is_gap(flags: u32) -> bool {
 }
 
 impl FileDevice {
-    /// CLOCK_MONOTONIC at which port frame `p` is due (the replay's clock).
+    /// CLOCK_MONOTONIC at which port frame `p` is due (the replay's clock, which leaves out
+    /// the time of the losses passed over).
     fn due_ns(&self, p: u64) -> u64 {
-        let k = p.saturating_sub(self.origin);
+        let k = p.saturating_sub(self.origin).saturating_sub(self.skipped);
         self.start_ns + (u128::from(k) * 1_000_000_000 / u128::from(self.rate)) as u64
+    }
+
+    /// The CLOCK_MONOTONIC stamp of port frame `p`: its place in the recording's time, where
+    /// every frame takes 1/rate, lost or not (ahead of the replay's clock by the losses
+    /// passed over).
+    fn stamp_ns(&self, p: u64) -> u64 {
+        let k = p.saturating_sub(self.origin);
+        self.start_ns.saturating_add(
+            (u128::from(k) * 1_000_000_000 / u128::from(self.rate)).min(u128::from(u64::MAX)) as u64,
+        )
     }
 
     /// Last port frame of the file (none for a loop).
@@ -386,14 +436,33 @@ impl FileDevice {
         Ok(())
     }
 
+    /// The first port frame after the recorded loss that holds port frame `p`, if one does
+    /// (a binary search of the losses; none in a loop, which replays them as zeros).
+    fn loss_end(&self, p: u64) -> Option<u64> {
+        let sc = self.sidecar.as_ref().filter(|_| self.mode != Mode::Loop)?;
+        let r = self.rec_first + self.wav_frame(p)?;
+        let k = sc.losses.partition_point(|l| l.first_frame <= r);
+        let l = sc.losses.get(k.checked_sub(1)?)?;
+        let end = l.first_frame + l.frames;
+        (r < end).then(|| p + (end - r))
+    }
+
     /// The next chunk holding a frame of the file, as (first frame, first readable frame,
-    /// frames by kind); chunks lost whole are passed over (the port skips them with it).
-    /// `None` at the end of the file.
+    /// frames by kind); chunks lost whole are passed over in one step (the port skips them
+    /// with it), so the work is the same for a loss of a chunk or of 2^53 frames. `None` at
+    /// the end of the file.
     fn prepare(&mut self) -> Option<(u64, u64, Counts)> {
         loop {
             let p0 = self.next;
             if self.last().is_some_and(|l| p0 > l) {
                 return None;
+            }
+            let whole = self.loss_end(p0).map_or(0, |end| (end - p0) / self.nfpc * self.nfpc);
+            if whole > 0 {
+                self.next = p0 + whole;
+                self.done.lost += whole;
+                self.skipped += whole;
+                continue;
             }
             let mut c = Counts::default();
             let mut readable_from = None;
@@ -428,6 +497,25 @@ impl FileDevice {
         }
     }
 
+    /// The end of the recording: at once, or — a recorded loss running to the end — one chunk
+    /// period after the last chunk, when the next one would have come, so that readers have
+    /// the time to read the last chunk before the port moves on over the loss.
+    fn end(&mut self, stop: &StopSignal) -> ReadEvent {
+        let ev = self.ended();
+        if matches!(ev, ReadEvent::Ended { lost_to: Some(_), .. }) {
+            let chunk_ns = (u128::from(self.nfpc) * 1_000_000_000 / u128::from(self.rate)) as u64;
+            let due = self.last_due.max(self.start_ns) + chunk_ns;
+            let slice_end = monotonic_ns() + PENDING_SLICE_NS;
+            if due > slice_end {
+                return if sleep_until(slice_end, stop) { ReadEvent::Pending } else { ReadEvent::Stopped };
+            }
+            if !sleep_until(due, stop) {
+                return ReadEvent::Stopped;
+            }
+        }
+        ev
+    }
+
     fn ended(&self) -> ReadEvent {
         let d = &self.done;
         let (first, last) = (d.first.unwrap_or(self.base), d.last);
@@ -445,7 +533,10 @@ impl FileDevice {
         } else {
             String::new()
         };
+        // A loss running to the end: the port moves on over it before the replay ends.
+        let lost_to = self.last().filter(|&l| l > d.last && self.loss_end(l).is_some()).map(|l| l + 1);
         ReadEvent::Ended {
+            lost_to,
             message: format!(
                 "sim:{}{}: end of the recording after {} frames (frames {first}..={last} {at}, {} of them GAP, \
                  {} lost as in the recording{pad}) (replay ended)",
@@ -467,8 +558,8 @@ impl FileDevice {
             None
         };
         if let Some(row) = row {
-            let due = i128::from(self.due_ns(p0));
-            let off = *self.mono_offset.get_or_insert(due - i128::from(row.mono_ns));
+            let at = i128::from(self.stamp_ns(p0));
+            let off = *self.mono_offset.get_or_insert(at - i128::from(row.mono_ns));
             let mono = (i128::from(row.mono_ns) + off).clamp(1, i128::from(u64::MAX)) as u64;
             let meta = ChunkMeta { mono_ns: mono, realtime_ns: row.realtime_ns.max(1), flags: row.flags };
             return (meta, is_gap(row.flags));
@@ -487,7 +578,7 @@ impl FileDevice {
         } else if late {
             flags |= chunk_flags::LATE;
         }
-        let mono = self.due_ns(p0);
+        let mono = self.stamp_ns(p0);
         let realtime = realtime_ns().wrapping_add(mono).wrapping_sub(monotonic_ns());
         (ChunkMeta { mono_ns: mono.max(1), realtime_ns: realtime.max(1), flags }, zeros)
     }
@@ -517,7 +608,7 @@ impl Capture for FileDevice {
             Some(r) => r,
             None => match self.prepare() {
                 Some(r) => r,
-                None => return self.ended(),
+                None => return self.end(stop),
             },
         };
         let due = self.due_ns(p0 + self.nfpc);
@@ -532,6 +623,7 @@ impl Capture for FileDevice {
             return ReadEvent::Stopped;
         }
         let woke = monotonic_ns();
+        self.last_due = due;
         if let Err(e) = self.fill_chunk(p0, out) {
             return self.failed(&e);
         }

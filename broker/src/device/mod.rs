@@ -134,6 +134,9 @@ pub enum ReadEvent {
     Ended {
         /// What ended.
         message: String,
+        /// A recorded loss runs to the end: the port skips to this frame first
+        /// (`Writer::skip_to`), so that readers count the loss.
+        lost_to: Option<u64>,
     },
 }
 

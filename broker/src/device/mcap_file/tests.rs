@@ -4,6 +4,7 @@
 use std::collections::BTreeMap;
 use std::io::Cursor;
 
+use bassclient::format::chunk_flags;
 use bassclient::ros2::{self, AudioDataStamped, ChunkInfo, Header, Time};
 use bassclient::sidecar::{Acquisition, Lost, Recording, Sidecar};
 
@@ -214,5 +215,33 @@ fn a_bag_directory_resolves_to_its_one_mcap_file() {
     assert_eq!(resolve(&dir).unwrap(), p);
     write(&dir, "other.mcap", &good_runs(), Some(&facts()), None);
     assert!(resolve(&dir).err().unwrap().contains("holds 2 .mcap files"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_first_pass_over_gap_chunks_with_losses_is_linear() {
+    // n GAP chunks, each losing 10 of its frames: n rows and n losses, which the first pass
+    // used to compare pairwise (n², 4·10⁸ for 20 000 chunks: 15.9 s for a 48.7 MB file).
+    let dir = tmp("linear");
+    for n in [10u64, 20_000] {
+        let mut runs = Vec::new();
+        for k in 0..n {
+            runs.push(run(1 + 100 * k, 40, 0, chunk_flags::GAP));
+            runs.push(run(51 + 100 * k, 50, 10, chunk_flags::GAP));
+        }
+        let mut f = facts();
+        f.losses = (0..n).map(|k| Lost { first_frame: 41 + 100 * k, frames: 10 }).collect();
+        let r = &mut f.recording;
+        (r.first_frame, r.frames, r.lost_frames, r.gap_frames) = (1, 100 * n, 10 * n, 90 * n);
+        let p = write(&dir, &format!("gaps{n}.mcap"), &runs, Some(&f), None);
+        let t = std::time::Instant::now();
+        let (_, side) = open_path(&p).unwrap();
+        let bytes = std::fs::metadata(&p).unwrap().len();
+        println!("{n} GAP chunks with losses, {bytes} bytes: opened in {:?}", t.elapsed());
+        assert_eq!((side.chunks.len() as u64, side.losses.len() as u64), (n, n));
+        let (gap, steps) = side.gap_frames_walk();
+        assert_eq!(gap, 90 * n);
+        assert!(steps <= 3 * n + 1, "{steps} comparisons for {n} rows and {n} losses");
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
