@@ -584,7 +584,13 @@ mod tests {
         let d = tempfile::tempdir().unwrap();
         let f = |n: &str| d.path().join(n);
         let mk = |file: &str, user: Option<&str>, trust: Vec<std::path::PathBuf>| {
-            let o = CredentialsOpts { file: f(file), user: user.map(str::to_owned), trust, forget: vec![], export: false };
+            let o = CredentialsOpts {
+                file: f(file),
+                user: user.map(str::to_owned),
+                trust,
+                forget: vec![],
+                export: false,
+            };
             run(o).unwrap()
         };
         mk("robot.cred", Some("robot"), vec![]);
@@ -624,7 +630,9 @@ mod tests {
         // ws1's signature over another request, or for another broker's key.
         let status = wire::encode_request(&bassclient::control::Request::Status);
         assert!(policy.authorize(&status, Some(&signed(&ws1, key, &stop, now, [4; 16])), &seen).is_err());
-        assert!(policy.authorize(&stop, Some(&signed(&ws1, "bass/other/control", &stop, now, [5; 16])), &seen).is_err());
+        assert!(policy
+            .authorize(&stop, Some(&signed(&ws1, "bass/other/control", &stop, now, [5; 16])), &seen)
+            .is_err());
         // Stale, and unsigned.
         let old = now - 2 * FRESHNESS.as_nanos() as u64;
         let e = policy.authorize(&stop, Some(&signed(&ws1, key, &stop, old, [6; 16])), &seen).unwrap_err();
