@@ -100,8 +100,9 @@ fn config_error(p: &std::path::Path, zenoh_error: &str) -> anyhow::Error {
 
 /// Who opens a session: what [`NetOpts::open`] guards.
 pub enum Role {
-    /// `serve`: no trusted identity may publish under the namespace here.
-    Serve,
+    /// `serve`: no trusted identity may publish under the namespace here, nor on these other
+    /// key expressions (`serve --ros2`'s topics, [`crate::ros2::guarded_keys`]).
+    Serve(Vec<String>),
     /// `mirror`, with its `--source-identity`: only that identity may.
     Mirror(Option<String>),
 }
@@ -125,10 +126,11 @@ const SOURCE_ONLY: &str = r#"["put", "delete", "reply", "declare_queryable", "li
 /// liveliness tokens under `NS/**` here (a mirror subscribes and queries only; serve is the
 /// only publisher of its keys, and a mirror checks every message's signature anyway). So an
 /// authenticated peer cannot feed this process, nor others through it, nor fake a second
-/// source with a token. `BASS_BRIDGE_NO_ACL` (tests only) leaves it out.
+/// source with a token. `keys`: `NS/**` and any other key expressions only this side
+/// publishes. `BASS_BRIDGE_NO_ACL` (tests only) leaves it out.
 fn guard_namespace(
     c: &mut zenoh::Config,
-    ns: &str,
+    keys: &[String],
     cred: &crate::credentials::Credentials,
     exempt: Option<&str>,
 ) -> Result<()> {
@@ -142,10 +144,11 @@ fn guard_namespace(
         return Ok(());
     }
     let users = serde_json::to_string(&users)?;
+    let keys = serde_json::to_string(keys)?;
     let acl = format!(
         r#"{{ enabled: true, default_permission: "allow",
              rules: [{{ id: "bass-source-only", messages: {SOURCE_ONLY}, flows: ["ingress"],
-                        permission: "deny", key_exprs: ["{ns}/**"] }}],
+                        permission: "deny", key_exprs: {keys} }}],
              subjects: [{{ id: "bass-trusted", usernames: {users} }}],
              policies: [{{ rules: ["bass-source-only"], subjects: ["bass-trusted"] }}] }}"#
     );
@@ -316,8 +319,12 @@ impl NetOpts {
         let mut prepared = self.config()?;
         let mut source_identity = None;
         if let Some(cred) = &prepared.credentials {
+            let mut keys = vec![format!("{}/**", self.namespace)];
             let exempt = match role {
-                Role::Serve => None,
+                Role::Serve(more) => {
+                    keys.extend(more);
+                    None
+                }
                 Role::Mirror(explicit) => {
                     let id = match explicit {
                         Some(n) if cred.trusted(&n).is_some() => n,
@@ -347,7 +354,7 @@ impl NetOpts {
                 }
             };
             if std::env::var_os("BASS_BRIDGE_NO_ACL").is_none() {
-                guard_namespace(&mut prepared.config, &self.namespace, cred, exempt.as_deref())?;
+                guard_namespace(&mut prepared.config, &keys, cred, exempt.as_deref())?;
             }
         }
         let c = prepared.config;

@@ -101,7 +101,8 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
         crate::control::check_allowed(names, o.net.credentials.is_some())?;
     }
     let term = net::termination_flag()?;
-    let opened = o.net.open(net::Role::Serve)?;
+    let guarded = if o.ros2.ros2 { crate::ros2::guarded_keys(&o.ros2, &o.name)? } else { Vec::new() };
+    let opened = o.net.open(net::Role::Serve(guarded))?;
     let (session, cred) = (opened.session, opened.credentials.map(Arc::new));
     if let (Some(names), Some(cred)) = (&o.allow_control, &cred) {
         crate::control::check_trusted(names, cred)?;

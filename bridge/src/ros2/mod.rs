@@ -7,7 +7,8 @@
 //!   interleaved S32LE samples, `header.stamp` the CLOCK_REALTIME of its first frame;
 //!   RELIABLE, VOLATILE, KEEP_LAST 10;
 //! - `/bass/<broker>/audio_info` (`AudioInfo`): once per acquisition, TRANSIENT_LOCAL depth 1
-//!   (a "latched" topic: an advanced publisher with a cache that late subscribers query);
+//!   (a "latched" topic: an advanced publisher whose last message late subscribers query,
+//!   answered at a bounded rate by [`latched`]);
 //! - `/bass/<broker>/chunk_info` (`bass_msgs/msg/ChunkInfo`): per audio message, with the
 //!   same stamp, its first frame index, frames, the port's chunk flags and `lost_before`, the
 //!   frames of this acquisition that serve did not publish since the previous message (queue
@@ -18,6 +19,7 @@
 //! which never waits for the network (except, bounded, for a new port's backlog, as serve's
 //! own chunks do): a thread of its own encodes and puts.
 
+pub mod latched;
 pub mod names;
 pub mod typehash;
 
@@ -29,7 +31,7 @@ use std::time::{Duration, Instant};
 use anyhow::{anyhow, Context, Result};
 use bassclient::ros2::{self as msgs, AudioDataStamped, AudioInfo, ChunkInfo, Header, Time, Topics};
 use zenoh::Wait;
-use zenoh_ext::{AdvancedPublisherBuilderExt, CacheConfig, MissDetectionConfig};
+use zenoh_ext::{AdvancedPublisherBuilderExt, MissDetectionConfig};
 
 use crate::net::UsageError;
 use crate::wire;
@@ -84,6 +86,23 @@ pub fn node_name(o: &Ros2Opts, broker: &str) -> Result<String, UsageError> {
     Ok(n)
 }
 
+/// The key expressions of these options' topics that only serve may put, reply or declare
+/// queryables and tokens on ([`crate::net::Role::Serve`]): each topic's data keys (any type and
+/// hash), the history queryables and tokens of its advanced publishers, and its publishers'
+/// liveliness tokens in the ROS graph.
+pub fn guarded_keys(o: &Ros2Opts, broker: &str) -> Result<Vec<String>, UsageError> {
+    let domain = check(o, broker)?;
+    let t = topics(o, broker)?;
+    let mut keys = Vec::new();
+    for topic in [&t.audio, &t.info, &t.chunks] {
+        // `**` matches no `@adv` chunk: the advanced publisher's keys are named apart.
+        keys.push(format!("{domain}/{}/**", topic.trim_matches('/')));
+        keys.push(format!("{}/@adv/pub/**", names::topic_key(domain, topic, "*", "*")));
+        keys.push(format!("{}/{domain}/*/*/*/MP/*/*/*/{}/**", names::ADMIN_SPACE, names::mangle(topic)));
+    }
+    Ok(keys)
+}
+
 /// Checks the options (topics, node name, `ROS_DOMAIN_ID`) before anything is opened.
 pub fn check(o: &Ros2Opts, broker: &str) -> Result<u32, UsageError> {
     topics(o, broker)?;
@@ -107,6 +126,8 @@ struct Publisher {
     zenoh: Zpub,
     gid: [u8; names::GID_LEN],
     key: String,
+    /// The history of a TRANSIENT_LOCAL publisher.
+    latched: Option<latched::Latched>,
 }
 
 enum Zpub {
@@ -116,9 +137,12 @@ enum Zpub {
 
 impl Publisher {
     /// Puts `payload` with the attachment of message `sequence` (rmw_zenoh numbers from 1).
-    fn put(&self, payload: &[u8], sequence: i64) {
+    fn put(&mut self, payload: &[u8], sequence: i64) {
         let now = i64::try_from(bassclient::sys::realtime_ns()).unwrap_or(i64::MAX);
         let att = names::attachment(sequence, now, &self.gid).to_vec();
+        if let Some(l) = self.latched.as_mut() {
+            l.record(payload, &att);
+        }
         let r = match &self.zenoh {
             Zpub::Plain(p) => p.put(payload.to_vec()).attachment(att).wait(),
             Zpub::Advanced(p) => p.put(payload.to_vec()).attachment(att).wait(),
@@ -205,25 +229,29 @@ pub fn start(
             .declare_publisher(key.clone())
             .congestion_control(zenoh::qos::CongestionControl::Drop)
             .reliability(zenoh::qos::Reliability::Reliable);
-        let zenoh = if qos.transient_local {
-            // As rmw_zenoh: a cache late subscribers query, detection of this publisher, and
-            // sporadic heartbeats for RELIABLE + TRANSIENT_LOCAL.
-            Zpub::Advanced(
-                builder
-                    .cache(CacheConfig::default().max_samples(qos.depth as usize))
-                    .publisher_detection()
-                    .sample_miss_detection(
-                        MissDetectionConfig::default().sporadic_heartbeat(Duration::from_millis(500)),
-                    )
-                    .wait()
-                    .map_err(|e| anyhow!("declare the ROS 2 publisher {key}: {e}"))?,
-            )
+        let (zenoh, latched) = if qos.transient_local {
+            // As rmw_zenoh: the last message for late subscribers and detection of this
+            // publisher (our own queryable and token, where zenoh-ext's cache and
+            // publisher_detection would be: [`latched`]), and sporadic heartbeats for
+            // RELIABLE + TRANSIENT_LOCAL. Depth 1 only.
+            debug_assert_eq!(qos.depth, 1);
+            let p = builder
+                .sample_miss_detection(
+                    MissDetectionConfig::default().sporadic_heartbeat(Duration::from_millis(500)),
+                )
+                .wait()
+                .map_err(|e| anyhow!("declare the ROS 2 publisher {key}: {e}"))?;
+            let l = latched::Latched::declare(session, &key, &p)?;
+            (Zpub::Advanced(p), Some(l))
         } else {
-            Zpub::Plain(builder.wait().map_err(|e| anyhow!("declare the ROS 2 publisher {key}: {e}"))?)
+            (
+                Zpub::Plain(builder.wait().map_err(|e| anyhow!("declare the ROS 2 publisher {key}: {e}"))?),
+                None,
+            )
         };
         tokens.push(declare_token(session, &entity.token())?);
         tracing::info!(topic, key = %key, "ROS 2 publisher");
-        Ok(Publisher { zenoh, gid: entity.gid(), key })
+        Ok(Publisher { zenoh, gid: entity.gid(), key, latched })
     };
     let audio =
         make(1, &topics.audio, msgs::AUDIO_DATA_STAMPED, msgs::AUDIO_DATA_STAMPED_DEFINITION, volatile)?;
@@ -265,7 +293,7 @@ fn publish_loop(
     rx: Receiver<Item>,
     free: SyncSender<Vec<i32>>,
     info: Arc<Mutex<Option<AudioInfo>>>,
-    [audio, info_pub, chunks]: [Publisher; 3],
+    [mut audio, mut info_pub, mut chunks]: [Publisher; 3],
     frame_id: String,
 ) {
     let (mut interleaved, mut bytes) = (Vec::new(), Vec::new());
@@ -393,5 +421,30 @@ mod tests {
         }
         assert_eq!(node_name(&Ros2Opts::default(), "left-ear").unwrap(), "bass_bridge_left_ear");
         assert!(node_name(&Ros2Opts { ros2_node: Some("a-b".into()), ..Default::default() }, "x").is_err());
+    }
+
+    #[test]
+    fn serve_guards_every_key_of_its_topics() {
+        let o = Ros2Opts { ros2: true, ..Default::default() };
+        let keys = guarded_keys(&o, "src").unwrap();
+        let data =
+            |t: &str| names::topic_key(0, t, "audio_common_msgs::msg::dds_::AudioInfo_", "RIHS01_b349");
+        let covered = |k: &str| {
+            let k = zenoh::key_expr::KeyExpr::try_from(k.to_string()).unwrap();
+            keys.iter().any(|g| zenoh::key_expr::KeyExpr::try_from(g.clone()).unwrap().includes(&k))
+        };
+        for t in ["/bass/src/audio", "/bass/src/audio_info", "/bass/src/chunk_info"] {
+            assert!(covered(&data(t)), "{t}");
+            assert!(covered(&format!("{}/@adv/pub/1f/7/_", data(t))), "{t}: history queryable");
+            assert!(
+                covered(&format!("@ros2_lv/0/1f/0/3/MP/%/%/n/{}/x/y/::,10:,:,:,,", names::mangle(t))),
+                "{t}: token"
+            );
+        }
+        assert!(!covered(&data("/bass/src/audio_extra")) && !covered(&data("/chatter")));
+        assert!(
+            !covered(&format!("{}/@adv/sub/1f/7/_", data("/bass/src/audio"))),
+            "a subscriber's own token"
+        );
     }
 }
