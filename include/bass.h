@@ -106,6 +106,12 @@
 // Event: SCHED_FIFO was refused (`os_error` is the errno); the stream runs unprioritised.
 #define BASS_EVENT_REALTIME_REFUSED 5
 
+// Event: after `BASS_EVENT_STOPPED`, `_DEVICE` or `_WRITER_GONE`, the same acquisition goes
+// on (same port, same `epoch`: a restarted broker took the port back, or the writer is alive
+// again); `frame` is the next frame the stream reads. Frames that left the window meanwhile
+// are the next block's `lost`; the frames the writer missed come as `BASS_CHUNK_GAP` zeros.
+#define BASS_EVENT_RESUMED 6
+
 
 
 // Result codes. `BASS_OK` is 0; the codes are stable and never renumbered.
@@ -341,9 +347,9 @@ typedef struct {
   uint32_t kind;
   // `BASS_DEVERR_*` (device), the writer's pid (writer gone), else 0.
   uint32_t code;
-  // The epoch (restarted), else the stream's current epoch.
+  // The epoch (restarted: the new one), else the stream's current epoch.
   uint64_t epoch;
-  // The last frame (stopped), the frame the stream resumes at (restarted), else 0.
+  // The last frame (stopped), the frame the stream resumes at (restarted, resumed), else 0.
   uint64_t frame;
   // The errno (realtime refused), else 0.
   int os_error;

@@ -17,6 +17,7 @@
 #include <exception>
 #include <functional>
 #include <cstdint>
+#include <cstdio>
 #include <memory>
 #include <stdexcept>
 #include <string>
@@ -246,14 +247,15 @@ class block_reader {
 // A callback stream (bass_stream_*, docs/c-api.md "Callback streams"): on_block(const
 // bass_block &) is called with every block and returns true to go on; on_event(const
 // bass_stream_event &) with every acquisition event (true: go on, e.g. wait for a restart;
-// none given: every event ends the stream). mode::own_thread starts it on bass's thread;
+// none given: every event but BASS_EVENT_REALTIME_REFUSED ends the stream). mode::own_thread starts it on bass's thread;
 // mode::caller_thread waits for run(). The destructor stops and joins it. Not copyable or
 // movable. Realtime: calling the std::function does not allocate; the callables must not
 // either (see the rules in docs/c-api.md).
 //
 // Exceptions: nothing a callable throws reaches the C ABI (where it would abort the process:
 // see docs/c-api.md). The wrapper catches it, stops the stream, and run() or join() rethrows
-// it; a stream destroyed without join() drops it.
+// it; a stream destroyed without join() writes the exception's what() to stderr (a destructor
+// cannot throw it, and a failure is not dropped silently).
 //
 // Destroyed inside its own callback (`delete s;` from on_block or on_event): the stream is
 // stopped — no callback is made after the destructor returns — and released once the running
@@ -279,7 +281,11 @@ class stream {
     }
     ~stream() {
         bass_stream *h = st_->h;
-        if (h == nullptr || bass_stream_close(h) != BASS_ERR_INVALID_ARGUMENT) return;
+        if (h == nullptr) return;
+        if (bass_stream_close(h) != BASS_ERR_INVALID_ARGUMENT) {
+            report_dropped(st_->failure);
+            return;
+        }
         // Inside one of its own callbacks, where the library refuses to close it: stop it here,
         // release it once the callback has returned.
         st_->detached.store(true, std::memory_order_release);
@@ -341,12 +347,25 @@ class stream {
     }
     static int event_tramp(const bass_stream_event *e, void *user) {
         auto *st = static_cast<state *>(user);
-        if (!st->on_event || st->detached.load(std::memory_order_acquire)) return 1;
+        if (st->detached.load(std::memory_order_acquire)) return 1;
+        // Without an event callback every end ends the stream; a refused priority is no end.
+        if (!st->on_event) return e->kind == BASS_EVENT_REALTIME_REFUSED ? 0 : 1;
         try {
             return st->on_event(*e) ? 0 : 1;
         } catch (...) {
             st->failure = std::current_exception();
             return 1;
+        }
+    }
+    // The exception a stream destroyed without join() would drop, named on stderr.
+    static void report_dropped(const std::exception_ptr &failure) noexcept {
+        if (!failure) return;
+        try {
+            std::rethrow_exception(failure);
+        } catch (const std::exception &e) {
+            std::fprintf(stderr, "bass::stream destroyed without join(): its callback threw: %s\n", e.what());
+        } catch (...) {
+            std::fprintf(stderr, "bass::stream destroyed without join(): its callback threw a non-std exception\n");
         }
     }
     void rethrow() {

@@ -188,6 +188,13 @@ impl Acquisition {
         self.shared.writer().stop();
     }
 
+    /// Stops the capture thread like [`Acquisition::stop`] but leaves the port's state as it
+    /// is: an Acquire that replaces this acquisition marks it superseded next, and its readers
+    /// see no Stopped in between ([`Acquisition::stop`] if the replacement fails).
+    pub fn halt(&mut self, timeout: Duration) {
+        self.stop_thread(timeout);
+    }
+
     /// Stops the capture thread like [`Acquisition::stop`] but leaves the port capturing, for
     /// the broker's successor to take back (`Writer::leave_to_successor`).
     pub fn leave_to_successor(&mut self, timeout: Duration) {
@@ -213,6 +220,12 @@ impl Acquisition {
                 }
             }
         }
+    }
+
+    /// Sets the port's restart grace (0: no successor can take it back, see
+    /// `Writer::set_restart_grace_ms`).
+    pub fn set_restart_grace_ms(&self, ms: u32) {
+        self.shared.writer().set_restart_grace_ms(ms);
     }
 
     /// Marks the port superseded by a new acquisition and wakes its readers (who then see
@@ -370,21 +383,21 @@ struct Replay {
 }
 
 impl Replay {
-    /// A recorded loss running to the recording's end: the port moves on to frame `to` (the
-    /// first frame after the loss), so that readers count the whole loss, lost upstream.
-    fn skip_to(&mut self, shared: &Shared, to: u64) {
+    /// Moves the port on to `first` (a recorded loss running to the recording's end): its last
+    /// frame index to the loss's last whole chunk, and readers count every frame before `first`
+    /// lost, as the lost upstream frames do.
+    fn skip_to(&mut self, shared: &Shared, first: u64) {
         let mut w = shared.writer();
-        let lfi = w.last_frame_index();
-        if to <= lfi + 1 {
+        if shared.ended.load(Ordering::Acquire) || shared.stop.is_set() {
             return;
         }
-        match w.skip_to(to) {
-            Ok(_) => {
-                if lfi > 0 {
-                    w.add_lost_upstream(to - lfi - 1);
-                }
+        let lfi = w.last_frame_index();
+        if first > lfi + 1 {
+            match w.skip_to(first) {
+                Ok(_) if lfi > 0 => w.add_lost_upstream(first - lfi - 1),
+                Ok(_) => {}
+                Err(e) => tracing::warn!("replay: skipping the loss at the end to frame {first} failed: {e}"),
             }
-            Err(e) => tracing::warn!("replay: the loss to the end of the recording was not skipped: {e}"),
         }
     }
 
@@ -551,8 +564,8 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
                 break;
             }
             ReadEvent::Ended { message, lost_to } => {
-                if let Some(to) = lost_to {
-                    replay.skip_to(shared, to);
+                if let Some(f) = lost_to {
+                    replay.skip_to(shared, f);
                 }
                 shared.end(&message);
                 break;

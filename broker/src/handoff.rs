@@ -42,12 +42,11 @@ pub fn prepare(
     }
 }
 
-/// Marks the acquisition being replaced superseded where the new port's commit could not:
-/// a memfd port (a file port at the path was marked by the commit).
+/// Marks the acquisition being replaced superseded: a memfd port, which no commit finds at a
+/// path, and a port file the commit may not have found there (removed or replaced under the
+/// broker; one the commit marked is marked again, which changes nothing).
 pub fn supersede(old: &Acquisition) {
-    if old.port.size_sealed() {
-        old.supersede();
-    }
+    old.supersede();
 }
 
 /// The reply to an `open-port` that did not come over a socket (no descriptor can travel).

@@ -69,7 +69,8 @@ pub struct Broker {
     /// The service manager (systemd), if bassd runs under one.
     sup: Supervisor,
     /// The epoch of a port a predecessor left in the fd store that this broker did not
-    /// resume: the next acquisition's epoch passes it.
+    /// resume, or the last one a predecessor recorded in the instance lock: the next
+    /// acquisition's epoch passes it.
     handed_epoch: Option<u64>,
 }
 
@@ -279,7 +280,7 @@ fn port_cut(a: &Acquisition) -> Option<String> {
 pub fn run(cfg: Config) -> anyhow::Result<()> {
     // Catch the termination signals before any thread exists (a wake-up socket the loop polls).
     let signals = os::catch_termination_signals().context("setting up the signal handling")?;
-    let files = take_instance(&cfg)?;
+    let mut files = take_instance(&cfg)?;
     let mode = if cfg.group.is_some() { 0o660 } else { 0o600 };
     let listener =
         os::listen_seqpacket_at(files.inst.dir(), &files.socket_name, &files.socket, mode, cfg.group)
@@ -287,6 +288,8 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
     tracing::info!(name = %cfg.name, socket = %files.socket.display(), pid = std::process::id(), "bassd ready");
     let own_uid = os::euid();
     let mut broker = Broker::new(cfg.clone());
+    // A memfd port leaves no file whose epoch the next one could continue: the lock says it.
+    broker.handed_epoch = files.inst.previous_epoch;
     broker.sup = Supervisor::from_env(cfg.restart_grace_ms);
     let resumed = match broker.sup.take_handed(&cfg.name) {
         Some(handed) => broker.take_back(handed),
@@ -299,6 +302,7 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
     }
     broker.sup.ready(&resume::status_line(&broker.status()));
     let mut clients: Vec<Conn> = Vec::new();
+    let mut recorded_epoch = None;
     let mut acceptor = Acceptor::new();
     let idle_ns = u64::try_from(cfg.idle_timeout.as_nanos()).unwrap_or(u64::MAX).max(1);
     loop {
@@ -315,6 +319,12 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
         os::poll(&mut fds, Some(TICK)).context("poll")?;
         broker.tick();
         broker.poll_open();
+        if let Some(e) = broker.current.as_ref().map(|a| a.port.epoch()) {
+            if Some(e) != recorded_epoch {
+                files.inst.record_epoch(e);
+                recorded_epoch = Some(e);
+            }
+        }
         if fds[1].revents != 0 {
             if let Some(sig) = os::read_signal(&signals) {
                 tracing::info!(signal = sig, "terminating: stopping the capture");

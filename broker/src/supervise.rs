@@ -101,6 +101,17 @@ impl Supervisor {
         }
         let store_off = std::env::var("FDSTORE").is_ok_and(|v| v.trim() == "0");
         s.grace_ms = if store_off { 0 } else { grace_ms };
+        if s.grace_ms > 0 {
+            // Nothing can take the port back through a socket nobody listens on: readers of a
+            // broker that dies are then told at once, not after the grace.
+            if let Err(why) = probe_notify_socket() {
+                tracing::warn!(
+                    "NOTIFY_SOCKET is not usable ({why}): the fd store is not used, a restart \
+                     ends the acquisition (restart_grace_ms 0)"
+                );
+                s.grace_ms = 0;
+            }
+        }
         let mut usec = 0;
         if sd_notify::watchdog_enabled(false, &mut usec) && usec > 0 {
             s.ping_ns = Some(usec.saturating_mul(1000) / 2);
@@ -174,17 +185,20 @@ impl Supervisor {
     }
 
     /// Hands the running acquisition's port (a read-write descriptor) and its record to the
-    /// store, replacing what was there. Logged, not fatal, if the manager refuses.
-    pub fn store(&mut self, port: OwnedFd, stored: &Stored) {
+    /// store, replacing what was there. Logged, not fatal, if the manager refuses; false then
+    /// (and for a broker that does not use the store): nothing can take the port back, so the
+    /// caller sets its restart grace to 0, as every later port's ([`Supervisor::restart_grace_ms`]).
+    pub fn store(&mut self, port: OwnedFd, stored: &Stored) -> bool {
         if !self.notify || self.grace_ms == 0 {
-            return;
+            return false;
         }
         self.forget();
         let record = match write_record(stored) {
             Ok(f) => f,
             Err(e) => {
                 tracing::warn!("cannot write the acquisition record for the fd store: {e}");
-                return;
+                self.grace_ms = 0;
+                return false;
             }
         };
         let sent = sd_notify::notify_with_fds(
@@ -203,8 +217,15 @@ impl Supervisor {
             Ok(()) => {
                 self.holds_port = true;
                 tracing::debug!(epoch = stored.epoch, "port handed to the service manager's fd store");
+                true
             }
-            Err(e) => tracing::warn!("cannot hand the port to the service manager's fd store: {e}"),
+            Err(e) => {
+                tracing::warn!(
+                    "cannot hand the port to the service manager's fd store ({e}): restart_grace_ms 0"
+                );
+                self.grace_ms = 0;
+                false
+            }
         }
     }
 
@@ -260,6 +281,23 @@ impl Supervisor {
             }
         }
     }
+}
+
+/// Whether `NOTIFY_SOCKET` names a datagram socket something listens on (a path, or `@name`
+/// in the abstract namespace): a connect of an unbound datagram socket, which sends nothing.
+/// A missing path, a regular file, a stream socket, an unbound abstract name all fail here.
+fn probe_notify_socket() -> Result<(), String> {
+    use std::os::linux::net::SocketAddrExt;
+    use std::os::unix::net::{SocketAddr, UnixDatagram};
+    let target = std::env::var_os("NOTIFY_SOCKET").unwrap_or_default();
+    let bytes = std::os::unix::ffi::OsStrExt::as_bytes(target.as_os_str());
+    let addr = match bytes.strip_prefix(b"@") {
+        Some(name) => SocketAddr::from_abstract_name(name),
+        None => SocketAddr::from_pathname(std::path::Path::new(&target)),
+    }
+    .map_err(|e| format!("{}: {e}", target.to_string_lossy()))?;
+    let sock = UnixDatagram::unbound().map_err(|e| format!("socket: {e}"))?;
+    sock.connect_addr(&addr).map_err(|e| format!("{}: {e}", target.to_string_lossy()))
 }
 
 /// The record, in a memfd (the store takes descriptors, not bytes).
@@ -323,7 +361,7 @@ mod tests {
     #[test]
     fn without_a_service_manager_nothing_is_sent_or_stored() {
         let mut s = Supervisor::none();
-        s.store(write_record(&record()).unwrap().into(), &record());
+        assert!(!s.store(write_record(&record()).unwrap().into(), &record()));
         assert!(!s.holds_port());
         assert_eq!(s.restart_grace_ms(), 0);
     }

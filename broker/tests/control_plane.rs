@@ -354,3 +354,45 @@ fn idle_control_connections_are_closed_and_clients_reconnect() {
     assert_eq!(c.status().unwrap().state, State::Idle as u32);
     assert_eq!(c.acquire(&acquire_req("sim:pattern", 8000, 80, 10, 2)).unwrap().epoch, 1);
 }
+
+/// An Acquire that interrupts a running acquisition is one Restarted for a stream that
+/// follows it, never a Stopped first (a stream with no event callback ends at the first
+/// event: it would end on some interrupting Acquires and not others).
+#[test]
+fn interrupting_acquires_are_each_one_restarted_and_never_a_stopped() {
+    use bassclient::stream::{Config, Control, Stream};
+    use std::sync::{Arc, Mutex};
+    let dir = TempDir::new("interrupt");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    let mut c = b.client();
+    c.acquire(&acquire_req("sim:pattern", 8000, 80, 100, 2)).unwrap();
+    let events = Arc::new(Mutex::new(Vec::new()));
+    let e = events.clone();
+    let handle = Stream::open_path(&b.port_path(), Config::default())
+        .unwrap()
+        .spawn(
+            |_| Control::Continue,
+            move |ev| {
+                e.lock().unwrap().push(format!("{ev:?}"));
+                Control::Continue
+            },
+        )
+        .unwrap();
+    for i in 0..20u64 {
+        let a = c.acquire(&acquire_req("sim:pattern", 8000, 80, 100, 2)).unwrap();
+        assert_eq!(a.epoch, i + 2);
+        // The stream has followed this Acquire before the next one.
+        eventually("the stream in the new epoch", || {
+            events
+                .lock()
+                .unwrap()
+                .iter()
+                .any(|e| e.starts_with(&format!("Restarted {{ epoch: {}", i + 2)))
+                .then_some(())
+        });
+    }
+    drop(handle);
+    let events = events.lock().unwrap();
+    let want: Vec<String> = (2..22).map(|e| format!("Restarted {{ epoch: {e}, resume_at: 1 }}")).collect();
+    assert_eq!(*events, want);
+}

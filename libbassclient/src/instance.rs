@@ -3,7 +3,10 @@
 //! neither can take over the other's control socket or port.
 //!
 //! ```text
-//!  <runtime dir>/bass-NAME.lock   flock(LOCK_EX) held for the process's life; text: its pid
+//!  <runtime dir>/bass-NAME.lock   flock(LOCK_EX) held for the process's life; text: its pid,
+//!                                 and `epoch N`: the last acquisition epoch a broker of this
+//!                                 name started, which the next one continues (a memfd port
+//!                                 leaves nothing else behind that would say it)
 //!  <runtime dir>/bass-NAME.sock   control socket: replaced only by the lock's holder
 //!  <runtime dir>/bass-NAME.port   the port
 //! ```
@@ -81,6 +84,8 @@ pub struct Instance {
     lock: File,
     /// Whether taking the name removed a control socket left by a dead holder.
     pub removed_stale_socket: bool,
+    /// The last epoch a holder of this name recorded ([`Instance::record_epoch`]), if any.
+    pub previous_epoch: Option<u64>,
 }
 
 impl Instance {
@@ -128,16 +133,28 @@ impl Instance {
                 socket,
             });
         }
-        let write_pid = |lock: &mut File| -> io::Result<()> {
-            lock.set_len(0)?;
-            writeln!(lock, "{}", std::process::id())
-        };
-        write_pid(&mut lock).map_err(ctx(format!("writing {}", dir_path.join(&lock_name).display())))?;
+        let previous_epoch = read_epoch(&mut lock);
+        write_lock_text(&mut lock, previous_epoch)
+            .map_err(ctx(format!("writing {}", dir_path.join(&lock_name).display())))?;
         let socket_name = format!("bass-{name}.sock");
         // We hold the lock, so any socket of ours there was left by a holder that died.
         let removed_stale_socket = remove_stale_socket_at(&dir, &socket_name)
             .map_err(ctx(format!("checking {}", socket.display())))?;
-        Ok(Instance { dir, dir_path: dir_path.to_owned(), name: name.into(), lock, removed_stale_socket })
+        Ok(Instance {
+            dir,
+            dir_path: dir_path.to_owned(),
+            name: name.into(),
+            lock,
+            removed_stale_socket,
+            previous_epoch,
+        })
+    }
+
+    /// Records `epoch` in the lock file as the last acquisition epoch of this name, for the
+    /// next holder's [`Instance::previous_epoch`]. Failures are ignored (the next holder then
+    /// knows an older epoch, or none).
+    pub fn record_epoch(&mut self, epoch: u64) {
+        let _ = write_lock_text(&mut self.lock, Some(epoch));
     }
 
     /// The runtime directory's descriptor (every file of the instance is opened through it).
@@ -189,6 +206,29 @@ impl Instance {
         }
         drop(self.lock);
     }
+}
+
+/// Writes the lock file's text: this process's pid, and the last epoch if one is known.
+fn write_lock_text(lock: &mut File, epoch: Option<u64>) -> io::Result<()> {
+    use std::io::Seek;
+    let text = match epoch {
+        Some(e) => format!("{}\nepoch {e}\n", std::process::id()),
+        None => format!("{}\n", std::process::id()),
+    };
+    lock.set_len(0)?;
+    lock.seek(io::SeekFrom::Start(0))?;
+    lock.write_all(text.as_bytes())
+}
+
+/// The epoch a lock file records (`epoch N` after the pid): only a number is taken.
+fn read_epoch(lock: &mut File) -> Option<u64> {
+    use std::io::Seek;
+    let _ = lock.seek(io::SeekFrom::Start(0));
+    let mut text = String::new();
+    let _ = (&*lock).take(64).read_to_string(&mut text);
+    let mut words = text.split_whitespace();
+    words.find(|&w| w == "epoch")?;
+    words.next()?.parse::<u64>().ok().filter(|&e| e < u64::MAX / 2)
 }
 
 /// The pid a lock file names: only a number is ever taken from the file (its text is not

@@ -36,6 +36,12 @@ pub const SIZE_SEALS: SealFlags = SealFlags::SHRINK.union(SealFlags::GROW);
 /// Every seal the writer puts on its port.
 pub const PORT_SEALS: SealFlags = SIZE_SEALS.union(SealFlags::FUTURE_WRITE).union(SealFlags::SEAL);
 
+/// The name a port memfd of broker `name` is created with (`bass-port:NAME`, at most 200
+/// characters): what /proc/PID/fd shows as `/memfd:bass-port:NAME (deleted)`.
+pub fn label(name: &str) -> String {
+    format!("bass-port:{name}").chars().filter(|c| *c != '\0').take(200).collect()
+}
+
 /// Creates an unsealed memfd of `len` bytes, every byte allocated. `name` is only a label
 /// (it shows in /proc/PID/fd and /proc/PID/maps as `memfd:bass-port:NAME`).
 ///
@@ -47,8 +53,7 @@ pub fn create(name: &str, len: u64) -> Result<File> {
             return Err(no_memory(len, Some(avail)));
         }
     }
-    let label: String = format!("bass-port:{name}").chars().filter(|c| *c != '\0').take(200).collect();
-    let fd = rustix::fs::memfd_create(label.as_str(), MemfdFlags::CLOEXEC | MemfdFlags::ALLOW_SEALING)
+    let fd = rustix::fs::memfd_create(label(name).as_str(), MemfdFlags::CLOEXEC | MemfdFlags::ALLOW_SEALING)
         .map_err(|e| Error::io("memfd_create for the port", e.into()))?;
     rustix::fs::ftruncate(&fd, len)
         .map_err(|e| Error::io(format!("size the port memfd to {}", mib(len)), e.into()))?;

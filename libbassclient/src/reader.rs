@@ -74,6 +74,9 @@ pub struct Port {
     sealed: bool,
     /// Whether the writer lives (a pidfd opened once).
     watch: liveness::WriterWatch,
+    /// The broker that handed this memfd port over (None: a port file, or a descriptor of
+    /// unknown origin): asked, once its writer is dead, whether a successor replaced it.
+    broker: Option<String>,
 }
 
 impl Port {
@@ -140,7 +143,11 @@ impl Port {
             return Err(Error::Corrupt(format!("the descriptor for port {name} is not a regular file")));
         }
         let path = paths::port_path(name).unwrap_or_else(|_| PathBuf::from(name));
-        Port::map(file, &path, &meta, sealed)
+        let mut port = Port::map(file, &path, &meta, sealed)?;
+        if sealed && paths::check_name(name).is_ok() {
+            port.broker = Some(name.to_owned());
+        }
+        Ok(port)
     }
 
     /// Opens the port file at `path` (the caller chose the file: its owner is not checked).
@@ -227,6 +234,7 @@ impl Port {
             version_minor: v.version_minor,
             sealed,
             watch: liveness::WriterWatch::default(),
+            broker: None,
         })
     }
 
@@ -503,12 +511,31 @@ impl Port {
         }
     }
 
-    /// `WriterGone` if the writer process is gone for good (see [`Port::writer_gone`]).
+    /// `WriterGone` if the writer process is gone for good (see [`Port::writer_gone`]);
+    /// `Restarted` if it is dead and its broker serves another acquisition (see
+    /// [`Port::replaced_by_successor`]).
     fn check_writer_alive(&self) -> Result<()> {
-        match self.writer_gone(sys::monotonic_ns()) {
+        let now = sys::monotonic_ns();
+        if self.writer_alive(|| now) {
+            return Ok(());
+        }
+        if self.replaced_by_successor() {
+            return Err(Error::Restarted);
+        }
+        match self.writer_gone(now) {
             None => Ok(()),
             Some(pid) => Err(Error::WriterGone { pid }),
         }
+    }
+
+    /// For a memfd port whose writer is dead: whether the broker that handed it over now
+    /// serves a memfd port of another epoch (a successor that started a new acquisition
+    /// without taking this port back, so nobody can mark it superseded). One request on the
+    /// broker's control socket; false at once for a port file (its successor's commit marks
+    /// it) and for a descriptor of unknown origin.
+    pub(crate) fn replaced_by_successor(&self) -> bool {
+        let Some(name) = &self.broker else { return false };
+        crate::control::client::broker_memfd_epoch(name).is_some_and(|e| e != self.epoch)
     }
 
     /// Whether the writer process is running. In this pid namespace: its pidfd (see

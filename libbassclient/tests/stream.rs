@@ -523,3 +523,221 @@ fn a_refused_realtime_priority_is_reported_and_the_stream_goes_on() {
     }
     w.remove().unwrap();
 }
+
+/// What the C-ABI stream tests' callbacks record.
+#[derive(Default)]
+struct CSeen {
+    blocks: u64,
+    /// (kind, epoch, frame) of every event.
+    events: Vec<(u32, u64, u64)>,
+}
+
+unsafe extern "C" fn c_on_block(
+    _: *const bassclient::ffi::bass_block,
+    user: *mut std::ffi::c_void,
+) -> std::ffi::c_int {
+    // SAFETY: `user` is the test's `CSeen`, alive and used by this stream's thread only.
+    unsafe { (*user.cast::<CSeen>()).blocks += 1 };
+    0
+}
+
+unsafe extern "C" fn c_on_event(
+    e: *const bassclient::ffi::bass_stream_event,
+    user: *mut std::ffi::c_void,
+) -> std::ffi::c_int {
+    // SAFETY: the library passes a valid event; `user` is the test's `CSeen`.
+    let (e, seen) = unsafe { (&*e, &mut *user.cast::<CSeen>()) };
+    seen.events.push((e.kind, e.epoch, e.frame));
+    // Go on after a refused priority; end at the end of the acquisition.
+    std::ffi::c_int::from(e.kind != bassclient::ffi::BASS_EVENT_REALTIME_REFUSED)
+}
+
+/// A C-ABI stream from the oldest frame over the port file at `path` (run on this thread).
+fn c_stream_run(
+    path: &std::path::Path,
+    priority: i32,
+    on_event: bassclient::ffi::bass_event_fn,
+    seen: &mut CSeen,
+) {
+    use bassclient::ffi::*;
+    let cpath = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
+    let cfg = bass_stream_config {
+        frames_per_call: 0,
+        start: BASS_START_OLDEST,
+        interleaved: 0,
+        start_frame: 0,
+        channels: std::ptr::null(),
+        n_channels: 0,
+        realtime_priority: priority,
+    };
+    let (mut port, mut s) = (std::ptr::null_mut(), std::ptr::null_mut());
+    // SAFETY: valid C string, config and out-pointers; `seen` outlives the stream (closed here).
+    unsafe {
+        assert_eq!(bass_port_open_path(cpath.as_ptr(), &mut port), bass_result::BASS_OK);
+        let user = (seen as *mut CSeen).cast();
+        assert_eq!(
+            bass_stream_create(port, &cfg, Some(c_on_block), on_event, user, &mut s),
+            bass_result::BASS_OK
+        );
+        assert_eq!(bass_port_close(port), bass_result::BASS_OK);
+        assert_eq!(bass_stream_run(s), bass_result::BASS_OK);
+        assert_eq!(bass_stream_close(s), bass_result::BASS_OK);
+    }
+}
+
+/// Events carry the stream's epoch from the first one on (not 0 before a restart).
+#[test]
+fn c_events_carry_the_ports_epoch_before_any_restart() {
+    let path = common::temp_port_path("stream-c-epoch");
+    drop(Writer::create_at(&path, &params()).unwrap()); // epoch 1, stopped
+    let mut w = Writer::create_at(&path, &params()).unwrap();
+    assert_eq!(w.epoch(), 2);
+    for _ in 0..2 {
+        publish_pattern(&mut w, ChunkMeta::default());
+    }
+    w.stop();
+    let mut seen = CSeen::default();
+    // Priority 1000 is out of SCHED_FIFO's range: always refused (EINVAL).
+    c_stream_run(&path, 1000, Some(c_on_event), &mut seen);
+    use bassclient::ffi::*;
+    assert_eq!(
+        seen.events,
+        [(BASS_EVENT_REALTIME_REFUSED, 2, 0), (BASS_EVENT_STOPPED, 2, 2 * u64::from(NFPC))]
+    );
+    assert_eq!(seen.blocks, 2);
+    w.remove().unwrap();
+}
+
+/// A refused realtime priority is no end of the stream, with or without an event callback;
+/// `bass_stream_run` gives the caller's thread its scheduling back.
+#[test]
+fn a_refused_priority_goes_on_without_an_event_callback_and_run_restores_the_scheduling() {
+    let path = common::temp_port_path("stream-c-fifo");
+    let mut w = Writer::create_at(&path, &params()).unwrap();
+    for _ in 0..2 {
+        publish_pattern(&mut w, ChunkMeta::default());
+    }
+    w.stop();
+    let mut seen = CSeen::default();
+    c_stream_run(&path, 1000, None, &mut seen);
+    assert_eq!(seen.blocks, 2, "refused, the stream goes on unprioritised (and ends at the stop)");
+    // Priority 10: granted where the limits allow it, and given back after the run.
+    // SAFETY: no pointers; pid 0 is this thread.
+    let before = unsafe { libc::sched_getscheduler(0) };
+    let mut seen = CSeen::default();
+    c_stream_run(&path, 10, Some(c_on_event), &mut seen);
+    // SAFETY: as above.
+    let after = unsafe { libc::sched_getscheduler(0) };
+    assert_eq!(after, before, "the caller's thread keeps its own scheduling after bass_stream_run");
+    assert_eq!(seen.blocks, 2);
+    w.remove().unwrap();
+}
+
+/// A stream that waits after a device error follows the same acquisition when a successor
+/// takes the port back (`Writer::resume`): one Resumed, in the same epoch, at the frame after
+/// the last block; the frames missed meanwhile arrive as GAP, and the blocks tile on.
+#[test]
+fn a_stream_that_waits_after_a_device_error_follows_the_resume_of_its_acquisition() {
+    let path = common::temp_port_path("stream-resume");
+    let mut w = Writer::create_at(&path, &params()).unwrap();
+    for _ in 0..2 {
+        publish_pattern(&mut w, ChunkMeta::default());
+    }
+    w.set_state(State::Error, error_code::DEVICE_LOST, "hw:1 unplugged");
+    let mut stream =
+        Stream::open_path(&path, Config { frames_per_call: 20, ..Config::default().oldest() }).unwrap();
+    let mut successor: Option<Writer> = None;
+    let tiling = RefCell::new(Tiling::start(1, 1));
+    let mut events = Vec::new();
+    let (blocks, resumed) = (RefCell::new(0u32), RefCell::new(false));
+    let path2 = path.clone();
+    stream
+        .run(
+            |b| {
+                tiling.borrow_mut().check(b);
+                *blocks.borrow_mut() += 1;
+                Control::Continue
+            },
+            |e| {
+                events.push(format!("{e:?}"));
+                match e {
+                    Event::Device { .. } if !*resumed.borrow() => {
+                        // The successor: takes the port back, the missed frames as a GAP chunk.
+                        let file = std::fs::OpenOptions::new().read(true).write(true).open(&path2).unwrap();
+                        let mut w2 = Writer::resume(file, &path2).unwrap();
+                        let first = w2.last_frame_index() + 1;
+                        let gap = ChunkMeta { flags: chunk_flags::GAP, ..ChunkMeta::default() };
+                        w2.publish(Source::Zeros, gap).unwrap();
+                        tiling.borrow_mut().gaps.push((first, w2.last_frame_index()));
+                        for _ in 0..2 {
+                            publish_pattern(&mut w2, ChunkMeta::default());
+                        }
+                        w2.stop();
+                        successor = Some(w2);
+                        *resumed.borrow_mut() = true;
+                        Control::Continue
+                    }
+                    Event::Resumed { .. } => Control::Continue,
+                    _ => Control::Stop,
+                }
+            },
+        )
+        .unwrap();
+    let device = format!("{:?}", Event::Device { code: error_code::DEVICE_LOST, message: "hw:1 unplugged" });
+    let last = 5 * u64::from(NFPC);
+    assert_eq!(
+        events,
+        [device, "Resumed { epoch: 1, resume_at: 33 }".to_owned(), format!("Stopped {{ last: {last} }}")]
+    );
+    let tiling = tiling.into_inner();
+    assert_eq!((tiling.next, tiling.delivered, tiling.lost), (last + 1, last, 0));
+    assert!(tiling.flags_seen & chunk_flags::GAP != 0);
+    drop(w);
+    successor.unwrap().remove().unwrap();
+}
+
+/// Issue 32 item 9: a run whose block callback panics, caught by the caller, and a second
+/// run: the block the panicking callback saw is not delivered again (no frame twice with
+/// `lost = 0`), and the second run goes on at the frame after it.
+#[test]
+fn a_run_after_a_caught_panic_goes_on_after_the_block_the_callback_saw() {
+    let path = common::temp_port_path("stream-panic");
+    let mut w = Writer::create_at(&path, &params()).unwrap();
+    for _ in 0..4 {
+        publish_pattern(&mut w, ChunkMeta::default());
+    }
+    w.stop();
+    let cfg = Config { start: Start::Oldest, ..Config::default() };
+    let mut stream = Stream::open_path(&path, cfg).unwrap();
+    let mut seen: Vec<(u64, usize, u64)> = Vec::new();
+    let caught = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        stream.run(
+            |b| {
+                seen.push((b.first_frame, b.frames, b.lost));
+                if seen.len() == 2 {
+                    panic!("the callback fails at its second block");
+                }
+                Control::Continue
+            },
+            |_| Control::Stop,
+        )
+    }));
+    assert!(caught.is_err(), "the panic reaches the caller");
+    assert_eq!(seen.len(), 2);
+    let after_panic = seen[1].0 + seen[1].1 as u64;
+    assert_eq!(stream.next_frame(), Some(after_panic));
+    let mut again: Vec<(u64, usize, u64)> = Vec::new();
+    stream
+        .run(
+            |b| {
+                again.push((b.first_frame, b.frames, b.lost));
+                Control::Continue
+            },
+            |_| Control::Stop,
+        )
+        .unwrap();
+    assert_eq!(again.first().map(|b| (b.0, b.2)), Some((after_panic, 0)), "re-delivered: {again:?}");
+    let total: usize = seen.iter().chain(&again).map(|b| b.1).sum();
+    assert_eq!(total as u64, 4 * u64::from(NFPC), "every frame once");
+    w.remove().unwrap();
+}

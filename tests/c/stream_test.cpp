@@ -10,6 +10,8 @@
 #include <cstdio>
 #include <memory>
 #include <cstdlib>
+#include <cstring>
+#include <unistd.h>
 #include <stdexcept>
 #include <thread>
 
@@ -154,6 +156,38 @@ void exception_reaches_join() {
     CHECK(caught);
 }
 
+// A stream destroyed without join() after its callback threw: the exception is not lost
+// silently, the destructor names it on stderr (a destructor cannot throw).
+void exception_dropped_is_reported() {
+    feed f("cppthrowd");
+    for (int i = 0; i < 4; i++) f.publish();
+    bass::port p("cppthrowd");
+    bass_stream_config cfg{};
+    std::atomic<bool> thrown{false};
+    std::FILE *log = std::tmpfile();
+    CHECK(log != nullptr);
+    if (log == nullptr) return;
+    std::fflush(stderr);
+    int saved = dup(2);
+    dup2(fileno(log), 2);
+    {
+        bass::stream s(p, cfg, [&](const bass_block &) -> bool {
+            thrown = true;
+            throw std::runtime_error("dropped by the destructor");
+        });
+        while (!thrown) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    std::fflush(stderr);
+    dup2(saved, 2);
+    close(saved);
+    char text[512] = {0};
+    std::rewind(log);
+    std::size_t n = std::fread(text, 1, sizeof text - 1, log);
+    std::fclose(log);
+    CHECK(n > 0 && std::strstr(text, "dropped by the destructor") != nullptr);
+}
+
 // `delete s` inside on_block while blocks flow: no block after the delete has returned; the
 // stream is released (its callables destroyed) once the callback has returned.
 void delete_inside_its_callback(bass::stream::mode m, const char *name) {
@@ -222,6 +256,7 @@ int main() {
     own_thread();
     exception_reaches_run();
     exception_reaches_join();
+    exception_dropped_is_reported();
     delete_inside_its_callback(bass::stream::mode::own_thread, "cppdelete");
     delete_inside_its_callback(bass::stream::mode::caller_thread, "cppdeletec");
     std::printf("stream_test_cpp: %d failures\n", failures);

@@ -234,15 +234,19 @@ impl Broker {
             }
         };
         let g = op.checked.geometry.clone();
-        // The switch: the old capture stops, then the new port takes the name.
+        // The switch: the old capture stops (its port goes from capturing straight to
+        // superseded: its readers see no Stopped), then the new port takes the name.
         if let Some(old) = self.current.as_mut() {
-            old.stop(STOP_TIMEOUT);
+            old.halt(STOP_TIMEOUT);
         }
         let (writer, resume_from_ns) = match op.pending {
             NextPort::New(p) => match p.commit() {
                 Ok(w) => (w, None),
                 Err(e) => {
                     // The rename failed: the old acquisition stays current (stopped, its window kept).
+                    if let Some(old) = self.current.as_mut() {
+                        old.stop(STOP_TIMEOUT);
+                    }
                     let msg = format!("cannot put the new port in place: {e}; {}", self.unchanged());
                     tracing::error!("{msg}");
                     return Some((op.reply_to, Reply::error(ErrorKind::Internal, &msg)));
@@ -271,8 +275,11 @@ impl Broker {
         };
         let reply = match Acquisition::start(writer, dev, &r.device, cp) {
             Ok(a) => {
-                if let Some(fd) = store_fd {
-                    self.store_port(fd, r, epoch);
+                let stored = store_fd.is_some_and(|fd| self.store_port(fd, r, epoch));
+                if !stored {
+                    // Not in the store (none used, or it refused): no successor can take this
+                    // port back, so its readers are not kept waiting for one.
+                    a.set_restart_grace_ms(0);
                 }
                 tracing::info!(
                     epoch,

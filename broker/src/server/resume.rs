@@ -8,12 +8,54 @@
 use bassclient::control::{AcquireRequest, Status};
 use bassclient::format::{error_code, State};
 use bassclient::sys::monotonic_ns;
-use bassclient::{paths, Writer};
+use std::fs::File;
+use std::os::fd::AsRawFd;
+use std::os::unix::fs::MetadataExt;
+use std::path::Path;
+
+use bassclient::{memfd, paths, Backing, Writer};
 
 use super::opening::{NextPort, Opening};
 use super::Broker;
 use crate::request::{self, DeviceKind};
 use crate::supervise::{self, Handed, Stored};
+
+/// The largest last frame index a port taken back may have: 2^53 (370 years at 768 kHz; a
+/// frame index a double still holds exactly, as for replays). A forged port near the format's
+/// limit would be taken back only to fail at its next publishes.
+const MAX_RESUMED_FRAME: u64 = 1 << 53;
+
+/// Whether `port`, handed back by the service manager, is this broker's own port: with file
+/// backing the very file at the broker's port path `path` (not a copy, not another broker's
+/// port); with memfd backing a size-sealed memfd made for a port of this broker's name.
+/// What the service manager hands back is trusted no further than that.
+fn own_port(port: &File, backing: Backing, name: &str, path: &Path) -> Result<(), String> {
+    let sealed = memfd::size_sealed(std::os::fd::AsFd::as_fd(port));
+    match backing {
+        Backing::File => {
+            if sealed {
+                return Err("a sealed memfd, but this broker's ports are files".into());
+            }
+            let mine = path.symlink_metadata().map_err(|e| format!("{}: {e}", path.display()))?;
+            let handed = port.metadata().map_err(|e| format!("fstat: {e}"))?;
+            if (mine.dev(), mine.ino()) != (handed.dev(), handed.ino()) {
+                return Err(format!("it is not the port file {}", path.display()));
+            }
+        }
+        Backing::Memfd => {
+            if !sealed {
+                return Err("an unsealed file, but this broker's ports are sealed memfds".into());
+            }
+            let link = std::fs::read_link(format!("/proc/self/fd/{}", port.as_raw_fd()))
+                .map_err(|e| format!("the descriptor's name: {e}"))?;
+            let want = format!("/memfd:{} (deleted)", memfd::label(name));
+            if link.as_os_str() != want.as_str() {
+                return Err(format!("a memfd named {:?}, not {want:?}", link.display().to_string()));
+            }
+        }
+    }
+    Ok(())
+}
 
 impl Broker {
     /// Takes back a port from the fd store and starts its device again (the open runs like
@@ -29,6 +71,11 @@ impl Broker {
                 return false;
             }
         };
+        if let Err(why) = own_port(&port, self.cfg.port_backing, &self.cfg.name, &path) {
+            tracing::warn!("the port in the fd store is not this broker's own ({why}): starting afresh");
+            self.sup.forget();
+            return false;
+        }
         let writer = match Writer::resume(port, &path) {
             Ok(w) => w,
             Err(e) => {
@@ -39,7 +86,10 @@ impl Broker {
         };
         let epoch = writer.epoch();
         let checked = request::check(&stored.request, self.cfg.max_port_bytes, &self.cfg.limits);
-        let why_not = if stored.config != supervise::config_fingerprint() {
+        let lfi = writer.last_frame_index();
+        let why_not = if lfi > MAX_RESUMED_FRAME {
+            Some(format!("its last frame index {lfi} is past {MAX_RESUMED_FRAME} (2^53)"))
+        } else if stored.config != supervise::config_fingerprint() {
             Some("bassd was restarted with another command line".to_owned())
         } else if stored.epoch != epoch {
             Some(format!("the record names epoch {}, the port has {epoch}", stored.epoch))
@@ -66,7 +116,7 @@ impl Broker {
                 );
                 // Its readers are told (Restarted), and the next epoch passes this one.
                 writer.set_state(State::Superseded, error_code::NONE, "");
-                self.handed_epoch = Some(epoch);
+                self.handed_epoch = self.handed_epoch.max(Some(epoch));
                 self.sup.forget();
                 return false;
             }
@@ -100,8 +150,14 @@ impl Broker {
         true
     }
 
-    /// Hands the running acquisition's port to the fd store (when the broker uses one).
-    pub(super) fn store_port(&mut self, fd: std::os::fd::OwnedFd, request: &AcquireRequest, epoch: u64) {
+    /// Hands the running acquisition's port to the fd store (when the broker uses one); false
+    /// when the store does not hold it (nothing can take it back).
+    pub(super) fn store_port(
+        &mut self,
+        fd: std::os::fd::OwnedFd,
+        request: &AcquireRequest,
+        epoch: u64,
+    ) -> bool {
         let stored = Stored {
             version: 1,
             name: self.cfg.name.clone(),
@@ -109,7 +165,7 @@ impl Broker {
             request: request.clone(),
             epoch,
         };
-        self.sup.store(fd, &stored);
+        self.sup.store(fd, &stored)
     }
 }
 

@@ -259,6 +259,25 @@ pub(crate) fn port_from_broker(name: &str) -> Result<Option<crate::Port>> {
     }
 }
 
+/// For a reader of a memfd port whose writer has died: the epoch of the memfd port broker
+/// `name` serves now, if it serves one (a successor that did not take the reader's port
+/// back: its readers cannot be told through that port, which nobody writes any more). None
+/// when no broker answers, it has no port yet, or its port is a file. The descriptor that
+/// comes with the answer is closed at once.
+pub(crate) fn broker_memfd_epoch(name: &str) -> Option<u64> {
+    let path = paths::socket_path(name).ok()?;
+    path.symlink_metadata().ok()?;
+    let mut c = Client::connect_path(&path, name).ok()?;
+    c.set_timeout(SUCCESSOR_QUERY_TIMEOUT).ok()?;
+    match c.open_port_reply().ok()? {
+        (Reply::PortFd(p), Some(_fd)) => Some(p.epoch),
+        _ => None,
+    }
+}
+
+/// How long [`broker_memfd_epoch`] waits for the broker's answer.
+const SUCCESSOR_QUERY_TIMEOUT: Duration = Duration::from_millis(500);
+
 fn unexpected(request: &str, reply: &Reply) -> Error {
     Error::Protocol(format!("the broker answered a {request} request with {reply:?}"))
 }

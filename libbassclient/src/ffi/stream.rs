@@ -28,6 +28,11 @@ pub const BASS_EVENT_DEVICE: u32 = 3;
 pub const BASS_EVENT_WRITER_GONE: u32 = 4;
 /// Event: SCHED_FIFO was refused (`os_error` is the errno); the stream runs unprioritised.
 pub const BASS_EVENT_REALTIME_REFUSED: u32 = 5;
+/// Event: after `BASS_EVENT_STOPPED`, `_DEVICE` or `_WRITER_GONE`, the same acquisition goes
+/// on (same port, same `epoch`: a restarted broker took the port back, or the writer is alive
+/// again); `frame` is the next frame the stream reads. Frames that left the window meanwhile
+/// are the next block's `lost`; the frames the writer missed come as `BASS_CHUNK_GAP` zeros.
+pub const BASS_EVENT_RESUMED: u32 = 6;
 
 /// What a callback stream delivers. Zero-initialised: one chunk per call, from the oldest
 /// frame, every channel, planar, no realtime priority.
@@ -85,9 +90,9 @@ pub struct bass_stream_event {
     pub kind: u32,
     /// `BASS_DEVERR_*` (device), the writer's pid (writer gone), else 0.
     pub code: u32,
-    /// The epoch (restarted), else the stream's current epoch.
+    /// The epoch (restarted: the new one), else the stream's current epoch.
     pub epoch: u64,
-    /// The last frame (stopped), the frame the stream resumes at (restarted), else 0.
+    /// The last frame (stopped), the frame the stream resumes at (restarted, resumed), else 0.
     pub frame: u64,
     /// The errno (realtime refused), else 0.
     pub os_error: c_int,
@@ -178,10 +183,12 @@ fn config(c: &bass_stream_config) -> Result<Config, Failure> {
     Ok(Config { frames_per_call: c.frames_per_call, start, channels, layout, realtime_priority })
 }
 
-/// The closures that call the C callbacks (all buffers allocated here, before the stream runs).
+/// The closures that call the C callbacks (all buffers allocated here, before the stream runs);
+/// `epoch` is the stream's current one (events carry it).
 #[allow(clippy::type_complexity)]
 fn closures(
     (on_block, on_event, user): (bass_block_fn, bass_event_fn, User),
+    mut epoch: u64,
 ) -> (impl FnMut(&Block<'_>) -> Control + Send, impl FnMut(&Event<'_>) -> Control + Send) {
     let mut pointers = Pointers(Vec::with_capacity(64));
     let block_user = user;
@@ -219,7 +226,6 @@ fn closures(
         }
     };
     let mut message = [0u8; MESSAGE_LEN + 1];
-    let mut epoch = 0u64;
     let event = move |e: &Event<'_>| {
         let mut ev =
             bass_stream_event { kind: 0, code: 0, epoch, frame: 0, os_error: 0, message: c"".as_ptr() };
@@ -235,10 +241,20 @@ fn closures(
                 message[n] = 0;
                 (ev.kind, ev.code, ev.message) = (BASS_EVENT_DEVICE, code, message.as_ptr().cast());
             }
+            Event::Resumed { epoch: same, resume_at } => {
+                epoch = same;
+                (ev.kind, ev.epoch, ev.frame) = (BASS_EVENT_RESUMED, same, resume_at);
+            }
             Event::WriterGone { pid } => (ev.kind, ev.code) = (BASS_EVENT_WRITER_GONE, pid),
             Event::RealtimeRefused { errno } => (ev.kind, ev.os_error) = (BASS_EVENT_REALTIME_REFUSED, errno),
         }
-        let Some(f) = on_event else { return Control::Stop };
+        // Without an event callback every end ends the stream; a refused priority is no end.
+        let Some(f) = on_event else {
+            return match e {
+                Event::RealtimeRefused { .. } => Control::Continue,
+                _ => Control::Stop,
+            };
+        };
         let u = user;
         // SAFETY: the caller's callback, given an event valid for the call and its own pointer.
         if unsafe { f(&ev, u.0) } == 0 {
@@ -329,7 +345,7 @@ pub unsafe extern "C" fn bass_stream_start(
         // SAFETY: forwarded caller guarantee.
         let (id, c) = unsafe { create(port, config, on_block, on_event, user) }?;
         let stream = c.idle.lock().unwrap_or_else(|e| e.into_inner()).take().ok_or(Failure::Handle)?;
-        let (b, e) = closures(c.callbacks);
+        let (b, e) = closures(c.callbacks, stream.port().epoch());
         match stream.spawn(b, e) {
             Ok(h) => *c.handle.lock().unwrap_or_else(|e| e.into_inner()) = Some(h),
             Err(err) => {
@@ -366,7 +382,7 @@ pub unsafe extern "C" fn bass_stream_run(stream: *mut bass_stream) -> bass_resul
                 "the stream is running (started by bass_stream_start, or in another bass_stream_run)".into(),
             ))
         })?;
-        let (b, e) = closures(c.callbacks);
+        let (b, e) = closures(c.callbacks, s.port().epoch());
         // A panic in `run` unwinds through here to the boundary: the guard still ends the run.
         struct Ended<'a>(&'a CStream);
         impl Drop for Ended<'_> {

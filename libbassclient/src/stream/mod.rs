@@ -82,10 +82,19 @@ impl Reopen {
 /// Why a wait ended without the frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum End {
-    Stopped { last: u64 },
-    Device { code: u32 },
-    WriterGone { pid: u32 },
+    Stopped {
+        last: u64,
+    },
+    Device {
+        code: u32,
+    },
+    WriterGone {
+        pid: u32,
+    },
     Superseded,
+    /// After an end the stream outlived: the same acquisition goes on (a live writer, the
+    /// port capturing again: a broker that took the port back, a frozen writer awake again).
+    Resumed,
     StopAsked,
 }
 
@@ -103,7 +112,6 @@ pub struct Stream {
     stop: Stopper,
     nfr: Option<u64>,
     pending_loss: u64,
-    prioritised: bool,
 }
 
 impl Stream {
@@ -149,7 +157,6 @@ impl Stream {
             stop: Stopper(Arc::new(AtomicBool::new(false))),
             nfr: None,
             pending_loss: 0,
-            prioritised: false,
         };
         s.allocate()?;
         Ok(s)
@@ -224,17 +231,24 @@ impl Stream {
     /// Runs the stream on the calling thread until a callback returns [`Control::Stop`],
     /// [`Stopper::stop`] is called, or an error that is no acquisition event (a corrupt port,
     /// a failed reopen) ends it. A stream that returned may be run again: it goes on where it
-    /// stopped (a stop asked before is forgotten).
+    /// stopped (a stop asked before is forgotten). With a realtime priority, the thread runs
+    /// `SCHED_FIFO` during the run and gets its own scheduling back when `run` returns (a
+    /// refusal is reported by [`Event::RealtimeRefused`] at every run it happens in).
     pub fn run<B, E>(&mut self, mut on_block: B, mut on_event: E) -> Result<()>
     where
         B: FnMut(&Block<'_>) -> Control,
         E: FnMut(&Event<'_>) -> Control,
     {
-        if let (Some(p), false) = (self.cfg.realtime_priority, self.prioritised) {
-            self.prioritised = true;
-            if let Err(errno) = set_fifo(p) {
-                if on_event(&Event::RealtimeRefused { errno }) == Control::Stop {
-                    return Ok(());
+        // Put back when the run ends, also by a callback's panic.
+        let mut restore = thread::Restore(None);
+        if let Some(p) = self.cfg.realtime_priority {
+            let before = thread::Sched::current();
+            match set_fifo(p) {
+                Ok(()) => restore.0 = before,
+                Err(errno) => {
+                    if on_event(&Event::RealtimeRefused { errno }) == Control::Stop {
+                        return Ok(());
+                    }
                 }
             }
         }
@@ -245,6 +259,7 @@ impl Stream {
         let result = self.run_from(&mut nfr, &mut on_block, &mut on_event);
         self.nfr = Some(nfr);
         self.stop.0.store(false, Ordering::Release);
+        drop(restore);
         result
     }
 
@@ -253,8 +268,9 @@ impl Stream {
         B: FnMut(&Block<'_>) -> Control,
         E: FnMut(&Event<'_>) -> Control,
     {
-        // After an end the caller chose to outlive: only a restart (or a stop) is awaited.
-        let mut ended = false;
+        // After an end the caller chose to outlive (its last frame): only a resume
+        // of the same acquisition, a new one (superseded) or a stop is awaited.
+        let mut ended: Option<u64> = None;
         loop {
             let target = nfr.saturating_add(self.frames as u64 - 1);
             let end = match self.wait_for(target, ended)? {
@@ -270,7 +286,7 @@ impl Stream {
                 return Ok(());
             }
             // The frames before the end, fewer than a block (once per end).
-            if !ended && self.deliver(nfr, on_block)? == Control::Stop {
+            if ended.is_none() && end != End::Resumed && self.deliver(nfr, on_block)? == Control::Stop {
                 return Ok(());
             }
             let control = match end {
@@ -280,11 +296,22 @@ impl Stream {
                     on_event(&Event::Device { code, message })
                 }
                 End::WriterGone { pid } => on_event(&Event::WriterGone { pid }),
+                End::Resumed => {
+                    // The frames missed meanwhile are the next block's `lost` (gone from the
+                    // window) or GAP frames the successor published.
+                    ended = None;
+                    if on_event(&Event::Resumed { epoch: self.port.epoch(), resume_at: *nfr })
+                        == Control::Stop
+                    {
+                        return Ok(());
+                    }
+                    continue;
+                }
                 End::Superseded => match self.reopen_port()? {
                     None => return Ok(()),
                     Some((epoch, resume_at)) => {
                         *nfr = resume_at;
-                        ended = false;
+                        ended = None;
                         if on_event(&Event::Restarted { epoch, resume_at }) == Control::Stop {
                             return Ok(());
                         }
@@ -296,7 +323,9 @@ impl Stream {
             if control == Control::Stop {
                 return Ok(());
             }
-            ended = true;
+            // Every frame up to the end was delivered: frames after it mean the acquisition
+            // went on (whatever the callback did meanwhile).
+            ended = Some(nfr.saturating_sub(1));
         }
     }
 
@@ -309,10 +338,12 @@ impl Stream {
         }
     }
 
-    /// Waits until frame `target` is published (None) or the acquisition ends. With `ended`,
-    /// only a restart or a stop ends the wait. Atomic loads and the futex wait; the writer's
-    /// liveness is asked (a pidfd) only while its heartbeat is older than the liveness slice.
-    fn wait_for(&self, target: u64, ended: bool) -> Result<Option<End>> {
+    /// Waits until frame `target` is published (None) or the acquisition ends. With `ended`
+    /// (the last frame of the acquisition that ended), only a resume of the acquisition, a new one or a
+    /// stop ends the wait. Atomic loads and
+    /// the futex wait; the writer's liveness is asked (a pidfd) only while its heartbeat is
+    /// older than the liveness slice, and a dead writer's broker only while it stays dead.
+    fn wait_for(&self, target: u64, ended: Option<u64>) -> Result<Option<End>> {
         let port = &*self.port;
         let h = port.stream_header();
         let nfpc = u64::from(port.geometry().frames_per_chunk.max(1));
@@ -328,21 +359,43 @@ impl Stream {
             if lfi > format::MAX_FRAME_INDEX {
                 return Err(Error::Corrupt(format!("last frame index {lfi} is beyond the format's limit")));
             }
-            if lfi >= target && !ended {
+            if lfi >= target && ended.is_none() {
                 return Ok(None);
             }
             let state = h.state.load(Ordering::Acquire);
             let now = sys::monotonic_ns();
+            let live =
+                matches!(State::from_u32(state), Some(State::Idle | State::Starting | State::Capturing));
             match State::from_u32(state) {
                 Some(State::Superseded) => return Ok(Some(End::Superseded)),
-                _ if ended => {}
+                _ if ended.is_some() => {
+                    // Ended by a stop, an error or a dead writer: the acquisition goes on once
+                    // frames follow the end, or its port is live again under a live writer; a
+                    // dead one's broker may have started another (a memfd port nobody marks
+                    // superseded).
+                    if ended.is_some_and(|at| lfi > at) {
+                        return Ok(Some(End::Resumed));
+                    }
+                    if port.writer_alive(|| now) {
+                        if live {
+                            return Ok(Some(End::Resumed));
+                        }
+                    } else if port.replaced_by_successor() {
+                        return Ok(Some(End::Superseded));
+                    }
+                }
                 Some(State::Stopped) => return Ok(Some(End::Stopped { last: lfi })),
                 Some(State::Error) => {
                     return Ok(Some(End::Device { code: h.error_code.load(Ordering::Relaxed) }))
                 }
                 Some(State::Idle | State::Starting | State::Capturing) => {
                     let beat = h.heartbeat_mono_ns.load(Ordering::Relaxed);
-                    if now.saturating_sub(beat) >= LIVENESS_SLICE.as_nanos() as u64 {
+                    if now.saturating_sub(beat) >= LIVENESS_SLICE.as_nanos() as u64
+                        && !port.writer_alive(|| now)
+                    {
+                        if port.replaced_by_successor() {
+                            return Ok(Some(End::Superseded));
+                        }
                         if let Some(pid) = port.writer_gone(now) {
                             return Ok(Some(End::WriterGone { pid }));
                         }
@@ -445,6 +498,9 @@ impl Stream {
             offset: overwritten,
             layout: self.cfg.layout,
         };
+        // The next frame is known before the callback runs: a run after a panic in it goes
+        // on after this block instead of delivering it again.
+        self.nfr = Some(*nfr);
         let control = on_block(&block);
         Ok(if self.stop.is_stopped() { Control::Stop } else { control })
     }

@@ -41,11 +41,57 @@ impl StreamHandle {
 }
 
 impl Drop for StreamHandle {
+    /// Stops and joins the stream. A callback's panic is not dropped silently: it is resumed
+    /// here, as [`StreamHandle::join`] would (unless this thread is already unwinding). How a
+    /// run that ended by an error ended is given only by `join`.
     fn drop(&mut self) {
         if let Some(t) = self.thread.take() {
             self.stopper.stop();
-            let _ = t.join();
+            if let Err(p) = t.join() {
+                if !std::thread::panicking() {
+                    std::panic::resume_unwind(p);
+                }
+            }
         }
+    }
+}
+
+/// Puts the scheduling of [`Sched`] back when dropped (None: nothing to put back).
+pub(super) struct Restore(pub(super) Option<Sched>);
+
+impl Drop for Restore {
+    fn drop(&mut self) {
+        if let Some(s) = self.0.take() {
+            s.restore();
+        }
+    }
+}
+
+/// The calling thread's scheduling policy and priority, as [`Sched::current`] found them.
+#[derive(Clone, Copy)]
+pub(super) struct Sched {
+    policy: libc::c_int,
+    priority: libc::c_int,
+}
+
+impl Sched {
+    /// The calling thread's policy and priority (None if the kernel does not say).
+    pub(super) fn current() -> Option<Sched> {
+        // SAFETY: pid 0 is the calling thread; no pointer is passed.
+        let policy = unsafe { libc::sched_getscheduler(0) };
+        let mut param = libc::sched_param { sched_priority: 0 };
+        // SAFETY: `param` is a valid, writable sched_param for the duration of the call.
+        let r = unsafe { libc::sched_getparam(0, &mut param) };
+        (policy >= 0 && r == 0).then_some(Sched { policy, priority: param.sched_priority })
+    }
+
+    /// Puts the calling thread back to this policy and priority (lowering a priority needs no
+    /// privilege; a failure leaves the thread as it is).
+    pub(super) fn restore(self) {
+        let param = libc::sched_param { sched_priority: self.priority };
+        // SAFETY: `param` is a valid sched_param for the duration of the call; pid 0 is the
+        // calling thread.
+        let _ = unsafe { libc::sched_setscheduler(0, self.policy, &param) };
     }
 }
 

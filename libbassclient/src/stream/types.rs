@@ -131,7 +131,8 @@ impl<'a> Block<'a> {
 #[derive(Clone, Debug, PartialEq)]
 pub enum Event<'a> {
     /// The acquisition was stopped; `last` is its last frame (every frame up to it was
-    /// delivered or counted lost). Continue: wait for a new acquisition.
+    /// delivered or counted lost). Continue: wait for it to go on ([`Event::Resumed`]) or for
+    /// a new acquisition ([`Event::Restarted`]).
     Stopped {
         /// The last frame.
         last: u64,
@@ -144,18 +145,32 @@ pub enum Event<'a> {
         /// The first frame the stream reads in it.
         resume_at: u64,
     },
-    /// The acquisition ended on a device error (`format::error_code`). Continue: wait for a
-    /// new acquisition.
+    /// The acquisition ended on a device error (`format::error_code`). Continue: wait for it
+    /// to go on (a broker restarted by its service manager takes the port back:
+    /// [`Event::Resumed`]) or for a new acquisition ([`Event::Restarted`]).
     Device {
         /// `format::error_code`.
         code: u32,
         /// The writer's message.
         message: &'a str,
     },
-    /// The writer process is gone. Continue: wait for a new acquisition.
+    /// The writer process is gone (dead, and no successor took the port back within the
+    /// port's restart grace; or a writer of another pid namespace silent for too long).
+    /// Continue: wait for the acquisition to go on ([`Event::Resumed`]) or for a new one.
     WriterGone {
         /// Its pid.
         pid: u32,
+    },
+    /// After [`Event::Stopped`], [`Event::Device`] or [`Event::WriterGone`]: the same
+    /// acquisition goes on in the same port and epoch (a successor broker took the port back,
+    /// the writer is alive again). The stream goes on from `resume_at`, the frame after the
+    /// last one delivered: frames that left the window meanwhile are the next block's `lost`,
+    /// the frames the writer missed come as zero frames flagged GAP.
+    Resumed {
+        /// The epoch (the same as before the end).
+        epoch: u64,
+        /// The next frame the stream reads.
+        resume_at: u64,
     },
     /// `SCHED_FIFO` was refused (`errno`, e.g. EPERM); the stream runs at its normal priority.
     RealtimeRefused {
