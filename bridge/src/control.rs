@@ -399,6 +399,7 @@ pub fn spawn_forwarder(
     signer: Option<Arc<Signer>>,
     instance: &bassclient::instance::Instance,
     stop: Arc<AtomicBool>,
+    local: LocalStatus,
 ) -> Result<Forwarder> {
     let socket = instance.socket_path();
     let listener = seqpacket()?;
@@ -453,8 +454,14 @@ pub fn spawn_forwarder(
                 }
                 continue;
             }
-            let (session, key, done, stop, signer) =
-                (session.clone(), key.clone(), open.clone(), stop_accept.clone(), signer.clone());
+            let (session, key, done, stop, signer, local) = (
+                session.clone(),
+                key.clone(),
+                open.clone(),
+                stop_accept.clone(),
+                signer.clone(),
+                local.clone(),
+            );
             let spawned = std::thread::Builder::new().name("control-conn".into()).spawn(move || {
                 let _ = rustix::net::sockopt::set_socket_timeout(
                     &conn,
@@ -463,7 +470,12 @@ pub fn spawn_forwarder(
                 );
                 while !stop.load(Ordering::Relaxed) {
                     let Ok(Some(request)) = recv(&conn) else { break };
-                    let reply = forward(&session, &key, request, signer.as_deref());
+                    let reply = match wire::decode_request(&request) {
+                        Ok(bassclient::control::Request::Status) => {
+                            replica_status(&session, &key, request, signer.as_deref(), &*local)
+                        }
+                        _ => forward(&session, &key, request, signer.as_deref(), REQUEST_TIMEOUT),
+                    };
                     if send(&conn, &reply).is_err() {
                         break;
                     }
@@ -526,8 +538,41 @@ fn random_nonce() -> [u8; 16] {
     n
 }
 
-fn forward(session: &zenoh::Session, key: &str, request: Vec<u8>, signer: Option<&Signer>) -> Vec<u8> {
-    let mut get = session.get(key).timeout(REQUEST_TIMEOUT);
+/// The mirror's own Status of its replica ([`crate::mirror`]'s core), for the forwarder.
+pub type LocalStatus = Arc<dyn Fn() -> bassclient::control::Status + Send + Sync>;
+
+/// How long a Status on a replica waits for the source's live Status (the mirror's own answer
+/// does not wait for the network longer than this).
+const LIVE_STATUS_TIMEOUT: Duration = Duration::from_millis(500);
+
+/// A Status on the replica's socket: answered by the mirror (`local`: the replica, the link,
+/// the source's last known state, the counts) whatever the source allows; with the link up
+/// and the source allowing this mirror control, the source's live Status is added.
+fn replica_status(
+    session: &zenoh::Session,
+    key: &str,
+    request: Vec<u8>,
+    signer: Option<&Signer>,
+    local: &(dyn Fn() -> bassclient::control::Status + Send + Sync),
+) -> Vec<u8> {
+    let mut status = local();
+    if let Some(r) = status.replica.as_mut().filter(|r| r.link_up) {
+        let live = forward(session, key, request, signer, LIVE_STATUS_TIMEOUT);
+        if let Ok(bassclient::control::Reply::Status(s)) = wire::decode_reply(&live) {
+            r.source_status = Some(Box::new(s));
+        }
+    }
+    wire::encode_reply(&bassclient::control::Reply::Status(status))
+}
+
+fn forward(
+    session: &zenoh::Session,
+    key: &str,
+    request: Vec<u8>,
+    signer: Option<&Signer>,
+    timeout: Duration,
+) -> Vec<u8> {
+    let mut get = session.get(key).timeout(timeout);
     let mut nonce = [0u8; 16];
     if let Some(s) = signer {
         nonce = random_nonce();

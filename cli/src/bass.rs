@@ -226,6 +226,7 @@ fn status(name: &str, json: bool, timeout: Duration) -> Result<()> {
             "xruns": s.xruns, "gap_frames": s.gap_frames, "rate_estimate_hz": s.rate_estimate_hz,
             "device": s.device, "format": s.format, "message": s.message, "port": s.port,
             "lost_upstream_frames": lost_upstream,
+            "replica": s.replica,
         });
         println!("{v}");
         return Ok(());
@@ -251,6 +252,33 @@ fn status(name: &str, json: bool, timeout: Duration) -> Result<()> {
         }
         println!("rate est.   {:.3} Hz", s.rate_estimate_hz);
         println!("port        {}", s.port);
+    }
+    if let Some(r) = &s.replica {
+        let link = if r.link_up { "up" } else { "down" };
+        println!(
+            "source      {} ({}; epoch {}, last frame {})",
+            r.source, r.source_state, r.source_epoch, r.source_last_frame_index
+        );
+        println!("link        {link} for {:.1} s; {} outage(s)", r.link_since_s, r.outages);
+        println!(
+            "never recv. {} frames ({} of them not sent by the source)",
+            r.gap_frames_lost, r.gap_frames_source
+        );
+        if r.forged_messages > 0 {
+            println!("forged      {} messages dropped (not signed by the source)", r.forged_messages);
+        }
+        match &r.source_status {
+            Some(live) => println!(
+                "source live {} on {} (pid {}), last frame {}",
+                live.state_name(),
+                live.device,
+                live.broker_pid,
+                live.last_frame_index
+            ),
+            None => println!(
+                "source live not asked (the source allows this mirror no control: serve --allow-control), or unreachable"
+            ),
+        }
     }
     Ok(())
 }

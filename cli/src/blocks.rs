@@ -13,8 +13,7 @@ use bassclient::format::{chunk_flags, State};
 use bassclient::{Error, Port};
 use serde::Serialize;
 
-use crate::exit::{self, Exit};
-use crate::follow::{after_stop, open_port, AfterStop};
+use crate::follow::{after_stop, open_port, AfterStop, Outage};
 use bassclient::args::parse_seconds;
 
 /// Largest block (frames per channel) `--block` accepts.
@@ -41,6 +40,10 @@ pub struct BlocksArgs {
     /// One JSON object per line instead of text
     #[arg(long)]
     pub json: bool,
+    /// End with an error when no frame comes for S seconds after a device error or a broker
+    /// gone (a replica's link outage, a restart) [default: wait for the acquisition to go on]
+    #[arg(long, value_name = "S", value_parser = parse_seconds)]
+    pub max_outage: Option<f64>,
 }
 
 /// RMS and peak level (full scale = 1.0) of each channel of a block.
@@ -113,6 +116,14 @@ enum Line {
     },
     Restarted {
         old_epoch: u64,
+    },
+    /// The acquisition paused (device error, broker gone): the reader waits for it.
+    Outage {
+        message: String,
+    },
+    /// Frames flow again after an outage.
+    Resumed {
+        message: String,
     },
     End {
         reason: &'static str,
@@ -202,6 +213,7 @@ fn read_acquisition(
     };
     let mut bufs = vec![vec![0i32; block]; ch];
     let past = |e: Option<Instant>| e.is_some_and(|e| Instant::now() >= e);
+    let mut outage = Outage::new(a.max_outage);
     loop {
         if a.count.is_some_and(|c| *n_blocks >= c) || past(end) {
             return Ok(Ended::Limit);
@@ -213,8 +225,15 @@ fn read_acquisition(
                 return Ok(Ended::Limit);
             }
             let want = nfr.saturating_add((block - got) as u64 - 1);
-            match port.wait(want.min(nfr.saturating_add(u64::from(g.frames_per_chunk))), Duration::from_millis(200)) {
-                Ok(_) | Err(Error::Timeout { .. }) | Err(Error::Interrupted) => {}
+            match port
+                .wait(want.min(nfr.saturating_add(u64::from(g.frames_per_chunk))), Duration::from_millis(200))
+            {
+                Ok(_) => {
+                    if let Some(text) = outage.resumed() {
+                        emit(a.json, Line::Resumed { message: text.clone() }, &text);
+                    }
+                }
+                Err(Error::Timeout { .. }) | Err(Error::Interrupted) => {}
                 Err(Error::Restarted) => return Ok(Ended::Restarted),
                 Err(Error::Stopped { last }) => {
                     return Ok(match after_stop(name, port, timeout)? {
@@ -222,15 +241,11 @@ fn read_acquisition(
                         AfterStop::Stopped => Ended::Stopped(last),
                     })
                 }
-                Err(Error::Device { code, message }) => {
-                    return Err(Exit::new(
-                        exit::DEVICE_ENDED,
-                        format!("the acquisition ended on a device error (code {code}): {message}; see `bass --name {name} status`"),
-                    )
-                    .into())
-                }
-                Err(e @ Error::WriterGone { .. }) => {
-                    return Err(Exit::new(exit::NO_BROKER, format!("{e}; restart bassd --name {name}")).into())
+                Err(e @ (Error::Device { .. } | Error::WriterGone { .. })) => {
+                    if let Some(text) = outage.pause(e, name)? {
+                        emit(a.json, Line::Outage { message: text.clone() }, &text);
+                    }
+                    continue;
                 }
                 Err(e) => return Err(e.into()),
             }

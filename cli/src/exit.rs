@@ -7,7 +7,7 @@
 //! | 2 | usage error: a bad option or value, or a request the broker refused as invalid or not permitted (a window over `--max-port-bytes`, a port that does not fit in the port directory, a device its policy does not allow) |
 //! | 3 | the broker cannot be reached (not running, socket missing, or it died) |
 //! | 4 | device error: the broker could not open or configure the device |
-//! | 5 | the acquisition being read ended on a device error |
+//! | 5 | the acquisition being read ended on a device error (past `--max-outage`) |
 //! | 6 | timeout: the broker did not answer, or no port appeared, within `--timeout` |
 //!
 //! The same table is in docs/broker.md; cli/tests/exit_codes.rs holds the two together and

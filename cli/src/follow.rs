@@ -84,3 +84,74 @@ pub fn after_stop(name: &str, port: &Port, timeout: Duration) -> Result<AfterSto
         Err(e) => Err(e.into()),
     }
 }
+
+/// A pause a reader rides through: the acquisition ended on a device error or its writer is
+/// gone, which a replica's link outage, a broker restarted by its service manager after the
+/// restart grace, or a device that comes back all end by themselves (the port goes on, the
+/// frames missed come as GAP frames or loss). Said once when it begins and once when frames
+/// flow again; only a bound the user set (`--max-outage`) ends the reader.
+#[derive(Debug)]
+pub struct Outage {
+    since: Option<(Instant, String)>,
+    max: Option<Duration>,
+}
+
+/// How long a reader sleeps between looks at a paused port (its waits return at once).
+pub const OUTAGE_POLL: Duration = Duration::from_millis(50);
+
+impl Outage {
+    /// No outage yet; `max_s` is `--max-outage` (None: wait for ever).
+    pub fn new(max_s: Option<f64>) -> Outage {
+        Outage { since: None, max: max_s.map(Duration::from_secs_f64) }
+    }
+
+    /// A wait ended on `e` (a device error or a gone writer; anything else is returned as the
+    /// error it is). The first time: Ok(Some(what to say)); later: Ok(None) after a short
+    /// sleep; past `--max-outage`: the exit the error stands for, naming the bound.
+    pub fn pause(&mut self, e: Error, name: &str) -> Result<Option<String>> {
+        let (code, why) = match &e {
+            Error::Device { code, message } => {
+                (exit::DEVICE_ENDED, format!("device error (code {code}): {message}"))
+            }
+            Error::WriterGone { .. } => (exit::NO_BROKER, e.to_string()),
+            _ => return Err(e.into()),
+        };
+        match &self.since {
+            None => {
+                self.since = Some((Instant::now(), why.clone()));
+                let bound = match self.max {
+                    Some(m) => format!("for up to {:.1} s (--max-outage)", m.as_secs_f64()),
+                    None => "(Ctrl-C ends; --max-outage SECONDS bounds the wait)".to_owned(),
+                };
+                Ok(Some(format!(
+                    "-- the acquisition paused: {why}; waiting for it to go on {bound}; see `bass --name {name} status`"
+                )))
+            }
+            Some((t0, _)) => {
+                if self.max.is_some_and(|m| t0.elapsed() >= m) {
+                    return Err(Exit::new(
+                        code,
+                        format!("{why}: no frames for {:.1} s (--max-outage)", t0.elapsed().as_secs_f64()),
+                    )
+                    .into());
+                }
+                std::thread::sleep(OUTAGE_POLL);
+                Ok(None)
+            }
+        }
+    }
+
+    /// Frames flow again: Some(what to say) if an outage ended (its length and cause).
+    pub fn resumed(&mut self) -> Option<String> {
+        let (t0, why) = self.since.take()?;
+        Some(format!(
+            "-- the acquisition goes on after {:.2} s ({why}); the frames missed are counted as gap or loss",
+            t0.elapsed().as_secs_f64()
+        ))
+    }
+
+    /// Whether an outage is going on.
+    pub fn active(&self) -> bool {
+        self.since.is_some()
+    }
+}

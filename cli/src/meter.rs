@@ -11,8 +11,7 @@ use bassclient::Error;
 use serde::Serialize;
 
 use crate::blocks::{dbfs, gaps_in, levels};
-use crate::exit::{self, Exit};
-use crate::follow::{after_stop, open_port, AfterStop};
+use crate::follow::{after_stop, open_port, AfterStop, Outage};
 use bassclient::args::parse_seconds;
 
 /// A peak at or above this (dBFS) counts as clipping.
@@ -35,6 +34,10 @@ pub struct MeterArgs {
     /// One JSON object per update
     #[arg(long)]
     pub json: bool,
+    /// End with an error when no frame comes for S seconds after a device error or a broker
+    /// gone (a replica's link outage, a restart) [default: wait for the acquisition to go on]
+    #[arg(long, value_name = "S", value_parser = parse_seconds)]
+    pub max_outage: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -114,6 +117,7 @@ pub fn run(name: &str, a: &MeterArgs, timeout: Duration) -> Result<()> {
     let mut port = open_port(name, timeout, None)?;
     let mut updates = 0u64;
     let mut drawn = 0usize;
+    let mut outage = Outage::new(a.max_outage);
     'acquisition: loop {
         let g = port.geometry().clone();
         let per = ((a.interval * f64::from(g.sample_rate)).round() as u64)
@@ -130,7 +134,12 @@ pub fn run(name: &str, a: &MeterArgs, timeout: Duration) -> Result<()> {
                     return Ok(());
                 }
                 match port.wait(nfr + (per as usize - got) as u64 - 1, Duration::from_millis(200)) {
-                    Ok(_) | Err(Error::Timeout { .. }) | Err(Error::Interrupted) => {}
+                    Ok(_) => {
+                        if let Some(text) = outage.resumed() {
+                            eprintln!("{text}");
+                        }
+                    }
+                    Err(Error::Timeout { .. }) | Err(Error::Interrupted) => {}
                     Err(Error::Restarted) => {
                         port = open_port(name, timeout, Some(port.epoch()))?;
                         continue 'acquisition;
@@ -147,15 +156,11 @@ pub fn run(name: &str, a: &MeterArgs, timeout: Duration) -> Result<()> {
                             return Ok(());
                         }
                     },
-                    Err(Error::Device { code, message }) => {
-                        return Err(Exit::new(
-                            exit::DEVICE_ENDED,
-                            format!("device error (code {code}): {message}"),
-                        )
-                        .into())
-                    }
-                    Err(e @ Error::WriterGone { .. }) => {
-                        return Err(Exit::new(exit::NO_BROKER, e.to_string()).into())
+                    Err(e @ (Error::Device { .. } | Error::WriterGone { .. })) => {
+                        if let Some(text) = outage.pause(e, name)? {
+                            eprintln!("{text}");
+                        }
+                        continue;
                     }
                     Err(e) => return Err(e.into()),
                 }

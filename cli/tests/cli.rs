@@ -93,14 +93,27 @@ fn blocks_follows_interrupting_acquires_and_ends_only_on_a_real_stop() {
     assert!(!lines.iter().any(|l| l.contains("acquisition ended")), "{lines:?}");
 }
 
+/// A device error is a pause `blocks` rides through (a replica's outage, a broker restarted
+/// after its grace and a device that comes back all look like this): it says so and waits,
+/// ending by its own limit (before issue 33: exit 5 at once); `--max-outage` bounds the wait.
 #[test]
-fn blocks_exits_non_zero_when_the_device_fails() {
+fn blocks_waits_through_a_device_error_and_exits_non_zero_past_max_outage() {
     let dir = TempDir::new("devfail");
     let b = Bassd::start(dir.path(), "default", &[], &[]);
     b.client().acquire(&acquire_req("sim:unplug", 8000, 100, 100, 2)).unwrap();
-    let o = bass(&b, &["blocks"]);
+    let t0 = std::time::Instant::now();
+    let o = bass(&b, &["blocks", "-d", "2"]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    assert!(t0.elapsed() >= std::time::Duration::from_millis(1900), "ended by its limit, not the error");
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        out.contains("-- the acquisition paused: device error") && out.contains("unplugged"),
+        "{}",
+        text(&o)
+    );
+    let o = bass(&b, &["blocks", "--max-outage", "0.5"]);
     assert_eq!(o.status.code(), Some(5), "{}", text(&o));
-    assert!(text(&o).contains("device error") && text(&o).contains("unplugged"), "{}", text(&o));
+    assert!(text(&o).contains("device error") && text(&o).contains("--max-outage"), "{}", text(&o));
 }
 
 #[test]

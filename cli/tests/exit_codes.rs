@@ -44,7 +44,7 @@ fn every_documented_exit_code_comes_from_its_case() {
 
     // 5: the acquisition being read ends on a device error.
     b.client().acquire(&acquire_req("sim:unplug", 8000, 100, 100, 2)).unwrap();
-    let o = bass(&b, &["blocks"]);
+    let o = bass(&b, &["blocks", "--max-outage", "0.3"]);
     assert_eq!(code(&o), exit::DEVICE_ENDED, "{}", text(&o));
 
     // 6: the broker does not answer within --timeout.

@@ -277,12 +277,19 @@ class Port:
         -N = the last N frames on the port), clamped at 0, as BASC does."""
         return max(0, self.last_frame_index + 1 + _int(start_offs, "start_offs"))
 
-    def blocks(self, n_frames, start_offs=0, nfr=None, count=None, timeout=None):
+    def blocks(self, n_frames, start_offs=0, nfr=None, count=None, timeout=None, max_outage=None):
         """Iterates over consecutive blocks of `n_frames` frames (blocking on the port).
 
         Starts at `nfr` if given, else at `start_frame(start_offs)`. Reads at least every half
         window, so no frame is lost while the consumer keeps up; frames lost anyway are
         reported in `Block.loss`. Stops after `count` blocks (None: forever).
+
+        Rides through pauses that end by themselves -- a DEVICE error or WRITER_GONE (a
+        replica's link outage, a broker restarted by systemd after its grace, a device that
+        comes back): it waits for frames to flow again, and the frames missed meanwhile come as
+        GAP zeros or `Block.loss`. `max_outage` (seconds) bounds such a pause: past it the
+        DEVICE / WRITER_GONE BassError is raised (None: wait for ever). STOPPED and RESTARTED
+        (a new acquisition: open the port again) are raised at once, as are other errors.
 
         Every channel of the port is read (1 to 64): `Block.left` and `Block.right` are
         channels 0 and 1 (`right` is None on a 1-channel port); all channels, as an int32 array
@@ -291,15 +298,28 @@ class Port:
         if n_frames <= 0:
             raise ValueError("n_frames must be > 0")
         nfr = self.start_frame(start_offs) if nfr is None else nfr
+        max_outage = _seconds(max_outage, "max_outage")
         half = max(1, self.frames_on_port // 2)
         ch = self.channels
         done = 0
+        paused_since = None
         while count is None or done < count:
             data = np.empty((ch, n_frames), dtype=np.int32)
             filled, loss, first = 0, 0, None
             while filled < n_frames:
                 rem = n_frames - filled
-                self.wait(nfr + min(rem, half) - 1, timeout)
+                try:
+                    self.wait(nfr + min(rem, half) - 1, timeout)
+                    paused_since = None
+                except BassError as e:
+                    if e.name not in ("DEVICE", "WRITER_GONE"):
+                        raise
+                    now = time.monotonic()
+                    paused_since = now if paused_since is None else paused_since
+                    if max_outage is not None and now - paused_since >= max_outage:
+                        raise
+                    time.sleep(0.05)
+                    continue
                 want = min(rem, self.frames_on_port)
                 ptrs = (ctypes.POINTER(ctypes.c_int32) * ch)(*[_i32p(data[c], filled) for c in range(ch)])
                 c_nfr, n, l = ctypes.c_uint64(nfr), ctypes.c_size_t(), ctypes.c_uint64()

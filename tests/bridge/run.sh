@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The network suite (make test-bridge): every tests/bridge/cases/*.sh, each a process with its
-# own network namespaces (tests/bridge/lib.sh). The long cases (link outages of 15 s and 60 s)
+# own network namespaces (tests/bridge/lib.sh). The long cases (link outages of 20 s and 60 s)
 # run beside the others, so the suite takes about as long as its longest case; a case's
 # transcript is printed when it ends. Fails if any case fails.
 #

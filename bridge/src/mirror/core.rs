@@ -26,6 +26,7 @@
 use std::collections::VecDeque;
 use std::path::PathBuf;
 
+use bassclient::control::{ReplicaStatus, Status};
 use bassclient::format::error_code;
 use bassclient::{Geometry, PortParams, State, Writer};
 
@@ -130,7 +131,66 @@ pub enum Outcome {
     Failed,
 }
 
+/// A state name as the control protocol's Status gives it.
+fn bridge_state_name(s: BridgeState) -> String {
+    serde_json::to_value(s).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default()
+}
+
 impl Core {
+    /// The Status a replica's control socket answers by itself: the replica port's state and
+    /// geometry, and what the mirror knows of the link and the source ([`ReplicaStatus`]).
+    pub fn control_status(&self, now: u64) -> Status {
+        let st = &self.st;
+        let mut s = Status {
+            broker_pid: std::process::id(),
+            broker_version: env!("CARGO_PKG_VERSION").to_owned(),
+            device: format!("replica of {}", st.source),
+            ..Status::default()
+        };
+        if let Some(r) = &self.replica {
+            let g = r.writer.geometry();
+            s.state = r.writer.state() as u32;
+            (s.sample_rate, s.frames_per_chunk, s.chunks_on_port, s.channels) =
+                (g.sample_rate, g.frames_per_chunk, g.chunks_on_port, g.channels);
+            s.epoch = r.writer.epoch();
+            s.last_frame_index = r.writer.last_frame_index();
+            s.chunks_published = st.chunks_written;
+            s.gap_frames = st.gap_frames_lost;
+            s.rate_estimate_hz = f64::from(g.sample_rate);
+            s.port = r.writer.path().display().to_string();
+            s.format = "S32_LE (replica)".to_owned();
+            if s.state == State::Error as u32 {
+                s.error_code = error_code::DEVICE_LOST;
+            }
+        }
+        let since = now.saturating_sub(st.link_since_ns) as f64 / 1e9;
+        let link = if st.link_up { "up" } else { "down" };
+        s.message = format!(
+            "replica of {}: link {link} for {since:.1} s; source {}; {} outage(s), {} frames never received",
+            st.source,
+            bridge_state_name(st.source_state),
+            st.outages,
+            st.gap_frames_lost
+        );
+        if let Some(e) = &st.error {
+            s.message = format!("{e}; {}", s.message);
+        }
+        s.replica = Some(Box::new(ReplicaStatus {
+            source: st.source.clone(),
+            link_up: st.link_up,
+            link_since_s: since,
+            source_state: bridge_state_name(st.source_state),
+            source_epoch: st.source_epoch,
+            source_last_frame_index: st.source_last_frame_index,
+            gap_frames_lost: st.gap_frames_lost,
+            gap_frames_source: st.gap_frames_source,
+            outages: st.outages,
+            forged_messages: st.forged_messages,
+            source_status: None,
+        }));
+        s
+    }
+
     /// A mirror writing its replica at `port_path`, within `bounds`.
     pub fn new(port_path: PathBuf, bounds: Bounds, st: MirrorStatus, now: u64) -> Core {
         Core {
@@ -467,6 +527,8 @@ impl Core {
             self.st.refused_states += 1;
             return;
         }
+        self.st.source_state = s.state;
+        self.st.source_last_frame_index = self.st.source_last_frame_index.max(s.last_frame_index);
         if matches!(s.state, BridgeState::Error | BridgeState::Gone | BridgeState::Stopped) {
             self.pending_state = Some(PendingState { state: s, at_ns: now });
         }
@@ -492,6 +554,10 @@ impl Core {
             tracing::info!("only one source named {:?} heard again", self.st.source);
         }
         let silent = now.saturating_sub(self.last_heard_ns) > timeout_ns;
+        if self.st.link_since_ns == 0 || self.st.link_up == silent {
+            self.st.link_up = !silent;
+            self.st.link_since_ns = now;
+        }
         if !silent {
             self.unreachable_said = false;
         }

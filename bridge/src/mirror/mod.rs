@@ -203,12 +203,14 @@ fn run_named(
         }
         _ => None,
     };
+    let status_core = core.clone();
     let forwarder = crate::control::spawn_forwarder(
         &session,
         o.net.key(&o.source, "control"),
         signer,
         instance,
         term.clone(),
+        Arc::new(move || lock(&status_core).control_status(monotonic_ns())),
     )?;
     let signed = source_id.is_some();
     let timeout_ns = (o.timeout * 1e9) as u64;

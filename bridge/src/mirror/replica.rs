@@ -80,6 +80,9 @@ pub fn publish(
     r.last_chunk_ns = now;
     r.last_mono_ns = h.mono_ns;
     st.chunks_written += 1;
+    // A chunk is the source capturing, whatever its last state message said.
+    st.source_state = crate::net::BridgeState::Capturing;
+    st.source_last_frame_index = st.source_last_frame_index.max(r.expected - 1);
     // The replica's rate estimate: the source's frames over the source's clock, from the
     // first chunk on (a value far from the nominal rate is a bad stamp, not a rate).
     if h.mono_ns != 0 {

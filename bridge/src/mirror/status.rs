@@ -70,6 +70,15 @@ pub struct MirrorStatus {
     pub status_write_failures: u64,
     /// Replica state (`idle` before the first replica).
     pub state: BridgeState,
+    /// Whether the source was heard within the timeout.
+    pub link_up: bool,
+    /// CLOCK_MONOTONIC (ns) of the last change of `link_up` (the mirror's start before one).
+    #[serde(skip)]
+    pub link_since_ns: u64,
+    /// The source's last known state (from its state messages and chunks).
+    pub source_state: BridgeState,
+    /// The newest source frame heard of.
+    pub source_last_frame_index: u64,
 }
 
 /// A log line of one kind at most every [`LOG_EVERY_NS`]; the ones held back are counted and

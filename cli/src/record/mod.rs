@@ -21,7 +21,7 @@ use anyhow::{Context, Result};
 use bassclient::Error;
 
 use crate::exit::{self, Exit};
-use crate::follow::{after_stop, open_port, AfterStop};
+use crate::follow::{after_stop, open_port, AfterStop, Outage};
 use crate::wav;
 use bassclient::args::parse_seconds;
 use bassclient::sidecar;
@@ -115,6 +115,10 @@ pub struct RecordArgs {
     /// Print the summary as one JSON object
     #[arg(long)]
     pub json: bool,
+    /// End the recording when no frame comes for S seconds after a device error or a broker
+    /// gone (a replica's link outage, a restart) [default: wait for the acquisition to go on]
+    #[arg(long, value_name = "S", value_parser = parse_seconds)]
+    pub max_outage: Option<f64>,
 }
 
 /// Converts a captured (left-justified S32) sample to `bits`, rounding half up and saturating.
@@ -292,6 +296,7 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
     let progress = Progress::new(a.quiet, limit, g.sample_rate);
     let mut peaks = vec![0f64; channels.len()];
     let mut last_progress = Instant::now();
+    let mut outage = Outage::new(a.max_outage);
     let end: Result<String, Ended> = loop {
         if stop.load(Ordering::Relaxed) {
             break Ok("signal".into());
@@ -313,7 +318,13 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
             _ => {}
         }
         match step {
-            Ok(()) => {}
+            Ok(()) => {
+                if let Some(text) = outage.resumed() {
+                    if !a.quiet {
+                        eprintln!("bass record: {text}");
+                    }
+                }
+            }
             Err(Step::Idle) => {}
             Err(Step::Wait(e)) => match e {
                 Error::Restarted => break Ok("a new acquisition started; the recording ends here".into()),
@@ -326,18 +337,11 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
                     }
                     Err(e) => break Err(Ended::Other(e)),
                 },
-                Error::Device { code, message } => {
-                    break Err(Ended::Other(
-                        Exit::new(
-                            exit::DEVICE_ENDED,
-                            format!("the acquisition ended on a device error (code {code}): {message}"),
-                        )
-                        .into(),
-                    ))
-                }
-                e @ Error::WriterGone { .. } => {
-                    break Err(Ended::Other(Exit::new(exit::NO_BROKER, e.to_string()).into()))
-                }
+                e @ (Error::Device { .. } | Error::WriterGone { .. }) => match outage.pause(e, name) {
+                    Ok(Some(text)) if !a.quiet => eprintln!("bass record: {text}"),
+                    Ok(_) => {}
+                    Err(e) => break Err(Ended::Other(e)),
+                },
                 e => break Err(Ended::Other(e.into())),
             },
             Err(Step::Disk(e)) => break Err(Ended::Disk(e)),

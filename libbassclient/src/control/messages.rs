@@ -142,6 +142,40 @@ pub struct Status {
     pub broker_pid: u32,
     /// Broker version.
     pub broker_version: String,
+    /// For a replica (`bass-bridge mirror`), what the mirror knows of its link and source;
+    /// absent for a broker.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub replica: Option<Box<ReplicaStatus>>,
+}
+
+/// What a mirror answers about its replica without asking the source (Status on a replica's
+/// control socket): the link, the source's last known state, the counts of what never came.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct ReplicaStatus {
+    /// The source broker's name.
+    pub source: String,
+    /// Whether the source was heard within the mirror's timeout.
+    pub link_up: bool,
+    /// Seconds since the link went up or down (since the mirror started, if it never changed).
+    pub link_since_s: f64,
+    /// The source's last known state (`capturing`, `stopped`, `error`, `gone`, ...).
+    pub source_state: String,
+    /// The source's epoch the replica follows.
+    pub source_epoch: u64,
+    /// The newest source frame the mirror heard of.
+    pub source_last_frame_index: u64,
+    /// Frames the replica published as GAP for chunks that never arrived.
+    pub gap_frames_lost: u64,
+    /// Of those, frames the source reported as not sent.
+    pub gap_frames_source: u64,
+    /// Times the replica went into the error state (link silent, or the source failed).
+    pub outages: u64,
+    /// Messages dropped for lacking the source's signature.
+    pub forged_messages: u64,
+    /// The source's own live Status, when the source allows this mirror control
+    /// (`serve --allow-control`) and answers; None otherwise.
+    pub source_status: Option<Box<Status>>,
 }
 
 impl Status {
