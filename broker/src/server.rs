@@ -31,6 +31,7 @@ mod dispatch;
 mod instance;
 mod opening;
 mod resume;
+mod startup;
 
 pub use crate::config::{Config, DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_PORT_BYTES};
 pub use accept::{peer_allowed, MAX_CLIENTS, RESERVED_CLIENTS};
@@ -72,6 +73,10 @@ pub struct Broker {
     /// resume, or the last one a predecessor recorded in the instance lock: the next
     /// acquisition's epoch passes it.
     handed_epoch: Option<u64>,
+    /// The configured acquisition (`--acquire`) while it has not started ([`startup`]).
+    startup: Option<startup::Startup>,
+    /// Why the last device open of an Acquire without a client (start-up, retry) failed.
+    last_open_failure: Option<String>,
 }
 
 impl Broker {
@@ -88,6 +93,8 @@ impl Broker {
             open_threads: Arc::new(AtomicUsize::new(0)),
             sup: Supervisor::none(),
             handed_epoch: None,
+            startup: None,
+            last_open_failure: None,
         }
     }
 
@@ -98,8 +105,14 @@ impl Broker {
         Some(match req {
             Request::ListDevices => Reply::Devices { devices: device::list() },
             Request::Status => Reply::Status(self.status()),
-            Request::Stop => self.stop(),
-            Request::Acquire(r) => return self.acquire(&r, peer_uid, reply_to),
+            Request::Stop => {
+                self.forget_configured();
+                self.stop()
+            }
+            Request::Acquire(r) => {
+                self.forget_configured();
+                return self.acquire(&r, peer_uid, reply_to);
+            }
             Request::OpenPort => crate::handoff::not_on_a_socket(),
         })
     }
@@ -116,6 +129,7 @@ impl Broker {
 
     fn status(&self) -> Status {
         let mut s = self.port_status();
+        self.configured_status(&mut s, monotonic_ns());
         if let Some(op) = &self.opening {
             // An Acquire waits for its device: say so, and what the port does meanwhile.
             let now = monotonic_ns();
@@ -296,9 +310,7 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
         None => false,
     };
     if let (false, Some(r)) = (resumed, &cfg.acquire) {
-        if let Some(Reply::Error { message, .. }) = broker.acquire(r, own_uid, None) {
-            tracing::error!("start-up Acquire failed: {message}");
-        }
+        broker.start_configured(r);
     }
     broker.sup.ready(&resume::status_line(&broker.status()));
     let mut clients: Vec<Conn> = Vec::new();
@@ -319,6 +331,7 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
         os::poll(&mut fds, Some(TICK)).context("poll")?;
         broker.tick();
         broker.poll_open();
+        broker.tick_configured(monotonic_ns());
         if let Some(e) = broker.current.as_ref().map(|a| a.port.epoch()) {
             if Some(e) != recorded_epoch {
                 files.inst.record_epoch(e);

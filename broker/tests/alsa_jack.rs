@@ -223,3 +223,67 @@ fn an_alsa_reported_overrun_is_recovered_and_the_data_resume_exactly() {
 fn convert_float(x: f32) -> i32 {
     (f64::from(x) * 2_147_483_648.0).round() as i32
 }
+
+/// Issue 33 item 3: a configured acquisition (`--acquire`) whose device is not there yet —
+/// ALSA's jack PCM before its jackd starts, as a USB array that enumerates after bassd — is
+/// tried again with a backoff, Status says what the broker waits for (not "no acquisition"),
+/// and capture starts by itself once the device is there (before: idle until someone came).
+#[test]
+fn a_configured_device_that_appears_late_is_picked_up_by_itself() {
+    let rig = rig("late");
+    let args = [
+        "--allow-device",
+        "bass_jack",
+        "--acquire",
+        "bass_jack",
+        "--rate",
+        "48000",
+        "--frames",
+        "480",
+        "--chunks",
+        "200",
+        "--channels",
+        "2",
+    ];
+    let b = Bassd::start(rig.path(), "default", &args, &rig.env());
+    let waiting = eventually("Status saying what the broker waits for", || {
+        let s = b.client().status().ok()?;
+        s.message.starts_with("waiting for device \"bass_jack\"").then_some(s)
+    });
+    assert_eq!(waiting.state, State::Idle as u32, "{waiting:?}");
+    assert!(waiting.message.contains("next try in"), "{}", waiting.message);
+    // A few tries fail while no jackd runs.
+    std::thread::sleep(Duration::from_millis(1600));
+    let _jackd = rig.jackd(RATE);
+    let s = eventually("the configured acquisition capturing after jackd started", || {
+        let s = b.client().status().ok()?;
+        (s.state == State::Capturing as u32).then_some(s)
+    });
+    assert_eq!((s.epoch, s.device.as_str()), (1, "bass_jack"));
+    let port = b.port();
+    wait_frame(&port, 4800);
+    let log = b.log_text();
+    assert!(log.contains("did not start") && log.contains("next try in"), "{log}");
+    assert!(log.contains("the configured acquisition of \"bass_jack\" started"), "{log}");
+}
+
+/// A mistyped card in the configuration is retried and named in Status, the broker up.
+#[test]
+fn a_configured_device_that_does_not_exist_is_named_in_status_and_retried() {
+    let dir = TempDir::new("typo");
+    let args = ["--acquire", "hw:97,0"];
+    let mut b = Bassd::start(dir.path(), "default", &args, &[]);
+    let s = eventually("Status naming the missing device", || {
+        let s = b.client().status().ok()?;
+        (s.message.starts_with("waiting for device \"hw:97,0\"") && s.message.contains("attempt 3"))
+            .then_some(s)
+    });
+    assert_eq!(s.state, State::Idle as u32);
+    assert!(b.is_running());
+    // An operator's Acquire takes over: no more tries.
+    b.client().acquire(&acquire_req("sim:pattern", 48000, 480, 100, 2)).unwrap();
+    std::thread::sleep(Duration::from_millis(1500));
+    let s = b.client().status().unwrap();
+    assert_eq!((s.state, s.device.as_str()), (State::Capturing as u32, "sim:pattern"), "{s:?}");
+    assert!(b.log_text().contains("no longer tried"), "{}", b.log_text());
+}

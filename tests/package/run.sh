@@ -290,7 +290,8 @@ zport=$(python3 -c 'import socket; s=socket.socket(socket.AF_INET6); s.bind(("::
 ZEP="tcp/[::1]:$zport"
 bridge() { # LOG STRACE-OUT ARGS...
   local log=$1 st=$2; shift 2
-  timeout 60 setpriv --no-new-privs --inh-caps=-all --bounding-set=-all -- \
+  timeout 60 setpriv --no-new-privs --inh-caps=-all --bounding-set=-all \
+    ${BRIDGE_GID:+--regid "$BRIDGE_GID" --clear-groups} -- \
     strace -f -qq -c -U name -S name -o "$st" /usr/bin/bass-bridge "$@" 2>"$log" &
 }
 bridge "$WORK/serve.log" "$WORK/strace-serve.txt" serve --name pkgtest --listen "$ZEP" --no-scouting
@@ -298,11 +299,16 @@ SERVE_PID=$!
 listening() { [[ $(ss -Htln "sport = :$zport") == *LISTEN* ]]; }
 for _ in $(seq 200); do listening && break; sleep 0.05; done
 listening || { cat "$WORK/serve.log"; fail "bass-bridge serve did not listen within 10 s"; }
-bridge "$WORK/mirror.log" "$WORK/strace-mirror.txt" mirror --source pkgtest --name pkgmirror --connect "$ZEP" \
+# The mirror with the group its unit gives it (Group=bass): its replica is the group's to read.
+BRIDGE_GID=$(getent group bass | cut -d: -f3) \
+  bridge "$WORK/mirror.log" "$WORK/strace-mirror.txt" mirror --source pkgtest --name pkgmirror --connect "$ZEP" \
   --listen 'tcp/[::1]:0' --no-scouting
 MIRROR_PID=$!
 for _ in $(seq 400); do [[ -f $BASS_RUNTIME_DIR/bass-pkgmirror.port ]] || ! kill -0 "$MIRROR_PID" 2>/dev/null && break; sleep 0.05; done
 [[ -f $BASS_RUNTIME_DIR/bass-pkgmirror.port ]] || { cat "$WORK/serve.log" "$WORK/mirror.log"; fail "no replica port within 20 s"; }
+# (issue 33: the replica was 0640 root:root, "Permission denied" for the group bass)
+rep_mode=$(stat -c '%G %a' "$BASS_RUNTIME_DIR/bass-pkgmirror.port")
+[[ $rep_mode == "bass 640" ]] || fail "the replica port is $rep_mode, expected group bass, mode 640"
 for pid in "$MIRROR_PID" "$SERVE_PID"; do
   b=$(pgrep -x -P "$(pgrep -P "$pid")" bass-bridge) || fail "no bass-bridge under strace"
   capeff=$(sed -n 's/^CapEff:\s*//p' "/proc/$b/status")
@@ -316,7 +322,7 @@ for m in serve mirror; do
   "$ROOT/tests/package/syscalls.py" "$WORK/strace-$m.txt" "bass-bridge $m" --deny @privileged \
     || fail "bass-bridge $m makes system calls its unit forbids"
 done
-say "bass-bridge (installed) serve and mirror without capabilities: replica port written, stopped with status 0"
+say "bass-bridge (installed) serve and mirror without capabilities: replica port written (group bass, 0640), stopped with status 0"
 
 # 8. Stop: SIGTERM to bassd (strace then ends), exit status 0.
 kill -TERM "$bpid"

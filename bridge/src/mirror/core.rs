@@ -77,6 +77,8 @@ struct Logs {
 /// The mirror's state: replica, followed stream, counters.
 pub struct Core {
     port_path: PathBuf,
+    /// The group replica ports are given to (`mirror --group`).
+    pub group: Option<u32>,
     bounds: Bounds,
     replica: Option<Replica>,
     /// The status (counters, error); `last_frame_index` and `state` are refreshed by [`Core::refresh`].
@@ -195,6 +197,7 @@ impl Core {
     pub fn new(port_path: PathBuf, bounds: Bounds, st: MirrorStatus, now: u64) -> Core {
         Core {
             port_path,
+            group: None,
             bounds,
             replica: None,
             st: MirrorStatus { state: BridgeState::Idle, ..st },
@@ -445,7 +448,7 @@ impl Core {
         let params = PortParams {
             geometry: geometry.clone(),
             device: format!("bass-bridge mirror of {} (source epoch {})", self.st.source, h.epoch),
-            group: None,
+            group: self.group,
         };
         // The old replica stays until the new one is in place (it is superseded then).
         let made = Writer::create_at(&self.port_path, &params).and_then(|mut w| {

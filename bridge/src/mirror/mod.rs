@@ -33,6 +33,24 @@ use bassclient::args::parse_seconds;
 use crate::clock::ClockEstimator;
 use crate::net::{self, NetOpts, UsageError};
 
+/// A group given by number, or by name as /etc/group lists it.
+fn parse_group(s: &str) -> std::result::Result<u32, String> {
+    if let Ok(gid) = s.parse::<u32>() {
+        return Ok(gid);
+    }
+    let groups = std::fs::read_to_string("/etc/group").map_err(|e| format!("/etc/group: {e}"))?;
+    groups
+        .lines()
+        .filter_map(|l| {
+            let mut f = l.split(':');
+            let name = f.next()?;
+            let gid = f.nth(1)?.parse::<u32>().ok()?;
+            (name == s).then_some(gid)
+        })
+        .next()
+        .ok_or_else(|| format!("no group {s:?} in /etc/group (give its name or number)"))
+}
+
 /// Options of `mirror`.
 #[derive(clap::Args, Debug)]
 pub struct MirrorOpts {
@@ -48,6 +66,11 @@ pub struct MirrorOpts {
     /// Write the mirror's counters and clock estimate as JSON to this file, once a second.
     #[arg(long)]
     pub status_file: Option<std::path::PathBuf>,
+    /// Give the replica port to this group (name or number): its members read it, as they
+    /// read the ports of `bassd --group` (the mirror must be a member of the group, e.g.
+    /// systemd's Group=, or root with CAP_CHOWN). Default: the mirror's own group.
+    #[arg(long, value_name = "GROUP", value_parser = parse_group)]
+    pub group: Option<u32>,
     /// Seconds between clock probes.
     #[arg(long, default_value = "0.5", value_parser = parse_seconds)]
     pub probe_interval: f64,
@@ -146,7 +169,9 @@ fn run_named(
         source_identity: source_id.as_ref().map(|i| i.name.clone()).unwrap_or_default(),
         ..Default::default()
     };
-    let core = Arc::new(Mutex::new(Core::new(instance.port_path(), o.bounds.clone(), st, monotonic_ns())));
+    let mut new_core = Core::new(instance.port_path(), o.bounds.clone(), st, monotonic_ns());
+    new_core.group = o.group;
+    let core = Arc::new(Mutex::new(new_core));
     let (chunk_core, chunk_clock) = (core.clone(), clock.clone());
     let (chunk_key, chunk_id) = (o.net.key(&o.source, "chunks"), source_id.clone());
     let chunks = session

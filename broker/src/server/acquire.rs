@@ -161,12 +161,18 @@ impl Broker {
                     self.unchanged()
                 );
                 tracing::error!("Acquire failed: {msg}");
+                if op.reply_to.is_none() {
+                    self.last_open_failure = Some(msg.clone());
+                }
                 answer(op.reply_to, &Reply::error(ErrorKind::Device, &msg));
                 return;
             }
         };
         let Some(op) = self.opening.take() else { return };
         if let Some((to, reply)) = self.finish_acquire(op, opened) {
+            if let (None, Reply::Error { message, .. }) = (&to, &reply) {
+                self.last_open_failure = Some(message.clone());
+            }
             answer(to, &reply);
         }
     }

@@ -176,6 +176,7 @@ pub(super) fn status_line(s: &Status) -> String {
             "capturing {} at {} Hz, {} ch; frame {}, epoch {}, {} overruns",
             s.device, s.sample_rate, s.channels, s.last_frame_index, s.epoch, s.xruns
         ),
+        Some(State::Idle) if s.message.starts_with("waiting for device") => s.message.clone(),
         Some(State::Idle) => "idle: no acquisition".to_owned(),
         state => {
             let name = state.map_or("unknown state", State::name);

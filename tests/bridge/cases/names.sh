@@ -91,4 +91,18 @@ kill -0 $NOSTAT 2>/dev/null && grep -q "status file" "$WORK/mirror-nostat.log" \
   && ok "an unwritable status file is logged, the mirror goes on: $(grep -m1 'status file' "$WORK/mirror-nostat.log" | cut -c1-200)" \
   || bad "nostat: $(tail -3 "$WORK/mirror-nostat.log")"
 (( $(grep -c "status file" "$WORK/mirror-nostat.log") <= 2 )) && ok "its failures are logged at most once per 5 s" || bad "status-file failures flood the log"
+echo "== mirror --group: the replica is the group's to read (issue 33)"
+"${IN_B[@]}" "$BB" "${mirror_args[@]}" --name grp --group nogroup >>"$WORK/mirror-grp.log" 2>&1 &
+GRP=$!; PIDS+=($GRP)
+wait_port "$DIR_B" grp || bad "mirror grp never made its replica"
+M=$(stat -c '%G %a' "$DIR_B/bass-grp.port" 2>&1)
+# A process of the group only (uid nobody, gid nogroup, no other group) reads the port file.
+chmod o+x "$WORK" "$DIR_B"
+if [[ $M == "nogroup 640" ]] && setpriv --reuid 65534 --regid "$(getent group nogroup | cut -d: -f3)" --clear-groups \
+     head -c 8 "$DIR_B/bass-grp.port" >/dev/null; then
+  ok "mirror --group nogroup: replica port $M, read by a member of the group only"
+else bad "mirror --group: replica port $M; $(tail -3 "$WORK/mirror-grp.log")"; fi
+"${IN_B[@]}" "$BB" "${mirror_args[@]}" --name grp2 --group no-such-group-here >"$WORK/mirror-grp2.log" 2>&1 && rc=0 || rc=$?
+(( rc == 2 )) && grep -q 'no group "no-such-group-here"' "$WORK/mirror-grp2.log" \
+  && ok "an unknown --group is refused by name (exit 2)" || bad "unknown group: exit $rc: $(tail -2 "$WORK/mirror-grp2.log")"
 rig_done
