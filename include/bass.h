@@ -381,6 +381,11 @@ const char *bass_version(void);
 // A static description of a result code (never NULL; unknown codes give "unknown result code").
 const char *bass_result_str(int code);
 
+// The name of a result code's constant (`BASS_ERR_TIMEOUT` gives "BASS_ERR_TIMEOUT"; never
+// NULL; an integer that is no code gives "BASS_UNKNOWN"), for bindings that show or map
+// codes by name.
+const char *bass_result_name(int code);
+
 // A static name of a port state (`BASS_STATE_IDLE` gives "idle", `BASS_STATE_STARTING`
 // "starting", ...: the constant's name in lower case); any other value gives "unknown"
 // (never NULL).

@@ -10,7 +10,8 @@ use std::collections::BTreeMap;
 use std::ffi::{c_int, CStr};
 
 use bassclient::ffi::{
-    bass_last_error, bass_port_open, bass_result, bass_result_str, bass_state_str, bass_version,
+    bass_last_error, bass_port_open, bass_result, bass_result_name, bass_result_str, bass_state_str,
+    bass_version,
 };
 
 fn text(p: *const std::ffi::c_char) -> String {
@@ -25,9 +26,14 @@ fn header() -> String {
 
 #[test]
 fn the_code_list_is_the_headers_enum_and_every_code_has_its_own_text() {
-    let ours: BTreeMap<String, c_int> =
-        bass_result::all().iter().map(|r| (format!("{r:?}"), *r as c_int)).collect();
-    assert_eq!(ours, common::header_results(&header()));
+    for (i, &r) in bass_result::all().iter().enumerate() {
+        assert_eq!(r as usize, i, "codes in numbering order");
+        let name = text(bass_result_name(r as c_int));
+        assert_eq!(name, format!("{r:?}"), "bass_result_name of {r:?}");
+        assert!(header().contains(&format!("  {name} = {i},")), "{name} = {i} is not in bass.h");
+    }
+    assert_eq!(text(bass_result_name(-1)), "BASS_UNKNOWN");
+    assert_eq!(text(bass_result_name(bass_result::all().len() as c_int)), "BASS_UNKNOWN");
     let unknown = text(bass_result_str(-1));
     assert_eq!(unknown, "unknown result code");
     let mut seen = BTreeMap::new();

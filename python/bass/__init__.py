@@ -32,14 +32,9 @@ __all__ = [
     "list_devices", "version", "pattern_expected", "RESULT_NAMES", "STATE_NAMES", "CHUNK_FLAGS",
 ]
 
-# Result codes of include/bass.h (stable, never renumbered).
-RESULT_NAMES = {
-    0: "OK", 1: "NULL_ARGUMENT", 2: "INVALID_ARGUMENT", 3: "INVALID_HANDLE", 4: "NOT_FOUND",
-    5: "NOT_READY", 6: "BAD_MAGIC", 7: "INCOMPATIBLE", 8: "CORRUPT", 9: "IO", 10: "TIMEOUT",
-    11: "STOPPED", 12: "DEVICE", 13: "RESTARTED", 14: "WRITER_GONE", 15: "FRAME_LOST",
-    16: "FRAME_NOT_YET", 17: "INTERRUPTED", 18: "BROKER", 19: "NO_BROKER", 20: "PROTOCOL",
-    21: "PANIC", 22: "BUFFER_TOO_SMALL", 23: "WRONG_OWNER", 24: "NEVER_READY",
-}
+# Result codes of include/bass.h (stable, never renumbered), generated from the library's one
+# table by `make header`.
+from ._results import RESULT_NAMES  # noqa: E402
 for _code, _name in RESULT_NAMES.items():
     globals()["BASS_" + ("OK" if _code == 0 else "ERR_" + _name)] = _code
 

@@ -195,6 +195,7 @@ _I32P = POINTER(ctypes.c_int32)
 _SIGNATURES = {
     "bass_version": (c_char_p, []),
     "bass_result_str": (c_char_p, [c_int]),
+    "bass_result_name": (c_char_p, [c_int]),
     "bass_last_error": (c_char_p, []),
     "bass_state_str": (c_char_p, [c_uint32]),
     "bass_port_open": (c_int, [c_char_p, POINTER(_P)]),

@@ -120,13 +120,10 @@ def test_every_declared_function_exists_in_the_header_with_as_many_parameters():
         assert len(params) == len(args), f"{name}: header has {len(params)} parameters, _lib.py {len(args)}"
 
 
-def test_every_header_result_code_has_its_name_in_the_python_package():
-    enum = HEADER[:HEADER.index("} bass_result;")]
-    header = {int(v): n for n, v in re.findall(r"^\s*BASS_(?:ERR_)?(\w+) = (\d+),?$", enum, re.M)}
-    assert len(header) >= 25
-    assert bass.RESULT_NAMES == header
-    for code, name in header.items():
+def test_every_result_code_has_its_constant_in_the_python_package():
+    for code, name in bass.RESULT_NAMES.items():
         assert getattr(bass, "BASS_" + ("OK" if code == 0 else "ERR_" + name)) == code
+        assert _lib.lib.bass_result_name(code).decode() == ("BASS_OK" if code == 0 else "BASS_ERR_" + name)
 
 
 def test_the_chunk_flags_are_the_headers():
@@ -138,11 +135,10 @@ def test_the_chunk_flags_are_the_headers():
         assert bass.ChunkInfo(1, 1, 0, 0, bit).flag_names == (name,)
 
 
-def test_every_header_result_code_has_a_library_text():
-    enum = HEADER[:HEADER.index("} bass_result;")]
-    header_codes = [int(v) for v in re.findall(r"^\s*BASS_\w+ = (\d+),?$", enum, re.M)]
-    assert sorted(header_codes) == sorted(bass.RESULT_NAMES)
-    texts = [_lib.lib.bass_result_str(c).decode() for c in header_codes]
+def test_every_result_code_has_a_library_text():
+    codes = sorted(bass.RESULT_NAMES)
+    assert codes == list(range(len(codes)))
+    texts = [_lib.lib.bass_result_str(c).decode() for c in codes]
     assert "unknown result code" not in texts
     assert len(set(texts)) == len(texts)
-    assert _lib.lib.bass_result_str(max(header_codes) + 1).decode() == "unknown result code"
+    assert _lib.lib.bass_result_str(max(codes) + 1).decode() == "unknown result code"

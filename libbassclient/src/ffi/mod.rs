@@ -354,77 +354,88 @@ pub extern "C" fn bass_version() -> *const c_char {
     })
 }
 
-/// Every result code, in numbering order (not exported to C: the header has the enum).
-const ALL_RESULTS: [bass_result; 25] = [
-    BASS_OK,
-    BASS_ERR_NULL_ARGUMENT,
-    BASS_ERR_INVALID_ARGUMENT,
-    BASS_ERR_INVALID_HANDLE,
-    BASS_ERR_NOT_FOUND,
-    BASS_ERR_NOT_READY,
-    BASS_ERR_BAD_MAGIC,
-    BASS_ERR_INCOMPATIBLE,
-    BASS_ERR_CORRUPT,
-    BASS_ERR_IO,
-    BASS_ERR_TIMEOUT,
-    BASS_ERR_STOPPED,
-    BASS_ERR_DEVICE,
-    BASS_ERR_RESTARTED,
-    BASS_ERR_WRITER_GONE,
-    BASS_ERR_FRAME_LOST,
-    BASS_ERR_FRAME_NOT_YET,
-    BASS_ERR_INTERRUPTED,
-    BASS_ERR_BROKER,
-    BASS_ERR_NO_BROKER,
-    BASS_ERR_PROTOCOL,
-    BASS_ERR_PANIC,
-    BASS_ERR_BUFFER_TOO_SMALL,
-    BASS_ERR_WRONG_OWNER,
-    BASS_ERR_NEVER_READY,
-];
+/// The one table of the result codes beside the enum: each code's description and the MEX
+/// error identifier. The compiler holds it to the enum: [`bass_result::name`] and
+/// [`bass_result::description`] are exhaustive matches made from it (a code missing here, or
+/// a name that is no code, does not compile), and the rows are asserted to be in numbering
+/// order. `make header` writes the Python and MEX tables from it (python/bass/_results.py,
+/// matlab/bass_mex_results.h; libbassclient/tests/header_in_sync.rs diffs them).
+macro_rules! result_table {
+    ($($code:ident => $text:literal, $mex:literal;)*) => {
+        /// Every result code, in numbering order.
+        const ALL_RESULTS: &[bass_result] = &[$($code),*];
+
+        impl bass_result {
+            /// A static description. A new code does not compile until it has its row.
+            pub fn description(self) -> &'static CStr {
+                match self { $($code => $text,)* }
+            }
+
+            /// The constant's name (`"BASS_ERR_TIMEOUT"`).
+            pub fn name(self) -> &'static CStr {
+                match self {
+                    $($code => match CStr::from_bytes_with_nul(concat!(stringify!($code), "\0").as_bytes()) {
+                        Ok(c) => c,
+                        Err(_) => c"BASS_UNKNOWN",
+                    },)*
+                }
+            }
+
+            /// The MEX gateway's error identifier (`"bass:timeout"`).
+            pub fn mex_id(self) -> &'static str {
+                match self { $($code => $mex,)* }
+            }
+        }
+    };
+}
+
+result_table! {
+    BASS_OK => c"ok", "bass:ok";
+    BASS_ERR_NULL_ARGUMENT => c"a required pointer argument was NULL", "bass:nullArgument";
+    BASS_ERR_INVALID_ARGUMENT => c"invalid argument", "bass:invalidArgument";
+    BASS_ERR_INVALID_HANDLE => c"invalid handle (closed or unknown)", "bass:invalidHandle";
+    BASS_ERR_NOT_FOUND => c"not found", "bass:noPort";
+    BASS_ERR_NOT_READY => c"port not initialised yet; retry", "bass:notReady";
+    BASS_ERR_BAD_MAGIC => c"not a bass port (bad magic)", "bass:badMagic";
+    BASS_ERR_INCOMPATIBLE => c"incompatible port format version", "bass:incompatible";
+    BASS_ERR_CORRUPT => c"corrupt or truncated port", "bass:corrupt";
+    BASS_ERR_IO => c"operating-system error", "bass:io";
+    BASS_ERR_TIMEOUT => c"timed out", "bass:timeout";
+    BASS_ERR_STOPPED => c"acquisition stopped", "bass:stopped";
+    BASS_ERR_DEVICE => c"device error (lost, stalled or misconfigured)", "bass:device";
+    BASS_ERR_RESTARTED => c"a new acquisition replaced this port; reopen it", "bass:restarted";
+    BASS_ERR_WRITER_GONE => c"the broker writing this port is gone", "bass:writerGone";
+    BASS_ERR_FRAME_LOST => c"frame has left the window", "bass:lost";
+    BASS_ERR_FRAME_NOT_YET => c"frame not published yet", "bass:notYet";
+    BASS_ERR_INTERRUPTED => c"interrupted by a signal", "bass:interrupted";
+    BASS_ERR_BROKER => c"the broker refused or failed the request", "bass:broker";
+    BASS_ERR_NO_BROKER => c"cannot reach the broker", "bass:noBroker";
+    BASS_ERR_PROTOCOL => c"control protocol error", "bass:protocol";
+    BASS_ERR_PANIC => c"internal error (panic caught)", "bass:panic";
+    BASS_ERR_BUFFER_TOO_SMALL => c"output buffer too small", "bass:bufferTooSmall";
+    BASS_ERR_WRONG_OWNER => c"the port file is owned by an unexpected user", "bass:wrongOwner";
+    BASS_ERR_NEVER_READY => c"the port file never became ready (no writer is initialising it)", "bass:neverReady";
+}
+
+// The rows are in numbering order: ALL_RESULTS[i] is code i.
+const _: () = {
+    let mut i = 0;
+    while i < ALL_RESULTS.len() {
+        assert!(ALL_RESULTS[i] as usize == i, "result_table! rows out of numbering order");
+        i += 1;
+    }
+};
 
 impl bass_result {
-    /// Every code, in numbering order (a test checks this list against the header's enum).
+    /// Every code, in numbering order.
     pub fn all() -> &'static [bass_result] {
-        &ALL_RESULTS
+        ALL_RESULTS
     }
 
     /// The code whose value is `code`, if there is one (a checked conversion: an integer
     /// from C is never transmuted into the enum).
     pub fn from_code(code: c_int) -> Option<bass_result> {
-        ALL_RESULTS.iter().copied().find(|r| *r as c_int == code)
-    }
-
-    /// A static description. The match is exhaustive: a new code does not compile
-    /// until it has its text.
-    pub fn description(self) -> &'static CStr {
-        match self {
-            BASS_OK => c"ok",
-            BASS_ERR_NULL_ARGUMENT => c"a required pointer argument was NULL",
-            BASS_ERR_INVALID_ARGUMENT => c"invalid argument",
-            BASS_ERR_INVALID_HANDLE => c"invalid handle (closed or unknown)",
-            BASS_ERR_NOT_FOUND => c"not found",
-            BASS_ERR_NOT_READY => c"port not initialised yet; retry",
-            BASS_ERR_BAD_MAGIC => c"not a bass port (bad magic)",
-            BASS_ERR_INCOMPATIBLE => c"incompatible port format version",
-            BASS_ERR_CORRUPT => c"corrupt or truncated port",
-            BASS_ERR_IO => c"operating-system error",
-            BASS_ERR_TIMEOUT => c"timed out",
-            BASS_ERR_STOPPED => c"acquisition stopped",
-            BASS_ERR_DEVICE => c"device error (lost, stalled or misconfigured)",
-            BASS_ERR_RESTARTED => c"a new acquisition replaced this port; reopen it",
-            BASS_ERR_WRITER_GONE => c"the broker writing this port is gone",
-            BASS_ERR_FRAME_LOST => c"frame has left the window",
-            BASS_ERR_FRAME_NOT_YET => c"frame not published yet",
-            BASS_ERR_INTERRUPTED => c"interrupted by a signal",
-            BASS_ERR_BROKER => c"the broker refused or failed the request",
-            BASS_ERR_NO_BROKER => c"cannot reach the broker",
-            BASS_ERR_PROTOCOL => c"control protocol error",
-            BASS_ERR_PANIC => c"internal error (panic caught)",
-            BASS_ERR_BUFFER_TOO_SMALL => c"output buffer too small",
-            BASS_ERR_WRONG_OWNER => c"the port file is owned by an unexpected user",
-            BASS_ERR_NEVER_READY => c"the port file never became ready (no writer is initialising it)",
-        }
+        usize::try_from(code).ok().and_then(|i| ALL_RESULTS.get(i)).copied()
     }
 }
 
@@ -436,6 +447,16 @@ const UNKNOWN_RESULT: &CStr = c"unknown result code";
 pub extern "C" fn bass_result_str(code: c_int) -> *const c_char {
     static_text_boundary(c"bass_result_str: internal error", || {
         bass_result::from_code(code).map_or(UNKNOWN_RESULT, bass_result::description).as_ptr()
+    })
+}
+
+/// The name of a result code's constant (`BASS_ERR_TIMEOUT` gives "BASS_ERR_TIMEOUT"; never
+/// NULL; an integer that is no code gives "BASS_UNKNOWN"), for bindings that show or map
+/// codes by name.
+#[no_mangle]
+pub extern "C" fn bass_result_name(code: c_int) -> *const c_char {
+    static_text_boundary(c"BASS_UNKNOWN", || {
+        bass_result::from_code(code).map_or(c"BASS_UNKNOWN", bass_result::name).as_ptr()
     })
 }
 

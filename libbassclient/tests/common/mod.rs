@@ -24,23 +24,6 @@ pub fn read_repo_file(rel: &str) -> String {
     std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
-/// `NAME = value` members of the `bass_result` enum of `header` (include/bass.h's text).
-pub fn header_results<T: std::str::FromStr>(header: &str) -> std::collections::BTreeMap<String, T> {
-    // `typedef enum { ... } bass_result;`: the body before the typedef's name.
-    let end = header.find("} bass_result;").expect("the header declares bass_result");
-    let body = &header[header[..end].rfind('{').expect("enum body") + 1..end];
-    body.lines()
-        .map(str::trim)
-        .filter(|l| l.starts_with("BASS_"))
-        .map(|l| {
-            let (name, value) = l.trim_end_matches(',').split_once('=').expect("explicit values");
-            let value =
-                value.trim().parse().unwrap_or_else(|_| panic!("{name}: value {value:?} is not a number"));
-            (name.trim().to_string(), value)
-        })
-        .collect()
-}
-
 /// Samples of frames `first..first+frames` in `bufs` (one buffer per channel) that are not
 /// the pattern signal's (`bassclient::testsignal`); the fault suite's `count_corrupted`.
 pub fn count_not_pattern(first: u64, frames: usize, bufs: &[Vec<i32>]) -> u64 {
