@@ -171,6 +171,18 @@ fn file_device(s: &str) -> Option<Result<DeviceKind, String>> {
             mode.prefix()
         )));
     }
+    // Relative to what? bassd's working directory is not the client's (a service runs in /),
+    // so a relative name is refused for what it is, before the device policy would refuse it
+    // for not matching the operator's absolute patterns. The command-line tools (`bass
+    // acquire`, `bassd --acquire`) make a relative name absolute against their own directory.
+    if std::path::Path::new(path).is_relative() {
+        return Some(Err(format!(
+            "relative path {path:?} in sim:{}{path}: give an absolute path (bassd cannot know \
+             the client's working directory; `bass acquire` makes a relative path absolute \
+             against its own)",
+            mode.prefix()
+        )));
+    }
     Some(Ok(DeviceKind::File { path: path.into(), mode }))
 }
 

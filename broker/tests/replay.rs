@@ -122,6 +122,40 @@ fn a_rate_or_channel_mismatch_is_refused_and_loop_starts_again() {
     assert_eq!(port.info().unwrap().state, Some(State::Capturing));
 }
 
+/// A relative `sim:file:` name means nothing to bassd, whose working directory is not the
+/// client's: the broker refuses it by what it is (not as a device-policy matter, which is what
+/// docs/broker.md's own `sim:file:rec` example met), and `bass acquire` makes the name
+/// absolute against its own working directory first, so that example replays.
+#[test]
+fn a_relative_replay_path_is_refused_as_relative_and_bass_acquire_resolves_it() {
+    let dir = TempDir::new("replay-relative");
+    let b = Bassd::start_replaying(dir.path(), "default");
+    let wav = record(&b, "sim:pattern", 80, 800, "rel.wav");
+    for dev in ["sim:file:rel.wav", "sim:file-loop:./rel.wav", "sim:file-renumber:rec/../rel.wav"] {
+        let e = b.client().acquire(&acquire_req(dev, 8000, 80, 200, 2)).unwrap_err().to_string();
+        assert!(
+            e.contains("relative path")
+                && e.contains("give an absolute path")
+                && e.ends_with("[invalid-argument]"),
+            "{dev}: {e}"
+        );
+    }
+    assert_eq!(b.client().status().unwrap().epoch, 1, "a refusal changes nothing");
+    let o = bass_cmd(&b, &["acquire", "sim:file:rel.wav", "-r", "8000", "--frames", "80", "--chunks", "200"])
+        .current_dir(dir.path())
+        .output()
+        .expect("run bass");
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let s = b.client().status().unwrap();
+    assert_eq!((s.epoch, s.device), (2, format!("sim:file:{}", wav.display())));
+    let port = b.port();
+    wait_frame(&port, 800);
+    let got = read_frames(&port, 1, 800);
+    for f in 1..=800u64 {
+        assert_eq!(got[0][f as usize - 1], pattern_sample(f, 0), "frame {f}");
+    }
+}
+
 /// Waits until the replay on `port` has ended; returns its message.
 fn replay_end(port: &bassclient::Port) -> String {
     let deadline = std::time::Instant::now() + PATIENCE;

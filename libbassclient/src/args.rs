@@ -95,6 +95,8 @@ mod acquire {
                     ));
                 }
             }
+            let device = absolute_replay_path(device)?;
+            let device = device.as_str();
             let device = match (self.looping, self.renumber, device.strip_prefix("sim:file:")) {
                 (false, false, _) => device.to_owned(),
                 (true, _, Some(path)) => format!("sim:file-loop:{path}"),
@@ -113,6 +115,28 @@ mod acquire {
                 format: self.format.clone(),
             })
         }
+    }
+
+    /// The file replay devices, whose argument is a path.
+    const REPLAY_PREFIXES: [&str; 3] = ["sim:file:", "sim:file-renumber:", "sim:file-loop:"];
+
+    /// `device` with a relative replay path (`sim:file:rec.wav`) made absolute against this
+    /// process's working directory: the broker refuses relative paths, since its own working
+    /// directory is not the one of the person who typed the name. Other names are unchanged.
+    fn absolute_replay_path(device: &str) -> Result<String, String> {
+        let Some((prefix, path)) =
+            REPLAY_PREFIXES.iter().find_map(|p| device.strip_prefix(p).map(|r| (*p, r)))
+        else {
+            return Ok(device.to_owned());
+        };
+        let p = std::path::Path::new(path);
+        if path.is_empty() || p.is_absolute() {
+            return Ok(device.to_owned());
+        }
+        let abs = std::path::absolute(p)
+            .map_err(|e| format!("{device}: cannot make {path:?} an absolute path: {e}"))?;
+        let abs = abs.to_str().ok_or_else(|| format!("{device}: the working directory is not UTF-8"))?;
+        Ok(format!("{prefix}{abs}"))
     }
 
     fn format_names() -> clap::builder::PossibleValuesParser {
@@ -190,6 +214,22 @@ mod tests {
         let t = parse("--renumber").unwrap();
         assert_eq!(t.a.request("sim:file:/r.wav").unwrap().device, "sim:file-renumber:/r.wav");
         assert!(t.a.request("hw:0").unwrap_err().contains("--renumber applies to sim:file:"));
+    }
+
+    #[test]
+    fn a_relative_replay_path_is_made_absolute_against_the_working_directory() {
+        let t = parse("").unwrap();
+        let cwd = std::env::current_dir().unwrap();
+        let cwd = cwd.display();
+        assert_eq!(t.a.request("sim:file:rec.wav").unwrap().device, format!("sim:file:{cwd}/rec.wav"));
+        assert_eq!(
+            t.a.request("sim:file-loop:d/r.wav").unwrap().device,
+            format!("sim:file-loop:{cwd}/d/r.wav")
+        );
+        assert_eq!(t.a.request("sim:file:/abs.wav").unwrap().device, "sim:file:/abs.wav");
+        assert_eq!(t.a.request("sim:pattern").unwrap().device, "sim:pattern");
+        let t = parse("--loop").unwrap();
+        assert_eq!(t.a.request("sim:file:rec").unwrap().device, format!("sim:file-loop:{cwd}/rec"));
     }
 
     #[test]
