@@ -287,6 +287,47 @@ fn members_of_the_configured_group_are_served() {
     assert_eq!(b.client().status().unwrap().epoch, 1);
 }
 
+/// A user outside the broker's group is refused the socket (0660) and the port (0640) by the
+/// system, not by the broker: told so, and how to join the group, never "is bassd running?
+/// Start it" (it is running). A user whose login predates the membership is told to log in
+/// again.
+#[test]
+fn a_user_outside_the_group_is_told_to_join_it_not_to_start_bassd() {
+    if skip(impersonation_missing()) {
+        return;
+    }
+    use std::os::unix::fs::PermissionsExt;
+    let dir = TempDir::new("not-in-group");
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+    let b = Bassd::start(dir.path(), "default", &["--group", "65534"], &[]);
+    b.client().acquire(&acquire_req("sim:pattern", 8000, 80, 10, 2)).unwrap();
+    wait_frame(&b.port(), 80);
+    let sock = b.socket().display().to_string();
+    let port = b.port_path().display().to_string();
+    // uid 4242 has no passwd entry and no group; nobody (65534) has group 65534 as its primary
+    // group in /etc/passwd, but not in this process (--regid=4242).
+    let run = |uid: &str, args: &[&str]| {
+        let who = [format!("--reuid={uid}"), "--regid=4242".into(), "--clear-groups".into()];
+        let o = setpriv(&who, bass_bin()).args(args).env("BASS_RUNTIME_DIR", dir.path()).output().unwrap();
+        (o.status.code(), String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let (code, err) = run("4242", &["status"]);
+    assert_eq!(code, Some(3), "{err}");
+    assert!(err.contains("permission denied: you are not in the group "), "{err}");
+    assert!(err.contains(&format!("(the socket {sock} is 0660 root:")), "{err}");
+    assert!(err.contains(": sudo adduser $USER ") && err.contains(", then log in again"), "{err}");
+    assert!(!err.contains("is bassd") && !err.contains("Start it"), "{err}");
+    let (code, err) = run("4242", &["blocks", "-n", "1"]);
+    assert_ne!(code, Some(0), "{err}");
+    assert!(err.contains(&format!("(the port {port} is 0640 root:")), "{err}");
+    assert!(err.contains("sudo adduser $USER ") && !err.contains("Permission denied (os error 13)"), "{err}");
+    assert_eq!(err.matches("permission denied").count(), 1, "said once: {err}");
+    let (code, err) = run("65534", &["status"]);
+    assert_eq!(code, Some(3), "{err}");
+    assert!(err.contains("this login session is not in the group ") && err.contains("log in again"), "{err}");
+    assert_eq!(b.client().status().unwrap().state, State::Capturing as u32);
+}
+
 /// The request that starved a core (768 kHz, 1-frame chunks, 64 channels)
 /// is refused by the default bounds, each bound named with the option that widens it; a
 /// broker started with wider bounds accepts it. Nothing changes on a refusal.

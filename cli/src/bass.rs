@@ -95,7 +95,7 @@ pub fn main() -> ! {
     let code = match run(&cli) {
         Ok(()) => exit::OK,
         Err(e) => {
-            eprintln!("bass: {e:#}");
+            eprintln!("bass: {}", describe(&e));
             exit::code_of(&e)
         }
     };
@@ -103,8 +103,27 @@ pub fn main() -> ! {
     std::process::exit(code)
 }
 
+/// An error and its causes, each cause once: the library's errors already end with the OS
+/// error they wrap (`open X: Permission denied`), which `{:#}` would print a second time.
+fn describe(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let c = cause.to_string();
+        if text.ends_with(&c) {
+            continue;
+        }
+        if !text.is_empty() {
+            text.push_str(": ");
+        }
+        text.push_str(&c);
+    }
+    text
+}
+
 fn connect(name: &str, timeout: Duration) -> Result<Client> {
     let mut c = Client::connect(name).map_err(|e| match e {
+        // The broker runs but this user may not use it: the message says what to do.
+        Error::NoBroker { .. } if e.is_access_refused() => Exit::new(exit::NO_BROKER, e.to_string()),
         Error::NoBroker { .. } => Exit::new(
             exit::NO_BROKER,
             format!("{e}; is bassd --name {name} running? Start it with `bassd --name {name}`"),

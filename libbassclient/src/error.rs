@@ -146,6 +146,13 @@ impl Error {
     pub fn io(context: impl Into<String>, source: std::io::Error) -> Error {
         Error::Io { context: context.into(), source }
     }
+
+    /// Whether a broker's socket or port refused this process (EACCES/EPERM, or a socket served
+    /// by a user it does not trust): the broker may well run, but this user may not use it.
+    pub fn is_access_refused(&self) -> bool {
+        matches!(self, Error::NoBroker { source, .. } | Error::Io { source, .. }
+            if source.kind() == std::io::ErrorKind::PermissionDenied)
+    }
 }
 
 /// Shorthand.

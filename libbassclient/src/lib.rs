@@ -10,6 +10,7 @@
 //!   timestamps), on the caller's thread or bass's own;
 //! - [`ros2`]: the ROS 2 messages of bass (type names, definitions, CDR) for MCAP and topics;
 //! - [`sidecar`]: the sidecar of a recording (`FILE.wav.json`), for `bass record` and the replay;
+//! - [`access`]: what a client is told when the system refuses it a broker's socket or port;
 //! - [`args`]: the command-line vocabulary bassd, bass and bass-bridge share;
 //! - [`control`]: the broker's control protocol and its [`control::Client`].
 //!
@@ -20,6 +21,7 @@
 
 #![warn(missing_docs)]
 
+pub mod access;
 pub mod args;
 pub mod control;
 pub mod error;

@@ -120,19 +120,22 @@ pub fn expected_port_owners() -> Result<Vec<u32>> {
     Ok(owners)
 }
 
+/// The name of user `uid` in /etc/passwd, escaped for messages.
+pub(crate) fn user_name(uid: u32) -> Option<String> {
+    let text = std::fs::read_to_string("/etc/passwd").ok()?;
+    text.lines().find_map(|l| {
+        let mut f = l.split(':');
+        let name = f.next()?;
+        let id: u32 = f.nth(1)?.parse().ok()?;
+        // Debug formatting escapes anything odd a passwd entry might hold.
+        (id == uid).then(|| name.escape_debug().to_string())
+    })
+}
+
 /// `uid N (name)` for messages; the name comes from /etc/passwd when it is there.
 pub fn describe_uid(uid: u32) -> String {
-    let name = std::fs::read_to_string("/etc/passwd").ok().and_then(|t| {
-        t.lines().find_map(|l| {
-            let mut f = l.split(':');
-            let name = f.next()?;
-            let id: u32 = f.nth(1)?.parse().ok()?;
-            (id == uid).then(|| name.to_owned())
-        })
-    });
-    match name {
-        // Debug formatting escapes anything odd a passwd entry might hold.
-        Some(n) => format!("uid {uid} ({})", n.escape_debug()),
+    match user_name(uid) {
+        Some(n) => format!("uid {uid} ({n})"),
         None => format!("uid {uid}"),
     }
 }

@@ -123,8 +123,10 @@ impl Port {
         }
         match crate::control::client::port_from_broker(name) {
             Ok(Some(port)) => Ok(port),
-            // The broker refused this client: say so rather than "no port".
+            // The broker refused this client, or the system refused it the broker's socket:
+            // say so rather than "no port".
             Err(e @ Error::Broker(_)) => Err(e),
+            Err(e @ Error::NoBroker { .. }) if e.is_access_refused() => Err(e),
             Ok(None) | Err(_) => by_path,
         }
     }
@@ -186,7 +188,10 @@ impl Port {
                     path.display()
                 )))
             }
-            Err(e) => return Err(Error::io(format!("open {}", path.display()), e)),
+            Err(e) => {
+                let e = crate::access::refused(crate::access::Kind::Port, path, e);
+                return Err(Error::io(format!("open {}", path.display()), e));
+            }
         };
         let meta = file.metadata().map_err(|e| Error::io("fstat of the port file", e))?;
         if let Some(owners) = owners {

@@ -74,7 +74,8 @@ impl Client {
     /// Connects to the control socket at `path`.
     pub fn connect_path(path: &Path, name: &str) -> Result<Client> {
         let no_broker = |source| Error::NoBroker { name: name.to_owned(), path: path.to_owned(), source };
-        let fd = socket::connect(path).map_err(no_broker)?;
+        let fd = socket::connect(path)
+            .map_err(|e| no_broker(crate::access::refused(crate::access::Kind::Socket, path, e)))?;
         // Who serves this socket? The peer credentials are those of the process that called
         // listen(): a socket planted by another user is refused before anything is sent.
         let peer = socket::peer_credentials(fd.as_fd()).map_err(no_broker)?;
