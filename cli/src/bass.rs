@@ -14,6 +14,7 @@ use serde_json::json;
 use crate::blocks::{self, BlocksArgs};
 use crate::exit::{self, Exit};
 use crate::meter::{self, MeterArgs};
+use crate::out::{self, note, outln};
 use crate::plot::{self, PlotArgs};
 use crate::record::{self, RecordArgs};
 use bassclient::args::{parse_seconds, AcquireArgs};
@@ -94,8 +95,10 @@ pub fn main() -> ! {
     let cli = Cli::parse();
     let code = match run(&cli) {
         Ok(()) => exit::OK,
+        // The reader of stdout has what it wanted (`bass blocks | head -1`): see crate::out.
+        Err(e) if out::is_stdout_closed(&e) => exit::OK,
         Err(e) => {
-            eprintln!("bass: {}", describe(&e));
+            note!("bass: {}", describe(&e));
             exit::code_of(&e)
         }
     };
@@ -164,20 +167,20 @@ pub fn run(cli: &Cli) -> Result<()> {
             let devs = connect(name, timeout)?.list_devices().map_err(|e| explain(e, name, None))?;
             if *json {
                 for d in devs {
-                    println!("{}", json!({"name": d.name, "description": d.description}));
+                    outln!("{}", json!({"name": d.name, "description": d.description}))?;
                 }
             } else {
                 let w = devs.iter().map(|d| d.name.len()).max().unwrap_or(6).max(6);
-                println!("{:<w$}  DESCRIPTION", "DEVICE");
+                outln!("{:<w$}  DESCRIPTION", "DEVICE")?;
                 for d in devs {
-                    println!("{:<w$}  {}", d.name, d.description);
+                    outln!("{:<w$}  {}", d.name, d.description)?;
                 }
             }
         }
         Command::Acquire(a) => acquire(name, a, timeout)?,
         Command::Stop => {
             connect(name, timeout)?.stop().map_err(|e| explain(e, name, None))?;
-            println!("stopped");
+            outln!("stopped")?;
         }
         Command::Status { json } => status(name, *json, timeout)?,
         Command::Blocks(b) => blocks::run(name, b, timeout)?,
@@ -185,7 +188,9 @@ pub fn run(cli: &Cli) -> Result<()> {
         Command::Meter(m) => meter::run(name, m, timeout)?,
         Command::Plot(p) => plot::run(name, p, timeout)?,
         Command::Completions { shell } => {
-            clap_complete::generate(*shell, &mut Cli::command(), "bass", &mut std::io::stdout());
+            let mut script = Vec::new();
+            clap_complete::generate(*shell, &mut Cli::command(), "bass", &mut script);
+            out::bytes(&script)?;
         }
     }
     Ok(())
@@ -198,22 +203,22 @@ fn acquire(name: &str, a: &AcquireCmd, timeout: Duration) -> Result<()> {
     let t0 = Instant::now();
     let got = connect(name, timeout)?.acquire(&req).map_err(|e| explain(e, name, Some(device)))?;
     let replied = t0.elapsed();
-    println!(
+    outln!(
         "acquiring {} (format {}), epoch {}, port {}",
         req.device,
         got.format,
         got.epoch,
         got.port.display()
-    );
+    )?;
     if a.wait {
         let port = open_reported(&got.port, name).context("open the new port")?;
         port.wait(u64::from(req.frames_per_chunk), timeout)?;
         let first = t0.elapsed();
-        println!(
+        outln!(
             "reply after {:.3} ms; first chunk published {:.3} ms after the request",
             replied.as_secs_f64() * 1e3,
             first.as_secs_f64() * 1e3
-        );
+        )?;
     }
     Ok(())
 }
@@ -247,57 +252,64 @@ fn status(name: &str, json: bool, timeout: Duration) -> Result<()> {
             "lost_upstream_frames": lost_upstream,
             "replica": s.replica,
         });
-        println!("{v}");
+        outln!("{v}")?;
         return Ok(());
     }
-    println!("broker      {name} (pid {}, version {})", s.broker_pid, s.broker_version);
+    outln!("broker      {name} (pid {}, version {})", s.broker_pid, s.broker_version)?;
     let code = if s.error_code != 0 { format!(" (error code {})", s.error_code) } else { String::new() };
-    println!("state       {state}{code}");
+    outln!("state       {state}{code}")?;
     if !s.message.is_empty() {
-        println!("message     {}", s.message);
+        outln!("message     {}", s.message)?;
     }
     if s.epoch > 0 {
-        println!("device      {} ({})", s.device, s.format);
-        println!(
+        outln!("device      {} ({})", s.device, s.format)?;
+        outln!(
             "geometry    {} Hz, {} ch, {} frames x {} chunks",
-            s.sample_rate, s.channels, s.frames_per_chunk, s.chunks_on_port
-        );
-        println!("epoch       {}", s.epoch);
-        println!("last frame  {}", s.last_frame_index);
-        println!("chunks      {}", s.chunks_published);
-        println!("xruns       {} ({} zero-filled frames)", s.xruns, s.gap_frames);
+            s.sample_rate,
+            s.channels,
+            s.frames_per_chunk,
+            s.chunks_on_port
+        )?;
+        outln!("epoch       {}", s.epoch)?;
+        outln!("last frame  {}", s.last_frame_index)?;
+        outln!("chunks      {}", s.chunks_published)?;
+        outln!("xruns       {} ({} zero-filled frames)", s.xruns, s.gap_frames)?;
         if lost_upstream > 0 {
-            println!("lost upstr. {lost_upstream} frames (never received by this replica; among the zero-filled frames)");
+            outln!("lost upstr. {lost_upstream} frames (never received by this replica; among the zero-filled frames)")?;
         }
-        println!("rate est.   {:.3} Hz", s.rate_estimate_hz);
-        println!("port        {}", s.port);
+        outln!("rate est.   {:.3} Hz", s.rate_estimate_hz)?;
+        outln!("port        {}", s.port)?;
     }
     if let Some(r) = &s.replica {
         let link = if r.link_up { "up" } else { "down" };
-        println!(
+        outln!(
             "source      {} ({}; epoch {}, last frame {})",
-            r.source, r.source_state, r.source_epoch, r.source_last_frame_index
-        );
-        println!("link        {link} for {:.1} s; {} outage(s)", r.link_since_s, r.outages);
-        println!(
+            r.source,
+            r.source_state,
+            r.source_epoch,
+            r.source_last_frame_index
+        )?;
+        outln!("link        {link} for {:.1} s; {} outage(s)", r.link_since_s, r.outages)?;
+        outln!(
             "never recv. {} frames ({} of them not sent by the source)",
-            r.gap_frames_lost, r.gap_frames_source
-        );
+            r.gap_frames_lost,
+            r.gap_frames_source
+        )?;
         if r.forged_messages > 0 {
-            println!("forged      {} messages dropped (not signed by the source)", r.forged_messages);
+            outln!("forged      {} messages dropped (not signed by the source)", r.forged_messages)?;
         }
         match &r.source_status {
-            Some(live) => println!(
+            Some(live) => outln!(
                 "source live {} on {} (pid {}), last frame {}",
                 live.state_name(),
                 live.device,
                 live.broker_pid,
                 live.last_frame_index
             ),
-            None => println!(
+            None => outln!(
                 "source live not asked (the source allows this mirror no control: serve --allow-control), or unreachable"
             ),
-        }
+        }?;
     }
     Ok(())
 }

@@ -14,6 +14,7 @@ use bassclient::{Error, Port};
 use serde::Serialize;
 
 use crate::follow::{after_stop, open_port, AfterStop, Outage};
+use crate::out::outln;
 use bassclient::args::parse_seconds;
 
 /// Largest block (frames per channel) `--block` accepts.
@@ -149,7 +150,7 @@ pub fn run(name: &str, a: &BlocksArgs, timeout: Duration) -> Result<()> {
         match read_acquisition(name, &port, a, end, timeout, &mut n_blocks)? {
             Ended::Limit => {
                 let last = port.info().map(|i| i.last_frame_index).unwrap_or(0);
-                emit(a.json, Line::End { reason: "limit", last_frame_index: last, blocks: n_blocks }, "");
+                emit(a.json, Line::End { reason: "limit", last_frame_index: last, blocks: n_blocks }, "")?;
                 return Ok(());
             }
             Ended::Stopped(last) => {
@@ -158,23 +159,25 @@ pub fn run(name: &str, a: &BlocksArgs, timeout: Duration) -> Result<()> {
                     a.json,
                     Line::End { reason: "stopped", last_frame_index: last, blocks: n_blocks },
                     &text,
-                );
+                )?;
                 return Ok(());
             }
             Ended::Restarted => {
                 let text = "-- a new acquisition replaced the port; following it";
-                emit(a.json, Line::Restarted { old_epoch: epoch }, text);
+                emit(a.json, Line::Restarted { old_epoch: epoch }, text)?;
                 port = open_port(name, timeout, Some(epoch))?;
             }
         }
     }
 }
 
-fn emit(json: bool, line: Line, text: &str) {
+fn emit(json: bool, line: Line, text: &str) -> Result<()> {
     if json {
-        println!("{}", serde_json::to_string(&line).expect("plain data serialises"));
+        outln!("{}", serde_json::to_string(&line)?)
     } else if !text.is_empty() {
-        println!("{text}");
+        outln!("{text}")
+    } else {
+        Ok(())
     }
 }
 
@@ -204,7 +207,7 @@ fn read_acquisition(
         chunks_on_port: g.chunks_on_port,
         block_frames: block as u64,
     };
-    emit(a.json, header, &text);
+    emit(a.json, header, &text)?;
     let first_unpublished = port.info()?.last_frame_index.saturating_add(1);
     let mut nfr = if a.offset >= 0 {
         first_unpublished.saturating_add(a.offset.unsigned_abs())
@@ -230,7 +233,7 @@ fn read_acquisition(
             {
                 Ok(_) => {
                     if let Some(text) = outage.resumed() {
-                        emit(a.json, Line::Resumed { message: text.clone() }, &text);
+                        emit(a.json, Line::Resumed { message: text.clone() }, &text)?;
                     }
                 }
                 Err(Error::Timeout { .. }) | Err(Error::Interrupted) => {}
@@ -243,7 +246,7 @@ fn read_acquisition(
                 }
                 Err(e @ (Error::Device { .. } | Error::WriterGone { .. })) => {
                     if let Some(text) = outage.pause(e, name)? {
-                        emit(a.json, Line::Outage { message: text.clone() }, &text);
+                        emit(a.json, Line::Outage { message: text.clone() }, &text)?;
                     }
                     continue;
                 }
@@ -279,7 +282,7 @@ fn read_acquisition(
                 rms_dbfs: lv.iter().map(|l| dbfs(l.0)).collect(),
                 peak_dbfs: lv.iter().map(|l| dbfs(l.1)).collect(),
             };
-            emit(true, line, "");
+            emit(true, line, "")?;
         } else {
             let mut line = format!(
                 "block {:5}  frames {start:>10}..{:<10} ({block}) loss {loss:<6} gap {gap:<6}{}",
@@ -290,7 +293,7 @@ fn read_acquisition(
             for (c, (rms, peak)) in lv.iter().enumerate() {
                 line.push_str(&format!(" | ch{c} rms {} peak {} dBFS", dbfs_text(*rms), dbfs_text(*peak)));
             }
-            println!("{line}");
+            outln!("{line}")?;
         }
         if port.info().map(|i| i.state == Some(State::Superseded)).unwrap_or(false) {
             return Ok(Ended::Restarted);

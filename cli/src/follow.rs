@@ -15,6 +15,7 @@ use bassclient::format::State;
 use bassclient::{Error, Port};
 
 use crate::exit::{self, Exit};
+use crate::out::note;
 
 /// After how long a waiting command says that it waits.
 pub const WAIT_NOTICE: Duration = Duration::from_secs(1);
@@ -44,7 +45,7 @@ pub fn open_port(name: &str, timeout: Duration, newer_than: Option<u64>) -> Resu
             .into());
         }
         if !told && waited >= WAIT_NOTICE {
-            eprintln!("bass: waiting for the port {name}… (up to {:.0} s, --timeout)", timeout.as_secs_f64());
+            note!("bass: waiting for the port {name}… (up to {:.0} s, --timeout)", timeout.as_secs_f64());
             told = true;
         }
         std::thread::sleep(Duration::from_millis(20));

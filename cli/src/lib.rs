@@ -11,13 +11,15 @@
 //! - [`plot`]: `bass plot`, PNG pictures of a recording or of the port;
 //! - [`record`]: `bass record FILE.wav` with its timestamp sidecar, and `--check`;
 //! - [`wav`]: the WAV writer, header parser and repair of `bass record`;
-//! - [`exit`]: the documented exit codes and how errors map onto them.
+//! - [`exit`]: the documented exit codes and how errors map onto them;
+//! - [`out`]: stdout and stderr as Unix tools use them (a closed pipe ends a command quietly).
 
 pub mod bass;
 pub mod blocks;
 pub mod exit;
 pub mod follow;
 pub mod meter;
+pub mod out;
 pub mod plot;
 pub mod record;
 pub mod wav;

@@ -3,7 +3,8 @@
 //! not a terminal; `--json` prints one object per update. More than 8 channels use a compact
 //! form (4 channels per line).
 
-use std::io::{IsTerminal, Write};
+use std::fmt::Write as _;
+use std::io::IsTerminal;
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
@@ -12,6 +13,7 @@ use serde::Serialize;
 
 use crate::blocks::{dbfs, gaps_in, levels};
 use crate::follow::{after_stop, open_port, AfterStop, Outage};
+use crate::out::{self, note, outln};
 use bassclient::args::parse_seconds;
 
 /// A peak at or above this (dBFS) counts as clipping.
@@ -136,7 +138,7 @@ pub fn run(name: &str, a: &MeterArgs, timeout: Duration) -> Result<()> {
                 match port.wait(nfr + (per as usize - got) as u64 - 1, Duration::from_millis(200)) {
                     Ok(_) => {
                         if let Some(text) = outage.resumed() {
-                            eprintln!("{text}");
+                            note!("{text}");
                         }
                     }
                     Err(Error::Timeout { .. }) | Err(Error::Interrupted) => {}
@@ -151,14 +153,14 @@ pub fn run(name: &str, a: &MeterArgs, timeout: Duration) -> Result<()> {
                         }
                         AfterStop::Stopped => {
                             if !a.json {
-                                println!("-- acquisition stopped at frame {last}");
+                                outln!("-- acquisition stopped at frame {last}")?;
                             }
                             return Ok(());
                         }
                     },
                     Err(e @ (Error::Device { .. } | Error::WriterGone { .. })) => {
                         if let Some(text) = outage.pause(e, name)? {
-                            eprintln!("{text}");
+                            note!("{text}");
                         }
                         continue;
                     }
@@ -188,24 +190,25 @@ pub fn run(name: &str, a: &MeterArgs, timeout: Duration) -> Result<()> {
                 peak_dbfs: lv.iter().map(|l| dbfs(l.1)).collect(),
                 clip: lv.iter().map(|l| dbfs(l.1).is_some_and(|d| d >= CLIP_DBFS)).collect(),
             };
-            let mut out = std::io::stdout().lock();
+            // One write per update: a terminal redraws it at once, a closed pipe ends the meter.
+            let mut text = String::new();
             if a.json {
-                writeln!(out, "{}", serde_json::to_string(&u)?)?;
+                writeln!(text, "{}", serde_json::to_string(&u)?)?;
             } else {
                 let lines = render(&u);
                 if tty && drawn > 0 {
                     // Back to the first line of the previous update, redraw over it.
-                    write!(out, "\x1b[{drawn}F")?;
+                    write!(text, "\x1b[{drawn}F")?;
                 }
                 for l in &lines {
                     if tty {
-                        write!(out, "\x1b[2K")?;
+                        text.push_str("\x1b[2K");
                     }
-                    writeln!(out, "{l}")?;
+                    writeln!(text, "{l}")?;
                 }
                 drawn = lines.len();
             }
-            out.flush()?;
+            out::bytes(text.as_bytes())?;
         }
     }
 }

@@ -53,7 +53,7 @@ pub fn run(name: &str, a: &PlotArgs, timeout: Duration) -> Result<()> {
         None => from_port(name, a.seconds, timeout)?,
     };
     draw(&sig, &a.output).with_context(|| format!("draw {}", a.output.display()))?;
-    println!("wrote {}", a.output.display());
+    crate::out::outln!("wrote {}", a.output.display())?;
     Ok(())
 }
 

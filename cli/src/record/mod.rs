@@ -22,6 +22,7 @@ use bassclient::Error;
 
 use crate::exit::{self, Exit};
 use crate::follow::{after_stop, open_port, AfterStop, Outage};
+use crate::out::{note, outln};
 use crate::wav;
 use bassclient::args::parse_seconds;
 use bassclient::sidecar;
@@ -143,8 +144,7 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
     if a.check {
         return match check(&a.file) {
             Ok(line) => {
-                println!("{line}");
-                Ok(())
+                outln!("{line}")
             }
             Err(problems) => Err(Exit::new(
                 exit::FAILURE,
@@ -237,7 +237,7 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
         From::Frame(f) => f,
     };
     if requested > lfi + 1 && !a.quiet {
-        eprintln!(
+        note!(
             "bass record: waiting for frame {requested}; the port is at frame {lfi} ({:.1} s away at {} Hz)",
             (requested - lfi) as f64 / f64::from(g.sample_rate),
             g.sample_rate
@@ -311,7 +311,7 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
         let started = rec.first.is_some();
         let step = rec.step(&port, Some(limit.unwrap_or(max_frames)), &mut peaks);
         match (started, rec.first) {
-            (false, Some(f)) if f > requested && !a.quiet => eprintln!(
+            (false, Some(f)) if f > requested && !a.quiet => note!(
                 "bass record: started {} frames after the requested frame {requested}, at frame {f} (the port no longer had the frames before it)",
                 f - requested
             ),
@@ -321,7 +321,7 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
             Ok(()) => {
                 if let Some(text) = outage.resumed() {
                     if !a.quiet {
-                        eprintln!("bass record: {text}");
+                        note!("bass record: {text}");
                     }
                 }
             }
@@ -338,7 +338,7 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
                     Err(e) => break Err(Ended::Other(e)),
                 },
                 e @ (Error::Device { .. } | Error::WriterGone { .. }) => match outage.pause(e, name) {
-                    Ok(Some(text)) if !a.quiet => eprintln!("bass record: {text}"),
+                    Ok(Some(text)) if !a.quiet => note!("bass record: {text}"),
                     Ok(_) => {}
                     Err(e) => break Err(Ended::Other(e)),
                 },
@@ -402,10 +402,10 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
         (Ok((side, _)), _) => side,
     };
     let r = &side.recording;
-    if a.json {
-        println!("{}", serde_json::to_string(r)?);
+    let said = if a.json {
+        outln!("{}", serde_json::to_string(r)?)
     } else if !a.quiet && mcap {
-        println!(
+        outln!(
             "recorded {} frames ({:.3} s) from frame {} to {}: {} bytes, {} gap frames, {} frames lost by the recorder; {}; bag directory {}",
             r.frames,
             r.seconds,
@@ -416,9 +416,9 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
             r.lost_frames,
             r.end,
             a.file.display()
-        );
+        )
     } else if !a.quiet {
-        println!(
+        outln!(
             "recorded {} frames ({:.3} s) from frame {} to {}: {} bytes, {} gap frames, {} frames lost by the recorder; {}; sidecar {}",
             r.frames,
             r.seconds,
@@ -429,11 +429,14 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
             r.lost_frames,
             r.end,
             rec.side_path.display()
-        );
-    }
+        )
+    } else {
+        Ok(())
+    };
+    // The recording's own failure counts before a closed stdout.
     match failure {
         Some(Ended::Other(e)) => Err(e),
-        _ => Ok(()),
+        _ => said,
     }
 }
 

@@ -47,7 +47,7 @@ impl Progress {
             b.set_position(frames);
             b.set_message(msg);
         } else if self.plain {
-            eprintln!("bass record: {frames} frames, {msg}");
+            crate::out::note!("bass record: {frames} frames, {msg}");
         }
     }
 
