@@ -179,8 +179,9 @@ pub fn run(cli: &Cli) -> Result<()> {
         }
         Command::Acquire(a) => acquire(name, a, timeout)?,
         Command::Stop => {
-            connect(name, timeout)?.stop().map_err(|e| explain(e, name, None))?;
-            outln!("stopped")?;
+            // The broker says what it did: "stopped at frame N", "already stopped at frame N", ...
+            let said = connect(name, timeout)?.stop_report().map_err(|e| explain(e, name, None))?;
+            outln!("{said}")?;
         }
         Command::Status { json } => status(name, *json, timeout)?,
         Command::Blocks(b) => blocks::run(name, b, timeout)?,

@@ -278,3 +278,23 @@ fn completions_and_version() {
         assert!(o.status.success() && String::from_utf8_lossy(&o.stdout).contains(env!("CARGO_PKG_VERSION")));
     }
 }
+
+#[test]
+fn a_second_stop_says_already_stopped() {
+    // Before the fix `bass stop` printed "stopped" whatever the broker had done.
+    let dir = TempDir::new("stop-twice");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    let o = bass(&b, &["stop"]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    assert!(text(&o).contains("nothing to stop"), "{}", text(&o));
+    b.client().acquire(&acquire_req("sim:pattern", 8000, 80, 50, 2)).unwrap();
+    wait_frame(&b.port(), 80);
+    let first = bass(&b, &["stop"]);
+    let first = String::from_utf8_lossy(&first.stdout).into_owned();
+    assert!(first.starts_with("stopped at frame "), "{first}");
+    let second = bass(&b, &["stop"]);
+    assert_eq!(second.status.code(), Some(0), "{}", text(&second));
+    let second = String::from_utf8_lossy(&second.stdout).into_owned();
+    let frame = first.trim().trim_start_matches("stopped at frame ");
+    assert_eq!(second.trim(), format!("already stopped at frame {frame}"));
+}
