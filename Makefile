@@ -118,8 +118,10 @@ test-package: build build-bridge
 	tests/package/run.sh
 
 # The package under a real systemd booted in a minimal Debian root: boot start, READY, a
-# reader riding through a restart and a crash, the watchdog (root; tests/systemd/run.sh; about
-# 40 s, plus about 70 s of debootstrap the first time on a machine).
+# blocking C reader, a callback stream and bass blocks riding through a restart, a crash
+# within the restart grace and one past it, both C readers through watchdog restarts of a
+# stalled device (root; tests/systemd/run.sh; about 60 s, plus about 2 minutes of debootstrap
+# the first time on a machine).
 test-systemd: build build-bridge
 	tests/systemd/run.sh
 
