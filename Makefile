@@ -7,7 +7,7 @@ CFLAGS_STRICT := -std=c11 -Wall -Wextra -Wpedantic -Werror
 # One list for make, the network suite and the network bench (scripts/bridge-features).
 BRIDGE_FEATURES := $(shell cat scripts/bridge-features)
 
-.PHONY: all deps deps-build build build-bridge demo test test-rust test-loom test-c test-broker test-replay test-clients test-faults test-bridge \
+.PHONY: all deps deps-build build build-bridge demo test test-rust test-loom test-c test-broker test-replay test-clients test-docs test-faults test-bridge \
         header fmt lint bench install clean install-files deb test-package test-systemd
 
 all: build
@@ -28,7 +28,7 @@ demo: build
 	scripts/demo.sh
 
 # Everything CI runs.
-test: deps lint test-rust test-loom test-c test-broker test-replay test-clients test-faults test-bridge test-package test-systemd
+test: deps lint test-rust test-loom test-c test-broker test-replay test-clients test-docs test-faults test-bridge test-package test-systemd
 	@echo "make test: all suites passed"
 
 lint:
@@ -55,6 +55,11 @@ test-replay: build
 
 test-clients: build
 	tests/clients/run.sh
+
+# The README's commands, the tutorial's Octave, Python and shell snippets and docs/clients.md's
+# Python run as written against real brokers on sim: devices (tests/docs/run.sh).
+test-docs: build
+	tests/docs/run.sh
 
 # bass across two network namespaces over Zenoh (root; docs/network.md).
 test-bridge: build

@@ -3,7 +3,7 @@
 %   bass = Bass();                              % broker "default" (Bass('name') for another)
 %   bass.ListDevices()                          % prints name and description of each device
 %   bass.Acquire('sim:pattern', 44100, 2205, 20)   % or bass.Acquire('-a', 'hw:1,0', 44100, 2205, 20)
-%   bass.GetBlocks(1, 88200, 0)                 % the BASC client: prints the seed's lines
+%   bass.GetBlocks(1, 88200, 0);                % the BASC client: prints the seed's lines
 %   [l, r, nfr, n, loss] = bass.getAudioData(12000, nfr)   % the formal getAudioData
 %   lfi = bass.Wait(frame, timeoutSeconds)      % blocks until frame is published (Ctrl-C safe)
 %   c = bass.ChunkInfo(frame)                   % the chunk holding frame: timestamps, c.gap, c.late, ...
@@ -110,7 +110,9 @@ classdef Bass < handle
       % the BASC service. Calls getAudioData once per period, to request a new block or
       % complete the current one, printing the seed's lines. nBlocks = 0 runs until Ctrl-C.
       % startOffs counts from the next frame to be published (0: fresh frames only, -N: the
-      % last N frames on the port). Returns the last complete block as [left right].
+      % last N frames on the port). block = GetBlocks(...) returns the last complete block as
+      % [left right]; called without an output (the seed's `bass.GetBlocks(1, 88200, 0)`) it
+      % returns nothing, so that no semicolon is needed to keep the block off the screen.
       if nargin < 2, nBlocks = 1; end
       if nargin < 3, nFramesPerBlock = 12000; end
       if nargin < 4, startOffs = -12000; end
@@ -123,7 +125,7 @@ classdef Bass < handle
         info = obj.PortInfo();
       end
       nfr = uint64(max(0, double(info.lastFrameIndex) + 1 + startOffs));
-      block = zeros(0, 2, 'int32');
+      last = zeros(0, 2, 'int32');
       L = zeros(nFramesPerBlock, 1, 'int32');
       R = L;
       got = 0;
@@ -144,10 +146,13 @@ classdef Bass < handle
         got = got + n;
         if got == nFramesPerBlock
           fprintf('A new block is ready to be processed.\n');
-          block = [L R];
+          last = [L R];
           blocks = blocks + 1;
           got = 0;
         end
+      end
+      if nargout > 0
+        block = last;
       end
     end
   end

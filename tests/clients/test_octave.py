@@ -62,6 +62,18 @@ def test_octave_replays_the_seed_session_example_1(mexdir, clients_env, live_por
     pytest.fail("no Octave run printed the seed's example 1 exactly:\n" + "\n---\n".join(outs))
 
 
+def test_getblocks_without_an_output_prints_the_seed_lines_only(mexdir, clients_env, live_port):
+    """The seed's `bass.GetBlocks(1, 4410, 0)`, without a semicolon: the BASC lines and no
+    `ans =` with the block's 4410 x 2 samples; with an output the block comes back."""
+    code = (f"bass = Bass('{live_port}');\nbass.GetBlocks(1, 4410, 0)\n"
+            "b = bass.GetBlocks(1, 2205, 0); disp(size(b)); disp(class(b));")
+    rc, out, err = octave(clients_env, code)
+    assert rc == 0, out + err
+    assert "ans" not in out and len(out.splitlines()) < 10, out
+    assert "A new block is ready to be processed." in out
+    assert re.search(r"2205\s+2\s+int32", out), out
+
+
 def test_ctrl_c_during_wait_returns_to_the_octave_prompt(mexdir, clients_env, live_port):
     """Interactive Octave on a pseudo-terminal: Ctrl-C during an endless Wait gives the prompt back,
     and the session still works."""
