@@ -19,7 +19,8 @@ const CHECKPOINT_SHARE: u32 = 100;
 pub(super) const IN_PROGRESS: &str = "in progress (a checkpoint; the recorder had not ended)";
 
 /// The checkpoints: every [`CHECKPOINT_EVERY`], or less often when the last one took more
-/// than 1 / [`CHECKPOINT_SHARE`] of that (a long sidecar). The recorder flushes the WAV and
+/// than 1 / [`CHECKPOINT_SHARE`] of that (a long sidecar). An MCAP recording writes its
+/// records and the facts they amount to ([`super::mcap_out`]). The recorder flushes the WAV and
 /// takes a snapshot of the sidecar; a thread writes the sidecar to a temporary file, patches
 /// the header sizes to the snapshot's frames, and renames the sidecar into place, so the
 /// reading never waits for a long sidecar.
@@ -41,11 +42,15 @@ impl Checkpoints {
         }
         if self.running.is_none() && self.last.elapsed() >= self.every {
             self.last = Instant::now();
-            let w = match &mut rec.out {
-                Out::Wav(w) => w,
-                // Everything is in the MCAP file: its complete chunks go to the disk.
-                Out::Mcap(m) => return m.flush(),
-            };
+            if let Out::Mcap(m) = &rec.out {
+                // The messages so far go to the disk, closed by the facts they amount to.
+                let side = rec.sidecar(m.frames_in_messages(), IN_PROGRESS, true);
+                return match &mut rec.out {
+                    Out::Mcap(m) => m.checkpoint(&side),
+                    Out::Wav(_) => unreachable!("an MCAP recording"),
+                };
+            }
+            let Out::Wav(w) = &mut rec.out else { unreachable!("a WAV recording") };
             w.flush()?;
             let frames = w.frames();
             let (fb, format, file) = (w.spec().frame_bytes(), w.spec().format, w.file().try_clone()?);

@@ -1,5 +1,6 @@
-//! `bass record --format mcap DIR`: the recording as a rosbag2 bag directory, `DIR/` holding
-//! `DIR/<name>_0.mcap` and `DIR/metadata.yaml` (`<name>` the directory's own name).
+//! `bass record --format mcap NAME`: the recording as one MCAP file — `NAME` itself when it ends
+//! in `.mcap`, else a rosbag2 bag directory `NAME/` holding `NAME/<name>_0.mcap` and
+//! `NAME/metadata.yaml` (`<name>` the directory's own name).
 //!
 //! The MCAP file (profile `ros2`, chunked, uncompressed, as rosbag2's MCAP plugin writes by
 //! default) holds three channels, each with a `ros2msg` schema and CDR messages from
@@ -17,11 +18,24 @@
 //! facts (acquisition, recording, losses: `bassclient::sidecar` without the rows, which are the
 //! ChunkInfo messages). `metadata.yaml` is there for rosbag2 releases that open only a bag
 //! directory (`ros2 bag play DIR`); the MCAP file alone is complete for every other reader.
+//!
+//! The file is a readable MCAP file at every checkpoint, as a WAV recording is: the writer's
+//! records reach the disk only at a checkpoint (every second, after the chunk being written
+//! is closed), followed by a tail — the `bass` metadata record of the frames on the disk
+//! (`in_progress`), a DataEnd and a Footer without a summary, and the closing magic — that the
+//! next checkpoint writes over. A recorder killed leaves the last checkpoint: every reader reads
+//! it front to back (PyPI `mcap` falls back to that without a summary), `bass record --check`
+//! passes it and bassd replays it. A write that fails (a full disk, ENOSPC) is cut back to the
+//! last checkpoint and the tail is written again with the recording's end: the file keeps the
+//! frames of that checkpoint.
 
+use std::cell::RefCell;
 use std::collections::BTreeMap;
 use std::fs::File;
-use std::io::{self, BufWriter};
+use std::io::{self, Seek, SeekFrom, Write};
+use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
+use std::rc::Rc;
 
 use bassclient::ros2::{self, AudioDataStamped, AudioInfo, ChunkInfo, Header, Time, Topics};
 use bassclient::sidecar::{ChunkRow, Sidecar};
@@ -37,8 +51,15 @@ const QOS_STREAM: &str = "- history: 1\n  depth: 100\n  reliability: 1\n  durabi
 /// For AudioInfo: transient local, so a subscriber that joins late still gets it.
 const QOS_LATCHED: &str = "- history: 1\n  depth: 1\n  reliability: 1\n  durability: 1\n  deadline:\n    sec: 9223372036\n    nsec: 854775807\n  lifespan:\n    sec: 9223372036\n    nsec: 854775807\n  liveliness: 1\n  liveliness_lease_duration:\n    sec: 9223372036\n    nsec: 854775807\n  avoid_ros_namespace_conventions: false\n";
 
+/// The magic at both ends of an MCAP file.
+const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
+
 fn mcap_err(e: mcap::McapError) -> io::Error {
-    io::Error::other(e.to_string())
+    match e {
+        // The OS error itself (ENOSPC is "No space left on device"), not mcap's wrapper text.
+        mcap::McapError::Io(e) => e,
+        e => io::Error::other(e.to_string()),
+    }
 }
 
 /// The MCAP file of a bag directory `dir`.
@@ -47,12 +68,149 @@ pub fn file_in(dir: &Path) -> PathBuf {
     dir.join(format!("{name}_0.mcap"))
 }
 
+/// Where `bass record --format mcap NAME` writes.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// `NAME` ends in `.mcap`: that one file.
+    File(PathBuf),
+    /// A rosbag2 bag directory and its MCAP file ([`file_in`]).
+    Bag {
+        /// The directory.
+        dir: PathBuf,
+        /// The MCAP file in it.
+        file: PathBuf,
+    },
+}
+
+impl Layout {
+    /// The layout for the name given on the command line.
+    pub fn of(name: &Path) -> Layout {
+        if is_mcap_name(name) {
+            Layout::File(name.to_owned())
+        } else {
+            Layout::Bag { dir: name.to_owned(), file: file_in(name) }
+        }
+    }
+
+    /// The MCAP file.
+    pub fn file(&self) -> &Path {
+        match self {
+            Layout::File(f) | Layout::Bag { file: f, .. } => f,
+        }
+    }
+
+    /// The bag directory, if any.
+    pub fn dir(&self) -> Option<&Path> {
+        match self {
+            Layout::File(_) => None,
+            Layout::Bag { dir, .. } => Some(dir),
+        }
+    }
+}
+
+/// Whether `name` ends in `.mcap` (then it names an MCAP file, not a bag directory).
+pub fn is_mcap_name(name: &Path) -> bool {
+    name.extension().is_some_and(|e| e.eq_ignore_ascii_case("mcap"))
+}
+
+/// What the MCAP writer writes: kept in memory until [`McapOut::checkpoint`] puts it on the
+/// disk. It only appends; its position is the writer's offset in the file.
+#[derive(Clone, Default)]
+struct Sink(Rc<RefCell<Pending>>);
+
+#[derive(Default)]
+struct Pending {
+    /// Bytes of the writer's records before `bytes` (on the disk).
+    offset: u64,
+    bytes: Vec<u8>,
+}
+
+impl Write for Sink {
+    fn write(&mut self, b: &[u8]) -> io::Result<usize> {
+        self.0.borrow_mut().bytes.extend_from_slice(b);
+        Ok(b.len())
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        Ok(())
+    }
+}
+
+impl Seek for Sink {
+    fn seek(&mut self, pos: SeekFrom) -> io::Result<u64> {
+        let p = self.0.borrow();
+        let here = p.offset + p.bytes.len() as u64;
+        match pos {
+            SeekFrom::Current(0) | SeekFrom::End(0) => Ok(here),
+            SeekFrom::Start(at) if at == here => Ok(here),
+            _ => Err(io::Error::new(io::ErrorKind::Unsupported, "the MCAP sink only appends")),
+        }
+    }
+}
+
+/// An MCAP record: opcode, length, content.
+fn record(out: &mut Vec<u8>, opcode: u8, content: &[u8]) {
+    out.push(opcode);
+    out.extend_from_slice(&(content.len() as u64).to_le_bytes());
+    out.extend_from_slice(content);
+}
+
+/// An MCAP string: u32 length, UTF-8 bytes.
+fn string(out: &mut Vec<u8>, s: &str) {
+    out.extend_from_slice(&(s.len() as u32).to_le_bytes());
+    out.extend_from_slice(s.as_bytes());
+}
+
+/// What closes the file at a checkpoint: a Metadata record `name` (if any), a DataEnd (no
+/// CRC), a Footer without a summary, the magic.
+fn tail(metadata: Option<&mcap::records::Metadata>) -> Vec<u8> {
+    let mut out = Vec::new();
+    if let Some(md) = metadata {
+        let mut map = Vec::new();
+        for (k, v) in &md.metadata {
+            string(&mut map, k);
+            string(&mut map, v);
+        }
+        let mut content = Vec::new();
+        string(&mut content, &md.name);
+        content.extend_from_slice(&(map.len() as u32).to_le_bytes());
+        content.extend_from_slice(&map);
+        record(&mut out, 0x0C, &content);
+    }
+    record(&mut out, 0x0F, &0u32.to_le_bytes());
+    record(&mut out, 0x02, &[0u8; 20]);
+    out.extend_from_slice(MAGIC);
+    out
+}
+
+/// The `bass` metadata record of `side` (its rows left out: they are the ChunkInfo messages).
+fn facts(side: &Sidecar) -> io::Result<mcap::records::Metadata> {
+    let mut facts = BTreeMap::new();
+    let mut bare = side.clone();
+    bare.chunks.clear();
+    facts.insert(METADATA_SIDECAR.to_string(), serde_json::to_string(&bare)?);
+    for (part, v) in [
+        ("acquisition", serde_json::to_value(&side.acquisition)?),
+        ("recording", serde_json::to_value(&side.recording)?),
+    ] {
+        for (k, v) in v.as_object().into_iter().flatten() {
+            let s = v.as_str().map_or_else(|| v.to_string(), str::to_owned);
+            facts.insert(format!("{part}.{k}"), s);
+        }
+    }
+    Ok(mcap::records::Metadata { name: METADATA_NAME.into(), metadata: facts })
+}
+
 /// A recording being written as MCAP.
 pub struct McapOut {
     /// None once finished.
-    w: Option<mcap::Writer<BufWriter<File>>>,
+    w: Option<mcap::Writer<Sink>>,
+    sink: Sink,
+    file: File,
+    /// Frames of the file on the disk (those of the messages before the last checkpoint).
+    frames_on_disk: u64,
     pub(super) path: PathBuf,
-    dir: PathBuf,
+    dir: Option<PathBuf>,
     topics: Topics,
     ch: [u16; 3],
     counts: [u64; 3],
@@ -68,6 +226,8 @@ pub struct McapOut {
     /// Interleaved samples of frames not yet in a message.
     pending: Vec<i32>,
     lost_before: u64,
+    /// The file's first frame, once known.
+    first: Option<u64>,
     seq: u32,
     last_row: Option<ChunkRow>,
     first_ns: Option<u64>,
@@ -76,9 +236,9 @@ pub struct McapOut {
 }
 
 impl McapOut {
-    /// Starts `dir/<name>_0.mcap` on `file` (created by the caller).
+    /// Starts the MCAP file of `layout` on `file` (created by the caller).
     pub fn new(
-        dir: &Path,
+        layout: &Layout,
         file: File,
         broker: &str,
         channels: usize,
@@ -86,11 +246,14 @@ impl McapOut {
         nfpc: u32,
         epoch: u64,
     ) -> io::Result<McapOut> {
+        // Chunks are made in memory and written whole (no seeking back into the file).
         let opts = mcap::WriteOptions::new()
             .profile("ros2")
             .library(format!("bass {}; mcap-rs 0.24", env!("CARGO_PKG_VERSION")))
-            .compression(None);
-        let mut w = opts.create(BufWriter::new(file)).map_err(mcap_err)?;
+            .compression(None)
+            .disable_seeking(true);
+        let sink = Sink::default();
+        let mut w = opts.create(sink.clone()).map_err(mcap_err)?;
         let topics = Topics::of(broker);
         let mut ch = [0u16; 3];
         for (i, (ty, def, topic, qos)) in [
@@ -108,8 +271,11 @@ impl McapOut {
         let info = AudioInfo::s32le(u8::try_from(channels).unwrap_or(u8::MAX), rate);
         Ok(McapOut {
             w: Some(w),
-            path: file_in(dir),
-            dir: dir.to_owned(),
+            sink,
+            file,
+            frames_on_disk: 0,
+            path: layout.file().to_owned(),
+            dir: layout.dir().map(Path::to_owned),
             topics,
             ch,
             counts: [0; 3],
@@ -122,6 +288,7 @@ impl McapOut {
             pending_from: 0,
             pending: Vec::new(),
             lost_before: 0,
+            first: None,
             seq: 0,
             last_row: None,
             first_ns: None,
@@ -138,6 +305,18 @@ impl McapOut {
     /// The file's first frame is `first`.
     pub fn begin(&mut self, first: u64) {
         self.pending_from = first;
+        self.first = Some(first);
+    }
+
+    /// Frames in the messages written so far (from the file's first frame to the end of the
+    /// last message; frames lost after it are counted by the next message).
+    pub fn frames_in_messages(&self) -> u64 {
+        self.first.map_or(0, |f| self.pending_from - self.lost_before - f)
+    }
+
+    /// Frames of the file on the disk: those of the last checkpoint.
+    pub fn frames_on_disk(&self) -> u64 {
+        self.frames_on_disk
     }
 
     /// One frame's samples (the selected channels, in order).
@@ -230,57 +409,98 @@ impl McapOut {
         w.write_to_known_channel(&h, &self.buf).map_err(mcap_err)
     }
 
-    /// Writes what is complete to the disk (a checkpoint: a killed recorder leaves a file
-    /// without its summary, which `mcap recover` completes).
-    pub fn flush(&mut self) -> io::Result<()> {
-        self.writer()?.flush().map_err(mcap_err)
+    /// A checkpoint: closes the chunk being written and puts every record so far on the disk,
+    /// with a tail holding `side` (the facts of [`McapOut::frames_in_messages`] frames), so
+    /// that the file is complete as it is. On an error the file is as it was.
+    pub fn checkpoint(&mut self, side: &Sidecar) -> io::Result<()> {
+        let frames = self.frames_in_messages();
+        self.writer()?.flush().map_err(mcap_err)?;
+        self.commit(&tail(Some(&facts(side)?)))?;
+        self.frames_on_disk = frames;
+        Ok(())
     }
 
-    fn writer(&mut self) -> io::Result<&mut mcap::Writer<BufWriter<File>>> {
+    /// Writes the records not yet on the disk and `tail` after them, in one write at the end
+    /// of the records on the disk (over the last tail); `tail` is not one of them (the next
+    /// commit writes over it). On an error nothing was added to the records on the disk, and
+    /// the file is cut back to them (freeing what the failed write took).
+    fn commit(&mut self, tail: &[u8]) -> io::Result<()> {
+        let mut p = self.sink.0.borrow_mut();
+        let n = p.bytes.len();
+        p.bytes.extend_from_slice(tail);
+        let r = self.file.write_all_at(&p.bytes, p.offset);
+        p.bytes.truncate(n);
+        if let Err(e) = r {
+            let _ = self.file.set_len(p.offset);
+            return Err(e);
+        }
+        p.offset += n as u64;
+        p.bytes.clear();
+        Ok(())
+    }
+
+    fn writer(&mut self) -> io::Result<&mut mcap::Writer<Sink>> {
         self.w.as_mut().ok_or_else(|| io::Error::other("the MCAP file is finished"))
     }
 
-    /// Writes the rest, the `bass` metadata record, the summary, then `metadata.yaml`.
-    /// Returns the MCAP file's size.
+    /// Writes the rest, the `bass` metadata record, the summary, then `metadata.yaml` (a bag
+    /// directory). Returns the MCAP file's size.
     pub fn finish(&mut self, rows: &[ChunkRow], side: &Sidecar) -> io::Result<u64> {
         self.emit(rows, true)?;
-        let mut facts = BTreeMap::new();
-        let mut bare = side.clone();
-        bare.chunks.clear();
-        facts.insert(METADATA_SIDECAR.to_string(), serde_json::to_string(&bare)?);
-        for (part, v) in [
-            ("acquisition", serde_json::to_value(&side.acquisition)?),
-            ("recording", serde_json::to_value(&side.recording)?),
-        ] {
-            for (k, v) in v.as_object().into_iter().flatten() {
-                let s = v.as_str().map_or_else(|| v.to_string(), str::to_owned);
-                facts.insert(format!("{part}.{k}"), s);
-            }
-        }
-        let md = mcap::records::Metadata { name: METADATA_NAME.into(), metadata: facts };
+        let md = facts(side)?;
         let mut w = self.w.take().ok_or_else(|| io::Error::other("the MCAP file is finished"))?;
         w.write_metadata(&md).map_err(mcap_err)?;
         w.finish().map_err(mcap_err)?;
-        w.into_inner().into_inner().map_err(|e| e.into_error())?.sync_all()?;
-        let size = std::fs::metadata(&self.path)?.len();
-        let yaml = self.metadata_yaml(size);
+        drop(w);
+        self.commit(&[])?;
+        let size = self.sink.0.borrow().offset;
+        // The last tail may have been longer than the summary written over it.
+        self.file.set_len(size)?;
+        self.file.sync_all()?;
+        if let Some(dir) = &self.dir {
+            self.write_metadata_yaml(dir)?;
+        }
+        Ok(size)
+    }
+
+    /// After a failed write (a full disk): cuts the file back to the last checkpoint and
+    /// closes it there with `side` (the facts of [`McapOut::frames_on_disk`] frames and the
+    /// recording's end), or without facts if even they do not fit. Returns the file's size.
+    pub fn close_at_checkpoint(&mut self, side: &Sidecar) -> io::Result<u64> {
+        // Nothing more from the writer (dropping it finishes into the sink, which is dropped).
+        self.w = None;
+        self.sink.0.borrow_mut().bytes.clear();
+        let md = facts(side)?;
+        if let Err(e) = self.commit(&tail(Some(&md))) {
+            self.commit(&tail(None)).map_err(|_| e)?;
+        }
+        self.file.sync_all()?;
+        let size = self.file.metadata()?.len();
+        if let Some(dir) = &self.dir {
+            // Best effort: the bag's MCAP file is complete without it.
+            let _ = self.write_metadata_yaml(dir);
+        }
+        Ok(size)
+    }
+
+    fn write_metadata_yaml(&self, dir: &Path) -> io::Result<()> {
+        let yaml = self.metadata_yaml();
         // Never through a planted link: whatever is at the temporary name is removed (a link
         // itself, not its target), the file made new (O_EXCL), then renamed over
         // metadata.yaml (a link there is replaced, not followed).
-        let tmp = self.dir.join(".metadata.yaml.tmp");
+        let tmp = dir.join(".metadata.yaml.tmp");
         match std::fs::remove_file(&tmp) {
             Err(e) if e.kind() != io::ErrorKind::NotFound => return Err(e),
             _ => {}
         }
         let mut f = std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp)?;
-        io::Write::write_all(&mut f, yaml.as_bytes())?;
+        f.write_all(yaml.as_bytes())?;
         f.sync_all()?;
-        std::fs::rename(&tmp, self.dir.join("metadata.yaml"))?;
-        Ok(size)
+        std::fs::rename(&tmp, dir.join("metadata.yaml"))
     }
 
     /// rosbag2's `metadata.yaml` (version 5, which every rosbag2 release and rosbags read).
-    fn metadata_yaml(&self, _size: u64) -> String {
+    fn metadata_yaml(&self) -> String {
         let start = self.first_ns.unwrap_or(0);
         let duration = self.last_ns.saturating_sub(start);
         let total: u64 = self.counts.iter().sum();

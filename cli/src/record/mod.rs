@@ -10,7 +10,9 @@
 //! starts on a chunk. A start the port no longer had is not a loss: the file starts at the
 //! first frame the port still had. The header and the sidecar are checkpointed together while
 //! recording, and made to agree with what reached the disk when a write fails.
-//! See docs/broker.md for the options, the rounding and what a kill loses.
+//! With `--format mcap` (or a FILE ending in `.mcap`) the same recording is one MCAP file of ROS 2
+//! messages ([`mcap_out`]), complete at every checkpoint; `--check` verifies it too
+//! ([`check_mcap`]). See docs/broker.md for the options, the rounding and what a kill loses.
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -28,6 +30,7 @@ use bassclient::args::parse_seconds;
 use bassclient::sidecar;
 
 mod check;
+mod check_mcap;
 mod checkpoint;
 mod files;
 pub mod mcap_out;
@@ -35,6 +38,7 @@ mod progress;
 mod recording;
 
 pub use check::check;
+pub use check_mcap::check_mcap;
 use checkpoint::Checkpoints;
 use files::{create, refuse_path};
 use progress::Progress;
@@ -78,13 +82,16 @@ fn parse_bits(s: &str) -> Result<u16, String> {
 #[derive(clap::Args, Debug, Clone)]
 pub struct RecordArgs {
     /// Output WAV file (the sidecar is FILE.json next to it, e.g. rec.wav.json); with
-    /// --format mcap, the bag directory to create (DIR/DIR_0.mcap and DIR/metadata.yaml)
+    /// --format mcap, the MCAP file if FILE ends in .mcap, else the bag directory to create
+    /// (DIR/DIR_0.mcap and DIR/metadata.yaml)
     pub file: PathBuf,
-    /// wav (WAV + JSON sidecar) or mcap (a rosbag2 bag directory: ROS 2 audio_common_msgs
-    /// AudioDataStamped, AudioInfo and bass_msgs ChunkInfo messages, 32-bit samples)
-    #[arg(long, value_name = "FORMAT", default_value = "wav")]
-    pub format: OutFormat,
-    /// Verify FILE and its sidecar instead of recording (exit 0 and one "ok" line, else 1)
+    /// wav (WAV + JSON sidecar) or mcap (ROS 2 audio_common_msgs AudioDataStamped, AudioInfo
+    /// and bass_msgs ChunkInfo messages, 32-bit samples) [default: mcap for a FILE ending in
+    /// .mcap, else wav]
+    #[arg(long, value_name = "FORMAT")]
+    pub format: Option<OutFormat>,
+    /// Verify FILE (a WAV and its sidecar, or an MCAP recording: a .mcap file or a bag
+    /// directory) instead of recording (exit 0 and one "ok" line, else 1)
     #[arg(long)]
     pub check: bool,
     /// WAV header: auto (EXTENSIBLE above 16 bits or 2 channels), pcm (plain, for any
@@ -132,33 +139,23 @@ pub fn convert(s: i32, bits: u16) -> i32 {
     ((i64::from(s) + (1i64 << (shift - 1))) >> shift).min(max) as i32
 }
 
+impl RecordArgs {
+    /// The format: `--format`, else MCAP for a name ending in `.mcap`.
+    pub fn out_format(&self) -> OutFormat {
+        self.format.unwrap_or(if mcap_out::is_mcap_name(&self.file) {
+            OutFormat::Mcap
+        } else {
+            OutFormat::Wav
+        })
+    }
+}
+
 /// Runs `bass record` on broker `name` (or `bass record --check`).
 pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
-    if a.check && (a.format == OutFormat::Mcap || a.file.is_dir()) {
-        return Err(Exit::new(
-            exit::USAGE,
-            "--check verifies a WAV and its sidecar; an MCAP recording is checked when it is replayed (sim:file:DIR)",
-        )
-        .into());
-    }
     if a.check {
-        return match check(&a.file) {
-            Ok(line) => {
-                outln!("{line}")
-            }
-            Err(problems) => Err(Exit::new(
-                exit::FAILURE,
-                format!(
-                    "{} and its sidecar disagree ({} problems):\n  {}",
-                    a.file.display(),
-                    problems.len(),
-                    problems.join("\n  ")
-                ),
-            )
-            .into()),
-        };
+        return run_check(a);
     }
-    let mcap = a.format == OutFormat::Mcap;
+    let mcap = a.out_format() == OutFormat::Mcap;
     if mcap && a.bits != 32 {
         return Err(Exit::new(
             exit::USAGE,
@@ -166,42 +163,27 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
         )
         .into());
     }
-    let mcap_file = mcap_out::file_in(&a.file);
-    let side_path = if mcap { mcap_file.clone() } else { sidecar::path_of(&a.file) };
-    if mcap {
-        refuse_path(&a.file, a.force)?;
-    } else {
-        for p in [&a.file, &side_path] {
-            refuse_path(p, a.force)?;
-        }
+    let layout = mcap.then(|| mcap_out::Layout::of(&a.file));
+    let side_path = match &layout {
+        Some(l) => l.file().to_owned(),
+        None => sidecar::path_of(&a.file),
+    };
+    refuse_path(&a.file, a.force)?;
+    if layout.is_none() {
+        refuse_path(&side_path, a.force)?;
     }
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(sig, Arc::clone(&stop)).context("install the signal handlers")?;
     }
     let port = open_port(name, timeout, None)?;
-    let g = port.geometry().clone();
-    let channels: Vec<u32> = a.channels.clone().unwrap_or_else(|| (0..g.channels).collect());
-    if let Some(c) = channels.iter().find(|&&c| c >= g.channels) {
-        return Err(Exit::new(
-            exit::USAGE,
-            format!("--channels: the port has {} channels (0..={}), not {c}", g.channels, g.channels - 1),
-        )
-        .into());
-    }
-    let format = match a.wav_format {
-        WavFormat::Auto => wav::Format::required(a.bits, channels.len() as u16),
-        WavFormat::Pcm => wav::Format::Pcm,
-        WavFormat::Extensible => wav::Format::Extensible,
-    };
-    let spec =
-        wav::Spec { channels: channels.len() as u16, sample_rate: g.sample_rate, bits: a.bits, format };
-    let frame_bytes = spec.frame_bytes();
+    let (spec, channels) = spec_of(a, &port)?;
     let max_frames = if mcap {
         bassclient::format::MAX_FRAME_INDEX
     } else {
-        (WAV_LIMIT - format.header_len()) / frame_bytes
+        (WAV_LIMIT - spec.format.header_len()) / spec.frame_bytes()
     };
+    let g = port.geometry().clone();
     let limit = match (a.frames, a.duration) {
         (Some(n), _) => Some(n),
         (None, Some(s)) => Some(((s * f64::from(g.sample_rate)).round() as u64).max(1)),
@@ -210,7 +192,7 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
     if let Some(n) = limit {
         if n > max_frames {
             return Err(Exit::new(exit::USAGE, format!(
-                "{n} frames of {frame_bytes} bytes exceed the 4 GiB limit of a WAV file; record in several files (at most {max_frames} frames each)")).into());
+                "{n} frames of {} bytes exceed the 4 GiB limit of a WAV file; record in several files (at most {max_frames} frames each)", spec.frame_bytes())).into());
         }
     }
     let info = port.info()?;
@@ -243,38 +225,12 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
             g.sample_rate
         );
     }
-    let (out, side_file) = if mcap {
-        match std::fs::create_dir(&a.file) {
-            Err(e) if !(a.force && e.kind() == std::io::ErrorKind::AlreadyExists && a.file.is_dir()) => {
-                return Err(
-                    anyhow::Error::new(e).context(format!("create the bag directory {}", a.file.display()))
-                )
-            }
-            _ => {}
+    let (out, side_file) = match &layout {
+        Some(l) => (open_mcap(a, l, name, channels.len(), &port)?, None),
+        None => {
+            let (w, f) = open_wav(a, &side_path, spec)?;
+            (w, Some(f))
         }
-        let f = create(&mcap_file, a.force)?;
-        let m = mcap_out::McapOut::new(
-            &a.file,
-            f,
-            name,
-            channels.len(),
-            g.sample_rate,
-            g.frames_per_chunk,
-            port.epoch(),
-        )
-        .with_context(|| format!("write {}", mcap_file.display()))?;
-        (Out::Mcap(Box::new(m)), None)
-    } else {
-        let wav_file = create(&a.file, a.force)?;
-        let side_file = match create(&side_path, a.force) {
-            Ok(f) => f,
-            Err(e) => {
-                let _ = std::fs::remove_file(&a.file);
-                return Err(e);
-            }
-        };
-        let w = wav::Writer::new(wav_file, spec).with_context(|| format!("write {}", a.file.display()))?;
-        (Out::Wav(w), Some(side_file))
     };
     let mut rec = Recording {
         file: a.file.clone(),
@@ -289,15 +245,129 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
         losses: Vec::new(),
         out,
     };
-    if let Some(f) = side_file {
-        rec.write_first_checkpoint(f).with_context(|| format!("write {}", rec.side_path.display()))?;
+    match side_file {
+        Some(f) => rec.write_first_checkpoint(f),
+        None => rec.write_first_mcap_checkpoint(),
     }
+    .with_context(|| format!("write {}", rec.side_path.display()))?;
+    let end = record_loop(name, a, &port, &mut rec, &stop, limit, max_frames, timeout);
+    // Said once the file is closed, whatever stdout is.
+    let (reason, failure) = match end {
+        Ok(r) => (r, None),
+        Err(Ended::Disk(e)) => (format!("{e}"), Some(Ended::Disk(e))),
+        Err(Ended::Other(e)) => (format!("{e:#}"), Some(Ended::Other(e))),
+    };
+    let side = close(a, &mut rec, &reason, failure.as_ref(), layout.as_ref())?;
+    let said = summary(a, &side.recording, &rec, layout.as_ref());
+    // The recording's own failure counts before a closed stdout.
+    match failure {
+        Some(Ended::Other(e)) => Err(e),
+        _ => said,
+    }
+}
+
+/// `bass record --check FILE`: a WAV and its sidecar, or an MCAP recording.
+fn run_check(a: &RecordArgs) -> Result<()> {
+    let mcap = a.out_format() == OutFormat::Mcap || a.file.is_dir();
+    let checked = if mcap { check_mcap(&a.file) } else { check(&a.file) };
+    match checked {
+        Ok(line) => outln!("{line}"),
+        Err(problems) => {
+            let what = if mcap {
+                format!("{}: not a complete bass MCAP recording", a.file.display())
+            } else {
+                format!("{} and its sidecar disagree", a.file.display())
+            };
+            Err(Exit::new(
+                exit::FAILURE,
+                format!("{what} ({} problems):\n  {}", problems.len(), problems.join("\n  ")),
+            )
+            .into())
+        }
+    }
+}
+
+/// The WAV format of the recording and the channels recorded.
+fn spec_of(a: &RecordArgs, port: &bassclient::Port) -> Result<(wav::Spec, Vec<u32>)> {
+    let g = port.geometry();
+    let channels: Vec<u32> = a.channels.clone().unwrap_or_else(|| (0..g.channels).collect());
+    if let Some(c) = channels.iter().find(|&&c| c >= g.channels) {
+        return Err(Exit::new(
+            exit::USAGE,
+            format!("--channels: the port has {} channels (0..={}), not {c}", g.channels, g.channels - 1),
+        )
+        .into());
+    }
+    let format = match a.wav_format {
+        WavFormat::Auto => wav::Format::required(a.bits, channels.len() as u16),
+        WavFormat::Pcm => wav::Format::Pcm,
+        WavFormat::Extensible => wav::Format::Extensible,
+    };
+    let spec =
+        wav::Spec { channels: channels.len() as u16, sample_rate: g.sample_rate, bits: a.bits, format };
+    Ok((spec, channels))
+}
+
+/// Creates the MCAP file of `layout` (and its bag directory).
+fn open_mcap(
+    a: &RecordArgs,
+    layout: &mcap_out::Layout,
+    name: &str,
+    channels: usize,
+    port: &bassclient::Port,
+) -> Result<Out> {
+    if let Some(dir) = layout.dir() {
+        match std::fs::create_dir(dir) {
+            Err(e) if !(a.force && e.kind() == std::io::ErrorKind::AlreadyExists && dir.is_dir()) => {
+                return Err(
+                    anyhow::Error::new(e).context(format!("create the bag directory {}", dir.display()))
+                )
+            }
+            _ => {}
+        }
+    }
+    let f = create(layout.file(), a.force)?;
+    let g = port.geometry();
+    let m =
+        mcap_out::McapOut::new(layout, f, name, channels, g.sample_rate, g.frames_per_chunk, port.epoch())
+            .with_context(|| format!("write {}", layout.file().display()))?;
+    Ok(Out::Mcap(Box::new(m)))
+}
+
+/// Creates the WAV file and its sidecar.
+fn open_wav(a: &RecordArgs, side_path: &std::path::Path, spec: wav::Spec) -> Result<(Out, std::fs::File)> {
+    let wav_file = create(&a.file, a.force)?;
+    let side_file = match create(side_path, a.force) {
+        Ok(f) => f,
+        Err(e) => {
+            let _ = std::fs::remove_file(&a.file);
+            return Err(e);
+        }
+    };
+    let w = wav::Writer::new(wav_file, spec).with_context(|| format!("write {}", a.file.display()))?;
+    Ok((Out::Wav(w), side_file))
+}
+
+/// Reads the port into `rec` until a signal, a limit, the end of the acquisition or a failure;
+/// checkpoints and progress on the way. Ok: why it ended.
+#[allow(clippy::too_many_arguments)]
+fn record_loop(
+    name: &str,
+    a: &RecordArgs,
+    port: &bassclient::Port,
+    rec: &mut Recording,
+    stop: &AtomicBool,
+    limit: Option<u64>,
+    max_frames: u64,
+    timeout: Duration,
+) -> Result<String, Ended> {
+    let channels = rec.channels.len();
     let mut checkpoints = Checkpoints::new();
-    let progress = Progress::new(a.quiet, limit, g.sample_rate);
-    let mut peaks = vec![0f64; channels.len()];
+    let progress = Progress::new(a.quiet, limit, rec.acquisition.sample_rate);
+    let mut peaks = vec![0f64; channels];
     let mut last_progress = Instant::now();
     let mut outage = Outage::new(a.max_outage);
-    let end: Result<String, Ended> = loop {
+    let end = loop {
         if stop.load(Ordering::Relaxed) {
             break Ok("signal".into());
         }
@@ -309,11 +379,11 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
             break Ok(format!("file size limit reached at frame {}", rec.next - 1));
         }
         let started = rec.first.is_some();
-        let step = rec.step(&port, Some(limit.unwrap_or(max_frames)), &mut peaks);
+        let step = rec.step(port, Some(limit.unwrap_or(max_frames)), &mut peaks);
         match (started, rec.first) {
-            (false, Some(f)) if f > requested && !a.quiet => note!(
-                "bass record: started {} frames after the requested frame {requested}, at frame {f} (the port no longer had the frames before it)",
-                f - requested
+            (false, Some(f)) if f > rec.requested && !a.quiet => note!(
+                "bass record: started {} frames after the requested frame {}, at frame {f} (the port no longer had the frames before it)",
+                f - rec.requested, rec.requested
             ),
             _ => {}
         }
@@ -328,7 +398,7 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
             Err(Step::Idle) => {}
             Err(Step::Wait(e)) => match e {
                 Error::Restarted => break Ok("a new acquisition started; the recording ends here".into()),
-                Error::Stopped { .. } => match after_stop(name, &port, timeout) {
+                Error::Stopped { .. } => match after_stop(name, port, timeout) {
                     Ok(AfterStop::Restarted) => {
                         break Ok("a new acquisition started; the recording ends here".into())
                     }
@@ -346,13 +416,13 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
             },
             Err(Step::Disk(e)) => break Err(Ended::Disk(e)),
         }
-        if let Err(e) = checkpoints.poll(&mut rec) {
+        if let Err(e) = checkpoints.poll(rec) {
             break Err(Ended::Disk(e));
         }
         if last_progress.elapsed() >= Duration::from_secs(1) {
             last_progress = Instant::now();
             let lost = rec.losses.iter().map(|l| l.frames).sum();
-            let fb = rec.out.frame_bytes(channels.len());
+            let fb = rec.out.frame_bytes(channels);
             progress.update(rec.out.frames(), rec.out.frames() * fb, rec.gap_count, lost, &peaks);
             peaks.iter_mut().for_each(|p| *p = 0.0);
         }
@@ -361,82 +431,93 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
     // A checkpoint still being written: wait for it (it must not patch the final header);
     // its failure (a full disk) is handled by `finish` like any other.
     let _ = checkpoints.wait();
-    let (reason, failure) = match end {
-        Ok(r) => (r, None),
-        Err(Ended::Disk(e)) => (format!("{e}"), Some(Ended::Disk(e))),
-        Err(Ended::Other(e)) => (format!("{e:#}"), Some(Ended::Other(e))),
+    end
+}
+
+/// Closes the recording (`Recording::finish`); a write that failed (now or while recording)
+/// is an error naming the file, the OS error and the frames kept.
+fn close(
+    a: &RecordArgs,
+    rec: &mut Recording,
+    reason: &str,
+    failure: Option<&Ended>,
+    layout: Option<&mcap_out::Layout>,
+) -> Result<sidecar::Sidecar> {
+    let disk_failed = matches!(failure, Some(Ended::Disk(_)));
+    let done = rec.finish(reason, disk_failed).map_err(|e| {
+        let what = match layout {
+            Some(l) => format!("the MCAP file {} could not be closed", l.file().display()),
+            None => format!("its sidecar {} could not be written", rec.side_path.display()),
+        };
+        Exit::new(
+            exit::FAILURE,
+            format!("{}: the recording ended ({reason}), but {what}: {e}", a.file.display()),
+        )
+    })?;
+    let error = match (failure, &done.error) {
+        (Some(Ended::Disk(e)), _) => Some(e.to_string()),
+        (_, Some(e)) => Some(e.to_string()),
+        _ if done.cut > 0 => Some("no space left for the sidecar".into()),
+        _ => None,
     };
-    let side = match (rec.finish(&reason), failure.as_ref()) {
-        (Err(e), _) => {
-            return Err(Exit::new(
-                exit::FAILURE,
-                format!(
-                    "{}: the recording ended ({reason}), but its sidecar {} could not be written: {e}",
-                    a.file.display(),
-                    rec.side_path.display()
-                ),
-            )
-            .into())
-        }
-        (Ok((side, cut)), f) if cut > 0 || matches!(f, Some(Ended::Disk(_))) => {
-            let e = match f {
-                Some(Ended::Disk(e)) => e.to_string(),
-                _ => "no space left for the sidecar".into(),
-            };
-            let room = if cut > 0 {
-                format!(" ({cut} frames cut to make room for the sidecar)")
+    let Some(error) = error else { return Ok(done.side) };
+    let frames = done.side.recording.frames;
+    let text = match layout {
+        Some(l) => {
+            let cut = if done.cut > 0 {
+                format!(" (the last {} frames did not fit)", done.cut)
             } else {
                 String::new()
             };
-            return Err(Exit::new(
-                exit::FAILURE,
-                format!(
-                    "{}: {e}: the recording ends with {} frames written{room}; the header and the sidecar {} describe them",
-                    a.file.display(),
-                    side.recording.frames,
-                    rec.side_path.display()
-                ),
+            format!(
+                "{}: {error}: the recording ends with {frames} frames written{cut}; the file is closed at its last checkpoint, without a summary (readers read it front to back; `bass record --check` passes it)",
+                l.file().display()
             )
-            .into());
         }
-        (Ok((side, _)), _) => side,
+        None => {
+            let room = if done.cut > 0 {
+                format!(" ({} frames cut to make room for the sidecar)", done.cut)
+            } else {
+                String::new()
+            };
+            format!(
+                "{}: {error}: the recording ends with {frames} frames written{room}; the header and the sidecar {} describe them",
+                a.file.display(),
+                rec.side_path.display()
+            )
+        }
     };
-    let r = &side.recording;
-    let said = if a.json {
-        outln!("{}", serde_json::to_string(r)?)
-    } else if !a.quiet && mcap {
-        outln!(
-            "recorded {} frames ({:.3} s) from frame {} to {}: {} bytes, {} gap frames, {} frames lost by the recorder; {}; bag directory {}",
-            r.frames,
-            r.seconds,
-            r.first_frame,
-            mcap_file.display(),
-            r.bytes,
-            r.gap_frames,
-            r.lost_frames,
-            r.end,
-            a.file.display()
-        )
-    } else if !a.quiet {
-        outln!(
-            "recorded {} frames ({:.3} s) from frame {} to {}: {} bytes, {} gap frames, {} frames lost by the recorder; {}; sidecar {}",
-            r.frames,
-            r.seconds,
-            r.first_frame,
-            a.file.display(),
-            r.bytes,
-            r.gap_frames,
-            r.lost_frames,
-            r.end,
-            rec.side_path.display()
-        )
-    } else {
-        Ok(())
-    };
-    // The recording's own failure counts before a closed stdout.
-    match failure {
-        Some(Ended::Other(e)) => Err(e),
-        _ => said,
+    Err(Exit::new(exit::FAILURE, text).into())
+}
+
+/// The summary line (or JSON object) of a finished recording.
+fn summary(
+    a: &RecordArgs,
+    r: &sidecar::Recording,
+    rec: &Recording,
+    layout: Option<&mcap_out::Layout>,
+) -> Result<()> {
+    if a.json {
+        return outln!("{}", serde_json::to_string(r)?);
+    }
+    if a.quiet {
+        return Ok(());
+    }
+    let head = format!(
+        "recorded {} frames ({:.3} s) from frame {} to {}: {} bytes, {} gap frames, {} frames lost by the recorder; {}",
+        r.frames,
+        r.seconds,
+        r.first_frame,
+        layout.map_or(a.file.as_path(), |l| l.file()).display(),
+        r.bytes,
+        r.gap_frames,
+        r.lost_frames,
+        r.end
+    );
+    match layout {
+        Some(mcap_out::Layout::Bag { dir, .. }) => outln!("{head}; bag directory {}", dir.display()),
+        Some(mcap_out::Layout::File(_)) => outln!("{head}"),
+        None => outln!("{head}; sidecar {}", rec.side_path.display()),
     }
 }
 
@@ -445,7 +526,7 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
 pub enum OutFormat {
     /// A WAV file and its JSON sidecar FILE.json
     Wav,
-    /// A rosbag2 bag directory holding one MCAP file (ROS 2 messages, CDR)
+    /// One MCAP file (ROS 2 messages, CDR): FILE.mcap, or a rosbag2 bag directory holding it
     Mcap,
 }
 

@@ -19,10 +19,22 @@ use super::mcap_out::McapOut;
 
 /// Why the loop ended in failure.
 pub(super) enum Ended {
-    /// Writing the WAV or the sidecar failed (a full disk): the file is kept, made consistent.
+    /// Writing the WAV, its sidecar or the MCAP file failed (a full disk): the file is kept,
+    /// made consistent.
     Disk(io::Error),
     /// Anything else (the exit code is the error's).
     Other(anyhow::Error),
+}
+
+/// How [`Recording::finish`] ended the file.
+pub(super) struct Finished {
+    /// The sidecar written (WAV), or the facts in the MCAP file.
+    pub(super) side: Sidecar,
+    /// Frames recorded but not kept: cut from the WAV to make room for its sidecar, or past
+    /// the MCAP file's last checkpoint.
+    pub(super) cut: u64,
+    /// The write that failed while finishing (MCAP: the file was closed at its checkpoint).
+    pub(super) error: Option<io::Error>,
 }
 
 /// What one step of the loop did instead of reading frames.
@@ -257,21 +269,44 @@ impl Recording {
         s
     }
 
+    /// The first checkpoint of an MCAP recording (no frames yet): from here on the file is a
+    /// complete MCAP file.
+    pub(super) fn write_first_mcap_checkpoint(&mut self) -> io::Result<()> {
+        let side = self.sidecar(0, IN_PROGRESS, true);
+        match &mut self.out {
+            Out::Mcap(m) => m.checkpoint(&side),
+            Out::Wav(_) => Ok(()),
+        }
+    }
+
     /// The first checkpoint (no frames yet), written to the sidecar just created.
     pub(super) fn write_first_checkpoint(&self, mut f: File) -> io::Result<()> {
         f.write_all(&serde_json::to_vec_pretty(&self.sidecar(0, IN_PROGRESS, true))?)
     }
 
-    /// Finalises the WAV and writes the final sidecar. If a write fails (a full disk), the
-    /// WAV is cut to the whole frames that reached it, and if the sidecar does not fit, cut
-    /// further by whole frames until it does. Returns the sidecar and the frames cut for it.
-    pub(super) fn finish(&mut self, end: &str) -> io::Result<(Sidecar, u64)> {
+    /// Finalises the WAV and writes the final sidecar, or finishes the MCAP file. If a write
+    /// fails (a full disk), the WAV is cut to the whole frames that reached it, and if the
+    /// sidecar does not fit, cut further by whole frames until it does; the MCAP file is closed
+    /// at its last checkpoint. `disk_failed`: the recording ended on a failed write (`end` says
+    /// which). Returns the sidecar (the MCAP file's facts) and how it ended.
+    pub(super) fn finish(&mut self, end: &str, disk_failed: bool) -> io::Result<Finished> {
         if let Out::Mcap(m) = &self.out {
-            let mut side = self.sidecar(m.frames(), end, false);
-            if let Out::Mcap(m) = &mut self.out {
-                side.recording.bytes = m.finish(&self.rows, &side)?;
-            }
-            return Ok((side, 0));
+            let (frames, on_disk) = (m.frames(), m.frames_on_disk());
+            let mut side = self.sidecar(frames, end, false);
+            let Out::Mcap(m) = &mut self.out else { unreachable!("an MCAP recording") };
+            let e = match m.finish(&self.rows, &side) {
+                Ok(size) => {
+                    side.recording.bytes = size;
+                    return Ok(Finished { side, cut: 0, error: None });
+                }
+                Err(e) => e,
+            };
+            // The recording's end is the failure that ended it, else this one.
+            let end = if disk_failed { end.to_owned() } else { e.to_string() };
+            let mut side = self.sidecar(on_disk, &end, false);
+            let Out::Mcap(m) = &mut self.out else { unreachable!("an MCAP recording") };
+            side.recording.bytes = m.close_at_checkpoint(&side)?;
+            return Ok(Finished { side, cut: frames - on_disk, error: Some(e) });
         }
         let Out::Wav(w) = &mut self.out else { unreachable!("an MCAP recording returned above") };
         let fb = w.spec().frame_bytes();
@@ -283,7 +318,7 @@ impl Recording {
         loop {
             let side = self.sidecar(frames, end, false);
             match stage(&self.side_path, &side).and_then(|tmp| std::fs::rename(tmp, &self.side_path)) {
-                Ok(()) => return Ok((side, cut)),
+                Ok(()) => return Ok(Finished { side, cut, error: None }),
                 Err(e) if e.raw_os_error() == Some(libc::ENOSPC) && frames > 0 => {
                     // Free the sidecar's size and a few pages from the end of the WAV.
                     let need = serde_json::to_vec_pretty(&side).map_or(0, |v| v.len() as u64) + 8192;

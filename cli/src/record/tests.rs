@@ -215,8 +215,9 @@ fn an_mcap_recording_holds_every_frame_once_and_a_loss_in_no_message() {
     let bag = dir.join("bag");
     std::fs::create_dir_all(&bag).unwrap();
     let f = File::create(mcap_out::file_in(&bag)).unwrap();
+    let layout = mcap_out::Layout::of(&bag);
     rec.out =
-        Out::Mcap(Box::new(mcap_out::McapOut::new(&bag, f, "unit", 1, 8000, 10, port.epoch()).unwrap()));
+        Out::Mcap(Box::new(mcap_out::McapOut::new(&layout, f, "unit", 1, 8000, 10, port.epoch()).unwrap()));
     // Issue 31: links planted at metadata.yaml's temporary name and at metadata.yaml itself
     // are not followed: their targets stay as they were.
     let victims = [dir.join("victim-tmp"), dir.join("victim-yaml")];
@@ -232,7 +233,7 @@ fn an_mcap_recording_holds_every_frame_once_and_a_loss_in_no_message() {
     while rec.next <= 130 {
         assert!(rec.step(&port, None, &mut peaks).is_ok());
     }
-    let (side, _) = rec.finish("limit").unwrap();
+    let side = rec.finish("limit", false).unwrap().side;
     assert_eq!((side.recording.first_frame, side.recording.frames, side.recording.lost_frames), (5, 126, 70));
     assert!(bag.join("metadata.yaml").exists());
     assert!(!std::fs::symlink_metadata(bag.join("metadata.yaml")).unwrap().file_type().is_symlink());
@@ -267,6 +268,14 @@ fn an_mcap_recording_holds_every_frame_once_and_a_loss_in_no_message() {
     );
     let want: Vec<i32> = (5..=20).chain(91..=130).collect();
     assert_eq!(frames, want, "every sample once, none for the lost frames");
+    // --check reads it back: the messages against the facts.
+    let line = check_mcap(&bag).unwrap();
+    assert!(line.contains("126 frames") && line.contains("70 frames lost in 1 losses"), "{line}");
+    let file = mcap_out::file_in(&bag);
+    let bytes = std::fs::read(&file).unwrap();
+    std::fs::write(&file, &bytes[..bytes.len() / 2]).unwrap();
+    let problems = check_mcap(&file).unwrap_err();
+    assert!(problems[0].contains("not a readable MCAP file"), "{problems:?}");
     drop(port);
     w.remove().unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
