@@ -85,6 +85,9 @@ pub struct Core {
     pub st: MirrorStatus,
     /// The replica is in the error state for the source (outage, source error).
     in_error: bool,
+    /// Why the replica last went into the error state: the status's `error` while it is
+    /// there and the mirror has no error of its own ([`Core::refresh`]).
+    error_state: Option<String>,
     /// Last chunk of the followed stream, state message or liveliness sign (local ns).
     pub last_heard_ns: u64,
     /// Followed serve instance and when its last chunk came.
@@ -202,6 +205,7 @@ impl Core {
             replica: None,
             st: MirrorStatus { state: BridgeState::Idle, ..st },
             in_error: false,
+            error_state: None,
             last_heard_ns: now,
             followed: None,
             other: None,
@@ -578,6 +582,7 @@ impl Core {
         if silent && !self.in_error && r.writer.state() == State::Capturing {
             r.writer.set_state(State::Error, error_code::DEVICE_LOST, &msg);
             self.in_error = true;
+            self.error_state = Some(msg.clone());
             self.unreachable_said = true;
             self.st.outages += 1;
             return Some(format!("{msg}: replica in error"));
@@ -599,6 +604,7 @@ impl Core {
                 };
                 r.writer.set_state(State::Error, code, &msg);
                 self.in_error = true;
+                self.error_state = Some(msg.clone());
                 self.st.outages += 1;
                 tracing::warn!("{msg}: replica in error");
             }
@@ -607,11 +613,19 @@ impl Core {
         }
     }
 
-    /// Refreshes the status fields read from the replica.
+    /// Refreshes the status fields read from the replica, and the error: the mirror's own
+    /// (a replica it cannot make or write, two sources), else, while the replica is in the
+    /// error state, why it went there (the outage, the source's error), else none.
     pub fn refresh(&mut self) {
         if let Some(r) = &self.replica {
             self.st.last_frame_index = r.writer.last_frame_index();
             self.st.state = BridgeState::of_port(Some(r.writer.state()));
+        }
+        let shows_error_state = self.st.error.is_some() && self.st.error == self.error_state;
+        if self.in_error && self.st.error.is_none() {
+            self.st.error = self.error_state.clone();
+        } else if !self.in_error && shows_error_state {
+            self.st.error = None;
         }
     }
 

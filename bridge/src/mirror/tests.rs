@@ -576,3 +576,27 @@ fn a_late_chunk_after_a_source_loss_is_late_and_a_discontinuity_in_the_replica()
         chunk_flags::LATE | chunk_flags::DISCONTINUITY | chunk_flags::TIME_ESTIMATED
     );
 }
+
+#[test]
+fn the_status_says_why_the_replica_is_in_error_and_forgets_it_when_data_comes_back() {
+    // Before the fix the status file said `"state": "error"` with `"error": null`.
+    let mut r = Rig::new("status-error");
+    let timeout = 2 * SEC;
+    assert!(applied(r.send(&chunk(1, 1, 1), T0)));
+    assert!(r.core.tick(T0 + 3 * SEC, timeout, true).is_some());
+    r.core.refresh();
+    assert_eq!(r.core.st.state, crate::net::BridgeState::Error);
+    let err = r.core.st.error.clone().expect("an error text while the state is error");
+    assert!(err.contains("no data from the source for more than 2.0 s"), "{err}");
+    let file = serde_json::to_value(&r.core.st).unwrap();
+    assert_eq!((file["state"].as_str(), file["error"].as_str()), (Some("error"), Some(err.as_str())));
+    assert!(applied(r.send(&chunk(1, 1, 1 + u64::from(NFPC)), T0 + 4 * SEC)));
+    r.core.refresh();
+    assert_eq!((r.core.st.state, r.core.st.error.as_deref()), (crate::net::BridgeState::Capturing, None));
+    // A source that reports an error: its message is the mirror's error.
+    r.core.on_state(&state("error", "unplugged", 1), T0 + 5 * SEC);
+    assert!(r.core.tick(T0 + 5 * SEC + STATE_CONFIRM_NS, timeout, true).is_none());
+    r.core.refresh();
+    assert_eq!(r.core.st.state, crate::net::BridgeState::Error);
+    assert_eq!(r.core.st.error.as_deref(), Some("source: unplugged"));
+}
