@@ -1,6 +1,7 @@
 //! `bass blocks`: reads blocks of N frames from the port like the BASC client and prints one
 //! line (or one JSON object, `--json`) per block: first frame, frames, frames lost by this
-//! reader, zero-filled gap frames (device overruns), RMS and peak level per channel.
+//! reader, zero-filled gap frames (device overruns, restarts, a replica's outages: the frames
+//! the port counts in `gap_frames`, [`gaps_in`]), RMS and peak level per channel.
 //!
 //! It follows an Acquire that interrupts the one it reads (a new epoch: it reopens the port)
 //! and ends only on a real Stop (exit 0), a device error (exit 5), the broker's death (exit 3)
@@ -71,18 +72,26 @@ fn dbfs_text(x: f64) -> String {
     dbfs(x).map_or_else(|| "  -inf".into(), |d| format!("{d:6.1}"))
 }
 
-/// Gap frames (in chunks flagged GAP) and discontinuities among frames `first..=last`.
-/// Chunks that already left the window are not counted.
-pub fn gaps_in(port: &Port, first: u64, last: u64) -> (u64, u32) {
+/// Zero-filled frames and discontinuities among frames `first..=last`, whose samples are
+/// `bufs` (`bufs[c][i]`: channel `c`, frame `first + i`): every frame of a chunk flagged GAP,
+/// and in a chunk flagged DISCONTINUITY (data and zeros mixed: an overrun's or a restart's
+/// fill ends or starts inside it) the frames that are zero in every channel — the port counts
+/// the same frames in its `gap_frames`, but does not say which frames of such a chunk it
+/// filled, so a frame of digital silence there counts too. Chunks that already left the
+/// window are not counted.
+pub fn gaps_in(port: &Port, first: u64, last: u64, bufs: &[Vec<i32>]) -> (u64, u32) {
     let nfpc = u64::from(port.geometry().frames_per_chunk.max(1));
     let (mut gap, mut disc) = (0u64, 0u32);
     let mut chunk = (first - 1) / nfpc;
+    let zero = |f: u64| bufs.iter().all(|b| b.get((f - first) as usize) == Some(&0));
     while chunk * nfpc < last {
         let (c0, c1) = (chunk * nfpc + 1, (chunk + 1) * nfpc);
         let (a, b) = (c0.max(first), c1.min(last));
         if let Ok(ci) = port.chunk_info(a) {
             if ci.flags & chunk_flags::GAP != 0 {
                 gap += b - a + 1;
+            } else if ci.flags & chunk_flags::DISCONTINUITY != 0 {
+                gap += (a..=b).filter(|&f| zero(f)).count() as u64;
             }
             if ci.flags & chunk_flags::DISCONTINUITY != 0 {
                 disc += 1;
@@ -268,7 +277,7 @@ fn read_acquisition(
         }
         *n_blocks += 1;
         let start = nfr - block as u64;
-        let (gap, disc) = gaps_in(port, start, nfr - 1);
+        let (gap, disc) = gaps_in(port, start, nfr - 1, &bufs);
         let lv = levels(&bufs);
         if a.json {
             let line = Line::Block {

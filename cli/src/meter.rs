@@ -185,7 +185,7 @@ pub fn run(name: &str, a: &MeterArgs, timeout: Duration) -> Result<()> {
                 first_frame: first,
                 frames: per,
                 loss,
-                gap_frames: gaps_in(&port, first, first + per - 1).0,
+                gap_frames: gaps_in(&port, first, first + per - 1, &bufs).0,
                 rms_dbfs: lv.iter().map(|l| dbfs(l.0)).collect(),
                 peak_dbfs: lv.iter().map(|l| dbfs(l.1)).collect(),
                 clip: lv.iter().map(|l| dbfs(l.1).is_some_and(|d| d >= CLIP_DBFS)).collect(),

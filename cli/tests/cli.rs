@@ -134,7 +134,14 @@ fn blocks_shows_the_gap_frames_of_each_block() {
         }
         blocks += 1;
         let first = v["first_frame"].as_u64().unwrap();
-        let want = if (4001..=4301).contains(&first) { 100 } else { 0 };
+        // The partly filled chunk's zero-filled frames count too (4401..=4407).
+        let want = if (4001..=4301).contains(&first) {
+            100
+        } else if first == 4401 {
+            7
+        } else {
+            0
+        };
         assert_eq!(v["gap_frames"], want, "{line}");
         assert_eq!(v["loss"], 0, "{line}");
         if first == 4401 {
@@ -149,6 +156,41 @@ fn blocks_shows_the_gap_frames_of_each_block() {
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(out.lines().any(|l| l.contains("frames       4001..4100") && l.contains("gap 100 ")), "{out}");
     assert!(out.lines().any(|l| l.contains("frames       4401..4500") && l.contains(" xrun")), "{out}");
+}
+
+/// The gap column counts every zero-filled frame the port counts in `gap_frames`: the frames
+/// of GAP chunks and the zero-filled frames of a chunk that mixes data and zeros. Before the
+/// fix it counted the GAP chunks only (400 of each overrun's 407 frames; `bass blocks` showed
+/// "gap 2400" where the port counted 2541 after a restart).
+#[test]
+fn the_gap_column_adds_up_to_the_zero_filled_frames_the_port_counts() {
+    // sim:xrun at 8000 Hz zero-fills frames 4001..=4407 and 8408..=8814 (2 x 407).
+    let dir = TempDir::new("gap-sum");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    b.client().acquire(&acquire_req("sim:xrun", 8000, 100, 200, 2)).unwrap();
+    let port = b.port();
+    wait_frame(&port, 9000);
+    let o = bass(&b, &["blocks", "--json", "--block", "100", "--count", "90", "--offset", "-100000"]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let mut gaps = std::collections::BTreeMap::new();
+    for line in String::from_utf8_lossy(&o.stdout).lines() {
+        let v: Value = serde_json::from_str(line).unwrap();
+        if v["event"] == "block" && v["gap_frames"].as_u64() != Some(0) {
+            gaps.insert(v["first_frame"].as_u64().unwrap(), v["gap_frames"].as_u64().unwrap());
+        }
+    }
+    let want = [(4001, 100), (4101, 100), (4201, 100), (4301, 100), (4401, 7)];
+    let want: Vec<(u64, u64)> = want
+        .iter()
+        .chain(&[(8401, 93), (8501, 100), (8601, 100), (8701, 100), (8801, 14)])
+        .copied()
+        .collect();
+    assert_eq!(gaps.into_iter().collect::<Vec<_>>(), want);
+    // The port's own count of the same frames, once they are all published.
+    let first_two: u64 = want.iter().map(|w| w.1).sum();
+    assert_eq!(first_two, 814);
+    let s = b.client().status().unwrap();
+    assert!(s.gap_frames >= first_two, "the port counts {} zero-filled frames", s.gap_frames);
 }
 
 #[test]
