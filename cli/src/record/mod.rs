@@ -195,36 +195,7 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
                 "{n} frames of {} bytes exceed the 4 GiB limit of a WAV file; record in several files (at most {max_frames} frames each)", spec.frame_bytes())).into());
         }
     }
-    let info = port.info()?;
-    let device_format = bassclient::control::Client::connect(name)
-        .and_then(|mut c| {
-            c.set_timeout(timeout)?;
-            c.status()
-        })
-        .map(|s| s.format)
-        .unwrap_or_default();
-    let acquisition = sidecar::Acquisition {
-        device: info.device.clone(),
-        format: device_format,
-        sample_rate: g.sample_rate,
-        channels: g.channels,
-        frames_per_chunk: g.frames_per_chunk,
-        chunks_on_port: g.chunks_on_port,
-        epoch: port.epoch(),
-    };
-    let lfi = info.last_frame_index;
-    let requested = match a.from {
-        From::Now => lfi + 1,
-        From::Oldest => (lfi + 1).saturating_sub(port.frames_on_port()).max(1),
-        From::Frame(f) => f,
-    };
-    if requested > lfi + 1 && !a.quiet {
-        note!(
-            "bass record: waiting for frame {requested}; the port is at frame {lfi} ({:.1} s away at {} Hz)",
-            (requested - lfi) as f64 / f64::from(g.sample_rate),
-            g.sample_rate
-        );
-    }
+    let (acquisition, requested) = start_of(name, a, &port, timeout)?;
     let (out, side_file) = match &layout {
         Some(l) => (open_mcap(a, l, name, channels.len(), &port)?, None),
         None => {
@@ -264,6 +235,48 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
         Some(Ended::Other(e)) => Err(e),
         _ => said,
     }
+}
+
+/// The acquisition recorded (the port's, and the device format the broker reports) and the
+/// first frame asked for; says on stderr when that frame is still ahead.
+fn start_of(
+    name: &str,
+    a: &RecordArgs,
+    port: &bassclient::Port,
+    timeout: Duration,
+) -> Result<(sidecar::Acquisition, u64)> {
+    let g = port.geometry();
+    let info = port.info()?;
+    let device_format = bassclient::control::Client::connect(name)
+        .and_then(|mut c| {
+            c.set_timeout(timeout)?;
+            c.status()
+        })
+        .map(|s| s.format)
+        .unwrap_or_default();
+    let acquisition = sidecar::Acquisition {
+        device: info.device.clone(),
+        format: device_format,
+        sample_rate: g.sample_rate,
+        channels: g.channels,
+        frames_per_chunk: g.frames_per_chunk,
+        chunks_on_port: g.chunks_on_port,
+        epoch: port.epoch(),
+    };
+    let lfi = info.last_frame_index;
+    let requested = match a.from {
+        From::Now => lfi + 1,
+        From::Oldest => (lfi + 1).saturating_sub(port.frames_on_port()).max(1),
+        From::Frame(f) => f,
+    };
+    if requested > lfi + 1 && !a.quiet {
+        note!(
+            "bass record: waiting for frame {requested}; the port is at frame {lfi} ({:.1} s away at {} Hz)",
+            (requested - lfi) as f64 / f64::from(g.sample_rate),
+            g.sample_rate
+        );
+    }
+    Ok((acquisition, requested))
 }
 
 /// `bass record --check FILE`: a WAV and its sidecar, or an MCAP recording.
