@@ -2,7 +2,7 @@
 //!
 //! | code | meaning |
 //! |------|---------|
-//! | 0 | success (including a read that ended on a Stop or on its own limits) |
+//! | 0 | success (including a read that ended on a Stop or on its own limits, and a command whose stdout pipe closed: [`crate::out`]) |
 //! | 1 | any other failure (a file, the port format, an unexpected reply) |
 //! | 2 | usage error: a bad option or value, or a request the broker refused as invalid or not permitted (a window over `--max-port-bytes`, a port that does not fit in the port directory, a device its policy does not allow) |
 //! | 3 | the broker cannot be reached (not running, socket missing, or it died) |

@@ -2,7 +2,7 @@
 //! ends quietly with exit 0 once `head` has its line.
 //!
 //! Rust ignores SIGPIPE, so a write to a pipe nobody reads fails with EPIPE, and `println!`
-//! panics on it (exit 101). Every line `bass` prints goes through [`line`] instead: EPIPE on
+//! panics on it (exit 101). Every line `bass` prints goes through [`line()`] instead: EPIPE on
 //! stdout becomes [`StdoutClosed`], which `main` turns into exit 0 without a message. Exit 0,
 //! not death by SIGPIPE (141, as `cat` does), because the reader ends because its consumer has
 //! what it wanted: `set -o pipefail` scripts such as `bass blocks --json | head -1 > first`
