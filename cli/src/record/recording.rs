@@ -229,10 +229,14 @@ impl Recording {
             .filter(|l| l.first_frame < last)
             .map(|l| Lost { first_frame: l.first_frame, frames: l.frames.min(last - l.first_frame) })
             .collect();
+        // An MCAP recording's rows are its ChunkInfo messages: its facts (written every
+        // checkpoint) keep only the GAP rows, for the gap count, not a copy of them all.
+        let mcap = matches!(self.out, Out::Mcap(_));
         let chunks: Vec<ChunkRow> = if frames == 0 {
             Vec::new()
         } else {
-            self.rows.iter().filter(|r| r.first_frame < last).copied().collect()
+            let wanted = |r: &&ChunkRow| r.first_frame < last && (!mcap || r.flags & chunk_flags::GAP != 0);
+            self.rows.iter().filter(wanted).copied().collect()
         };
         let (bits, bytes, wav_format) = match &self.out {
             Out::Wav(w) => {
