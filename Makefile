@@ -4,27 +4,33 @@ CARGO ?= cargo
 export CARGO_TERM_COLOR ?= never
 RELEASE_DIR := target/release
 CFLAGS_STRICT := -std=c11 -Wall -Wextra -Wpedantic -Werror
-# One list for make, the network suite and the network bench (scripts/bridge-features).
-BRIDGE_FEATURES := $(shell cat scripts/bridge-features)
 
-.PHONY: all deps deps-build build build-bridge demo test test-rust test-loom test-c test-broker test-replay test-clients test-docs test-faults test-bridge \
+.PHONY: all deps deps-build build build-all build-ship demo test test-rust test-loom test-c test-broker test-replay test-clients test-docs test-faults test-bridge \
         header fmt lint bench install clean install-files deb test-package test-systemd
 
 all: build
 
 # System packages (apt) and Python modules: what the build needs (deps-build), and what
-# the tests need on top of it (deps: Octave for the MEX wrapper).
+# the tests need on top of it (deps: Octave for the MEX wrapper). `make demo` and `make test`
+# run them; `make build` does not (it only compiles).
 deps-build:
 	scripts/install-deps.sh
 
 deps:
 	scripts/install-deps.sh --with-octave
 
-# The default members (everything but bridge/, whose Zenoh build is long): see build-bridge.
-build: deps-build
+# The default members: the port, the C library, bassd, bass (not bridge/, whose Zenoh build is
+# long, nor the bench): see build-all.
+build:
 	$(CARGO) build --release
 
-demo: build
+# Every crate and every test target of the workspace, in the one cargo invocation every suite,
+# script and the bench use (one feature unification: Zenoh and the rest are compiled once in a
+# `make test` run; scripts call `make build-all`, never cargo themselves).
+build-all:
+	$(CARGO) build --release --workspace --all-targets
+
+demo: deps-build build
 	scripts/demo.sh
 
 # Everything CI runs.
@@ -33,15 +39,15 @@ test: deps lint test-rust test-loom test-c test-broker test-replay test-clients 
 
 lint:
 	$(CARGO) fmt --all -- --check
-	$(CARGO) clippy --release --workspace --all-targets --features $(BRIDGE_FEATURES) -- -D warnings
+	$(CARGO) clippy --release --workspace --all-targets -- -D warnings
 
 # --workspace includes bridge/ (bass-bridge), which plain `cargo build` (default-members) skips.
-test-rust: build-bridge
-	$(CARGO) test --release --workspace --features $(BRIDGE_FEATURES)
+test-rust: build-all
+	$(CARGO) test --release --workspace
 
 # The loom model of the window protocol (its own cfg, its own target directory).
 test-loom:
-	RUSTFLAGS="--cfg loom" CARGO_TARGET_DIR=target/loom $(CARGO) test --release -p bassclient --test loom_ring
+	RUSTFLAGS="--cfg loom" CARGO_TARGET_DIR=target/loom $(CARGO) test --release -p bassport --test loom_ring
 
 test-c: build
 	tests/c/run.sh
@@ -75,7 +81,7 @@ header:
 fmt:
 	$(CARGO) fmt --all
 
-bench: build
+bench: deps-build
 	scripts/bench.sh
 
 # Install the broker, the CLI, the client library (.so, .a), its headers, a pkg-config file and a
@@ -84,12 +90,11 @@ PREFIX ?= /usr/local
 INSTALL_ROOT = $(DESTDIR)$(PREFIX)
 BUILT_DIR = $(or $(CARGO_TARGET_DIR),target)/release
 VERSION := $(shell sed -n 's/^version = "\(.*\)"/\1/p' Cargo.toml | head -1)
-# bass-bridge, built exactly as test-rust builds it (same feature unification: Zenoh is
-# compiled once in a `make test` run).
-build-bridge:
-	$(CARGO) build --release --workspace --all-targets --features $(BRIDGE_FEATURES)
+# What the package ships (bassd, bass, bass-bridge, libbassclient.so and .a), no test target.
+build-ship:
+	$(CARGO) build --release -p bass-broker -p bass-cli -p bass-bridge -p bassclient
 
-install: build build-bridge
+install: build-ship
 	@$(MAKE) --no-print-directory install-files
 
 # The files only, from binaries built before (make deb, tests/package): no cargo run.
@@ -115,11 +120,11 @@ install-files:
 
 # A Debian package of what `make install PREFIX=/usr` installs, with the systemd units and the
 # group bass (docs/broker.md, "Running bass as a service"): target/deb/bass_VERSION-1_ARCH.deb.
-deb: build build-bridge
+deb: build-ship
 	broker/debian/build-deb.sh target/deb
 
 # The package built, linted, installed, used and purged on this machine (root; tests/package).
-test-package: build build-bridge
+test-package: build-all
 	tests/package/run.sh
 
 # The package under a real systemd booted in a minimal Debian root: boot start, READY, a
@@ -127,7 +132,7 @@ test-package: build build-bridge
 # within the restart grace and one past it, both C readers through watchdog restarts of a
 # stalled device (root; tests/systemd/run.sh; about 60 s, plus about 2 minutes of debootstrap
 # the first time on a machine).
-test-systemd: build build-bridge
+test-systemd: build-all
 	tests/systemd/run.sh
 
 clean:

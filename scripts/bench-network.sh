@@ -29,7 +29,7 @@ SECS=${1:-20}
 # Exactly make test-rust's build (same feature unification), so nothing is rebuilt after it.
 # BENCH_NET_BIN=DIR: use the binaries in DIR (bass-bridge, bassd, examples/...) as they are.
 if [ -n "${BENCH_NET_BIN:-}" ]; then BIN=$BENCH_NET_BIN; else
-  cargo build --release --workspace --all-targets --features "$(cat scripts/bridge-features)"; fi
+  make -C "$ROOT" --no-print-directory build-all; fi
 export BENCH_NET_BIN=$BIN
 [ -e "$BIN/libbassclient.so" ] && export BASS_LIB="$BIN/libbassclient.so"   # the recovery helper's library
 # After issue 20 serve and mirror refuse a non-loopback endpoint without credentials: the

@@ -18,7 +18,7 @@ ROOT=$(cd "$(dirname "$0")/.." && pwd); cd "$ROOT"
 BIN=${CARGO_TARGET_DIR:-$ROOT/target}/release
 SECS=${1:-10}
 if [ -n "${BENCH_NET_BIN:-}" ]; then BIN=$BENCH_NET_BIN; else
-  cargo build --release --workspace --all-targets --features "$(cat scripts/bridge-features)"; fi
+  make -C "$ROOT" --no-print-directory build-all; fi
 SERVE_BIN=${BENCH_FLOOD_SERVE:-$BIN/bass-bridge}
 MODE=${BENCH_FLOOD_MODE:-peer}
 NS_A=bflA$$; NS_B=bflB$$; WORK=$(mktemp -d /tmp/bass-bench-flood.XXXXXX); PIDS=()

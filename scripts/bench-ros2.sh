@@ -16,7 +16,7 @@ ROOT=$(cd "$(dirname "$0")/.." && pwd); cd "$ROOT"
 BIN=${CARGO_TARGET_DIR:-$ROOT/target}/release
 SECS=${1:-15}
 if [ -n "${BENCH_NET_BIN:-}" ]; then BIN=$BENCH_NET_BIN; else
-  cargo build --release --workspace --all-targets --features "$(cat scripts/bridge-features)"; fi
+  make -C "$ROOT" --no-print-directory build-all; fi
 NS_A=brosA$$; NS_B=brosB$$; WORK=$(mktemp -d /tmp/bass-bench-ros2.XXXXXX); PIDS=()
 cleanup() { set +e; for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null; done; sleep 0.3
   ip netns del "$NS_A" 2>/dev/null; ip netns del "$NS_B" 2>/dev/null; rm -rf "$WORK"; }

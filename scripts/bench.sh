@@ -8,7 +8,7 @@ cd "$(dirname "$0")/.."
 scripts/install-deps.sh --with-bench
 target="${CARGO_TARGET_DIR:-target}"
 # The one feature set of the workspace (the network parts build the same: nothing twice).
-cargo build --release --workspace --all-targets --features "$(cat scripts/bridge-features)"
+make --no-print-directory build-all
 "$target/release/bass-bench" --docs docs "$@"
 # The network part (bass-bridge between two network namespaces; needs root).
 if [[ $(id -u) -eq 0 ]]; then

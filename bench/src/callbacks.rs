@@ -1,5 +1,5 @@
 //! Part 7, second table: callback APIs side by side — bass callback streams
-//! (`bassclient::stream::Stream`, one chunk per block) against JACK clients' process callbacks
+//! (`bassport::stream::Stream`, one chunk per block) against JACK clients' process callbacks
 //! on jackd's dummy backend, at 1, 8 and 64 client processes, in the same run.
 //!
 //! - JACK: `jackd -r -d dummy -r 48000 -p 256` (no realtime, as the bass side), N processes
@@ -19,7 +19,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use bassclient::sys::monotonic_ns;
+use bassport::sys::monotonic_ns;
 
 use crate::e2e::Proc;
 use crate::pipewire::{QUANTUM, RATE};
@@ -108,7 +108,7 @@ fn bass_round(bassd: &Path, n: usize, secs: f64) -> Result<Vec<f64>, String> {
         .map_err(|e| format!("start bassd: {e}"))?;
     let d = Proc(d);
     let t = Instant::now();
-    while bassclient::Port::open(&name).is_err() {
+    while bassport::Port::open(&name).is_err() {
         if t.elapsed() > Duration::from_secs(10) {
             return Err("bassd did not create its port within 10 s".into());
         }
@@ -156,7 +156,7 @@ pub fn child_jack_client(args: &[String]) {
 /// prints `ENTERED DELAY` per block (delay = entered − the chunk's due time, ns). The callback
 /// writes into a preallocated table.
 pub fn child_stream(args: &[String]) {
-    use bassclient::stream::{Config, Control, Event, Stream};
+    use bassport::stream::{Config, Control, Event, Stream};
     let cfg = Config { frames_per_call: QUANTUM as usize, ..Config::default() };
     let mut stream = Stream::open(&args[0], cfg).expect("open stream");
     let mut rec: Vec<(u64, u64)> = Vec::with_capacity(1 << 16);

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use bassclient::{Error, Port, State};
+use bassport::{Error, Port, State};
 
 use crate::procs::{field, spawn_ready, Child};
 use crate::stats::{fmt_ns, median, quantile};
@@ -158,7 +158,7 @@ fn read_delays(name: &str, d: Duration) -> Result<(Vec<(u64, f64)>, u32), String
     while start.elapsed() < d {
         match port.wait(nfr, Duration::from_secs(2)) {
             Ok(lfi) => {
-                let now = bassclient::sys::monotonic_ns();
+                let now = bassport::sys::monotonic_ns();
                 let first = nfr;
                 let mut bufs = [&mut l[..], &mut r[..]];
                 port.get_audio_data(cap, &mut nfr, &mut bufs).map_err(|e| e.to_string())?;
@@ -353,7 +353,7 @@ pub fn run(quick: bool) -> E2eResults {
             Err(e) => println!("  sim:silence {chunk}: {e}"),
         }
     }
-    let dir = bassclient::paths::runtime_dir();
+    let dir = bassport::paths::runtime_dir();
     let conf = "</usr/share/alsa/alsa.conf>\npcm.bassjackraw {\n    type jack\n    capture_ports { 0 system:capture_1 1 system:capture_2 }\n}\npcm.bassjack {\n    type plug\n    slave.pcm \"bassjackraw\"\n}\n";
     if let Err(e) = std::fs::write(dir.join("alsa.conf"), conf) {
         res.skipped = Some(format!("write alsa.conf: {e}"));

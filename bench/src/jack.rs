@@ -73,7 +73,7 @@ extern "C" fn process(nframes: u32, arg: *mut c_void) -> c_int {
     if ok {
         // SAFETY: plain function call.
         let now = unsafe { (s.get_time)() };
-        let mono = bassclient::sys::monotonic_ns();
+        let mono = bassport::sys::monotonic_ns();
         let _ = period;
         let i = s.count.fetch_add(1, Ordering::Relaxed);
         if i < s.delays.len() {

@@ -5,19 +5,30 @@
 //!
 //! Usage: `bass-bench [--quick] [--parts 1,2,3,4,5,6,7] [--docs DIR]`;
 //! `bass-bench child ROLE ARGS...` is this binary's own helper-process mode.
+// `unsafe` only in the modules marked below, each block with its SAFETY comment: the bench
+// measures the C ABI, raw futexes, the seed's own port and JACK at their edges.
+#![deny(unsafe_code)]
 
 mod callbacks;
+#[allow(unsafe_code)] // kill(2) on bassd
 mod e2e;
+#[allow(unsafe_code)] // libjack through its C API
 mod jack;
 mod machine;
 mod memory;
+#[allow(unsafe_code)] // the seed's original port, in shared memory
 mod original;
+#[allow(unsafe_code)] // kill(2) on the PipeWire clients
 mod pipewire;
 mod plot;
+#[allow(unsafe_code)] // clock_gettime(CLOCK_PROCESS_CPUTIME_ID)
 mod procs;
+#[allow(unsafe_code)] // clock_gettime(CLOCK_THREAD_CPUTIME_ID)
 mod publish;
+#[allow(unsafe_code)] // the C ABI of libbassclient
 mod read;
 mod report;
+#[allow(unsafe_code)] // the seed's shared memory
 mod shm;
 mod stats;
 mod wake;
@@ -44,8 +55,8 @@ fn main() {
     // The bench's scratch files, ports and brokers live in /dev/shm as before, also when run
     // as root (whose brokers default to /run/bass): children and bassd inherit this.
     // Set at the very start, before any thread exists.
-    if std::env::var_os(bassclient::paths::RUNTIME_DIR_ENV).map_or(true, |d| d.is_empty()) {
-        std::env::set_var(bassclient::paths::RUNTIME_DIR_ENV, bassclient::paths::USER_RUNTIME_DIR);
+    if std::env::var_os(bassport::paths::RUNTIME_DIR_ENV).map_or(true, |d| d.is_empty()) {
+        std::env::set_var(bassport::paths::RUNTIME_DIR_ENV, bassport::paths::USER_RUNTIME_DIR);
     }
     let args: Vec<String> = std::env::args().skip(1).collect();
     if args.first().map(String::as_str) == Some("child") {

@@ -5,7 +5,7 @@
 use std::os::unix::fs::MetadataExt;
 use std::time::{Duration, Instant};
 
-use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
+use bassport::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
 
 use crate::original::{self, OrigPort};
 use crate::procs::{field, rss_of, spawn_ready, Child, Rss};
@@ -48,7 +48,7 @@ pub fn run() -> Vec<MemRow> {
         writer.ready();
         let mut readers = spawn_ready(1, "mem-reader", &[name.clone(), "tail".into()]);
         readers.extend(spawn_ready(1, "mem-reader", &[name.clone(), "full".into()]));
-        let opath = bassclient::paths::runtime_dir().join(format!("bench-mem-orig-{ncop}"));
+        let opath = bassport::paths::runtime_dir().join(format!("bench-mem-orig-{ncop}"));
         let oport = OrigPort::create(&opath, 2205, ncop as usize);
         let orig = Child::spawn("mem-orig-reader", &[opath.display().to_string()]);
         let mut wlines = writer.finish();

@@ -17,7 +17,7 @@
 use std::path::Path;
 use std::sync::atomic::Ordering::{Acquire, Relaxed, Release};
 
-use bassclient::sys::futex_wake_all;
+use bassport::sys::futex_wake_all;
 
 use crate::shm::Region;
 

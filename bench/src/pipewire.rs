@@ -35,8 +35,8 @@ use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use bassclient::sys::monotonic_ns;
-use bassclient::{Error, Port, State};
+use bassport::sys::monotonic_ns;
+use bassport::{Error, Port, State};
 
 use crate::e2e::{bassd_path, cpu_ns, Proc};
 use crate::procs::{field, Child};
@@ -204,7 +204,7 @@ pub fn bass_reader(lines: &[String], window: (u64, u64), nfpc: u64) -> ReaderSta
         let lost = lost.div_ceil(nfpc.max(1));
         r.missed += new.saturating_sub(1) + lost;
         r.lost += lost;
-        if new > 1 && flags & u64::from(bassclient::format::chunk_flags::LATE) != 0 {
+        if new > 1 && flags & u64::from(bassport::format::chunk_flags::LATE) != 0 {
             r.broker_late += 1;
         }
         r.delays.push(woke.saturating_sub(due) as f64);
@@ -523,12 +523,7 @@ fn fifo_threads(pids: &[u32]) -> String {
 
 /// Puts the calling thread in SCHED_FIFO at `prio`.
 fn set_fifo(prio: i32) -> Result<(), String> {
-    let param = libc::sched_param { sched_priority: prio };
-    // SAFETY: `param` is valid for the call; pthread_self() is the calling thread.
-    match unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) } {
-        0 => Ok(()),
-        e => Err(std::io::Error::from_raw_os_error(e).to_string()),
-    }
+    bassport::sys::sched::set_fifo(prio).map_err(|e| std::io::Error::from_raw_os_error(e).to_string())
 }
 
 /// Whether this process may use SCHED_FIFO (tried on a short-lived thread).

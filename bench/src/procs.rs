@@ -22,7 +22,7 @@ impl Scratch {
         let dir = base.join(format!("bass-bench.{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).expect("create the scratch directory");
-        std::env::set_var(bassclient::paths::RUNTIME_DIR_ENV, &dir);
+        std::env::set_var(bassport::paths::RUNTIME_DIR_ENV, &dir);
         Scratch { dir }
     }
 }

@@ -9,7 +9,7 @@
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
+use bassport::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
 
 use crate::original::{self, OrigPort};
 use crate::procs::{field, finish_all, spawn_ready};
@@ -188,7 +188,7 @@ fn orig_cell(
 
 /// Runs part 2.
 pub fn run(reps: usize, quick: bool) -> PublishResults {
-    let dir = bassclient::paths::runtime_dir();
+    let dir = bassport::paths::runtime_dir();
     let period = Duration::from_millis(4);
     let ring_pace = Pace {
         period,
@@ -332,7 +332,7 @@ pub fn child_orig_reader(args: &[String]) {
     let mut nfr = port.read_whole(&mut copy) + 1;
     crate::procs::say_ready();
     loop {
-        bassclient::sys::futex_wait(port.futex(), seq, Duration::from_secs(30));
+        bassport::sys::futex_wait(port.futex(), seq, Duration::from_secs(30));
         seq = port.futex().load(std::sync::atomic::Ordering::Acquire);
         if port.stopped() {
             break;
@@ -371,7 +371,7 @@ pub fn breakdown(reps: usize) -> Breakdown {
     let data = chunk();
     let heap: Vec<AtomicU64> = (0..nfop).map(|_| AtomicU64::new(0)).collect();
     let (lfi, intent) = (AtomicU64::new(0), AtomicU64::new(0));
-    let ring = bassclient::ring::Ring {
+    let ring = bassport::ring::Ring {
         last_frame_index: &lfi,
         write_intent: &intent,
         samples: &heap,
@@ -400,9 +400,9 @@ pub fn breakdown(reps: usize) -> Breakdown {
         b.push(per(&mut |_| {
             heap_lfi = ring.publish(heap_lfi, NFPC as usize, 2, &Source::Interleaved(&data), || {});
         }));
-        c.push(per(&mut |_| bassclient::sys::futex_wake_all(&word)));
+        c.push(per(&mut |_| bassport::sys::futex_wake_all(&word)));
         d.push(per(&mut |_| {
-            std::hint::black_box(bassclient::sys::monotonic_ns() + bassclient::sys::realtime_ns());
+            std::hint::black_box(bassport::sys::monotonic_ns() + bassport::sys::realtime_ns());
         }));
         e.push(per(&mut |k| {
             let at = (k % ncop as usize) * NFPC as usize;

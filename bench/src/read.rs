@@ -10,7 +10,7 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
-use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+use bassport::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
 
 use crate::stats::{median, spread};
 
@@ -98,7 +98,7 @@ pub fn copy_loops(reps: usize) -> CopyLoops {
     let src64: Vec<AtomicU64> = (0..n as u64 / 2).map(AtomicU64::new).collect();
     let plain: Vec<i32> = (0..n as i32).collect();
     let (lfi, intent) = (AtomicU64::new(0), AtomicU64::new(0));
-    let ring = bassclient::ring::Ring {
+    let ring = bassport::ring::Ring {
         last_frame_index: &lfi,
         write_intent: &intent,
         samples: &src64,
@@ -154,9 +154,9 @@ pub fn run(reps: usize) -> Vec<ReadRow> {
     let nfop = u64::from(nfpc * ncop);
     let port = Port::open("bench-read").expect("open port");
     let cname = std::ffi::CString::new("bench-read").expect("name");
-    let mut handle: *mut bassclient::ffi::bass_port = std::ptr::null_mut();
+    let mut handle: *mut bassclient::bass_port = std::ptr::null_mut();
     // SAFETY: a valid C string and a valid out-pointer.
-    let rc = unsafe { bassclient::ffi::bass_port_open(cname.as_ptr(), &mut handle) };
+    let rc = unsafe { bassclient::bass_port_open(cname.as_ptr(), &mut handle) };
     assert_eq!(rc as i32, 0, "bass_port_open");
     let rings: Vec<*const i32> = (0..2).map(|c| port.channel_ring(c).expect("channel").as_ptr()).collect();
 
@@ -198,7 +198,7 @@ pub fn run(reps: usize) -> Vec<ReadRow> {
                     // SAFETY: `handle` is open; both buffers hold `max >= n` samples; the
                     // out-pointers are valid locals.
                     let rc = unsafe {
-                        bassclient::ffi::bass_get_audio_data(
+                        bassclient::bass_get_audio_data(
                             handle,
                             n,
                             &mut nfr,
@@ -252,7 +252,7 @@ pub fn run(reps: usize) -> Vec<ReadRow> {
         }
     }
     // SAFETY: `handle` came from bass_port_open and is closed once.
-    unsafe { bassclient::ffi::bass_port_close(handle) };
+    unsafe { bassclient::bass_port_close(handle) };
     drop(port);
     let _ = w.remove();
     for r in &rows {
@@ -297,25 +297,25 @@ pub fn info_cost(reps: usize) -> InfoCost {
     }
     let lfi = w.last_frame_index();
     let cname = std::ffi::CString::new("bench-info").expect("name");
-    let mut handle: *mut bassclient::ffi::bass_port = std::ptr::null_mut();
+    let mut handle: *mut bassclient::bass_port = std::ptr::null_mut();
     // SAFETY: a valid C string and a valid out-pointer.
-    let rc = unsafe { bassclient::ffi::bass_port_open(cname.as_ptr(), &mut handle) };
+    let rc = unsafe { bassclient::bass_port_open(cname.as_ptr(), &mut handle) };
     assert_eq!(rc as i32, 0, "bass_port_open");
     let (mut left, mut right) = (vec![0i32; nfpc as usize], vec![0i32; nfpc as usize]);
-    let (pid, start) = (std::process::id(), bassclient::sys::own_start_time());
+    let (pid, start) = (std::process::id(), bassport::sys::own_start_time());
     let mut out = InfoCost::default();
     for _ in 0..reps {
-        let mut info = std::mem::MaybeUninit::<bassclient::ffi::bass_port_info>::uninit();
+        let mut info = std::mem::MaybeUninit::<bassclient::bass_port_info>::uninit();
         out.info_ns.push(time_per_iter(20_000, |_| {
             // SAFETY: `handle` is open; `info` is valid for a write.
-            let rc = unsafe { bassclient::ffi::bass_port_get_info(handle, info.as_mut_ptr()) };
+            let rc = unsafe { bassclient::bass_port_get_info(handle, info.as_mut_ptr()) };
             assert_eq!(rc as i32, 0);
         }));
         out.read_chunk_ns.push(time_per_iter(20_000, |_| {
             let (mut nfr, mut got, mut loss) = (lfi - u64::from(nfpc) + 1, 0usize, 0u64);
             // SAFETY: `handle` is open; both buffers hold nfpc samples; valid out-pointers.
             let rc = unsafe {
-                bassclient::ffi::bass_get_audio_data(
+                bassclient::bass_get_audio_data(
                     handle,
                     nfpc as usize,
                     &mut nfr,
@@ -328,11 +328,11 @@ pub fn info_cost(reps: usize) -> InfoCost {
             assert!(rc as i32 == 0 && got == nfpc as usize);
         }));
         out.proc_ns.push(time_per_iter(2_000, |_| {
-            assert!(bassclient::sys::writer_alive(pid, start));
+            assert!(bassport::sys::writer_alive(pid, start));
         }));
     }
     // SAFETY: `handle` came from bass_port_open and is closed once.
-    unsafe { bassclient::ffi::bass_port_close(handle) };
+    unsafe { bassclient::bass_port_close(handle) };
     let _ = w.remove();
     println!(
         "  info: bass_port_get_info {} ns per call, bass_get_audio_data of one 441-frame chunk {} ns, the /proc liveness read it made before {} ns",

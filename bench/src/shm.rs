@@ -1,5 +1,5 @@
 //! A shared file mapping for the raw-futex baseline and the model of the original design
-//! (the futex and clock calls are the library's: `bassclient::sys`).
+//! (the futex and clock calls are the library's: `bassport::sys`).
 
 use std::fs::OpenOptions;
 use std::os::fd::AsRawFd;

@@ -7,7 +7,7 @@
 
 use std::time::{Duration, Instant};
 
-use bassclient::{sys, Port};
+use bassport::{sys, Port};
 
 fn main() {
     let a: Vec<String> = std::env::args().collect();

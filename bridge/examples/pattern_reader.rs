@@ -1,6 +1,6 @@
 //! Test reader for the network tests: reads a port (a replica) with the library's reader and
 //! checks every sample of every frame index against the pattern signal
-//! (`bassclient::testsignal`), a GAP frame against zeros, and the accounting
+//! (`basskit::testsignal`), a GAP frame against zeros, and the accounting
 //! delivered + lost + gap = requested. Follows new epochs (RESTARTED) and waits out device
 //! errors (a replica whose source is unreachable). Prints one JSON line; exits 1 on any
 //! wrong sample or accounting error, 2 when the frames did not come within the timeout.
@@ -14,9 +14,9 @@
 
 use std::time::{Duration, Instant};
 
-use bassclient::format::chunk_flags;
-use bassclient::testsignal::pattern_expected;
-use bassclient::{Error, Port};
+use basskit::testsignal::pattern_expected;
+use bassport::format::chunk_flags;
+use bassport::{Error, Port};
 
 #[derive(Default, Debug)]
 struct Count {

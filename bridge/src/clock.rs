@@ -314,7 +314,7 @@ impl ClockEstimator {
 
     /// Offset (source - local, ns) and uncertainty (ns) now.
     pub fn estimate(&self) -> (Option<i64>, Option<u64>) {
-        match self.fit().at(bassclient::sys::monotonic_ns()) {
+        match self.fit().at(bassport::sys::monotonic_ns()) {
             Some((o, u)) => (Some(o), Some(u)),
             None => (None, None),
         }
@@ -345,7 +345,7 @@ fn probe_burst(session: &zenoh::Session, key: &str, auth: Option<&ProbeKey>) -> 
     let mut malformed = 0;
     for i in 0..BURST {
         let mut nonce = [0u8; 16];
-        nonce[..8].copy_from_slice(&bassclient::sys::monotonic_ns().to_le_bytes());
+        nonce[..8].copy_from_slice(&bassport::sys::monotonic_ns().to_le_bytes());
         nonce[8..].copy_from_slice(&(i as u64 ^ crate::net::instance_id()).to_le_bytes());
         let attachment = auth.map(|a| {
             let mut b = vec![a.user.len() as u8];
@@ -353,7 +353,7 @@ fn probe_burst(session: &zenoh::Session, key: &str, auth: Option<&ProbeKey>) -> 
             b.extend_from_slice(&nonce);
             b
         });
-        let t0 = bassclient::sys::monotonic_ns();
+        let t0 = bassport::sys::monotonic_ns();
         let Ok(replies) = session
             .get(key)
             .attachment(attachment)
@@ -367,7 +367,7 @@ fn probe_burst(session: &zenoh::Session, key: &str, auth: Option<&ProbeKey>) -> 
         let mut answers = Vec::new();
         for _ in 0..8 {
             let Ok(reply) = replies.recv() else { break };
-            let t1 = bassclient::sys::monotonic_ns();
+            let t1 = bassport::sys::monotonic_ns();
             let Ok(sample) = reply.result() else {
                 malformed += 1;
                 continue;

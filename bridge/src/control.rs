@@ -14,7 +14,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use anyhow::{anyhow, Context, Result};
-use bassclient::control::{wire, ErrorKind, Reply, MAX_MESSAGE};
+use bassport::control::{wire, ErrorKind, Reply, MAX_MESSAGE};
 use rustix::net::{AddressFamily, RecvFlags, SendFlags, SocketAddrUnix, SocketFlags, SocketType};
 use zenoh::Wait;
 
@@ -61,7 +61,7 @@ fn recv(fd: impl AsFd) -> std::io::Result<Option<Vec<u8>>> {
 
 /// Sends `request` to the local broker `name` and returns its reply, as bytes.
 fn ask_local_broker(name: &str, request: &[u8]) -> Result<Vec<u8>> {
-    let path = bassclient::paths::socket_path(name)?;
+    let path = bassport::paths::socket_path(name)?;
     let fd = seqpacket()?;
     rustix::net::connect(&fd, &SocketAddrUnix::new(&path)?)
         .with_context(|| format!("connect to the broker's control socket {}", path.display()))?;
@@ -235,7 +235,7 @@ impl Policy {
                 self.allowed.join(",")
             ));
         }
-        let now = bassclient::sys::realtime_ns();
+        let now = bassport::sys::realtime_ns();
         if now.abs_diff(a.time_ns) > FRESHNESS.as_nanos() as u64 {
             return Err(format!(
                 "a request from {:?} signed {:.0} s away from this machine's clock (more than {} s: a replay, or clocks apart)",
@@ -397,7 +397,7 @@ pub fn spawn_forwarder(
     session: &zenoh::Session,
     key: String,
     signer: Option<Arc<Signer>>,
-    instance: &bassclient::instance::Instance,
+    instance: &basskit::instance::Instance,
     stop: Arc<AtomicBool>,
     local: LocalStatus,
 ) -> Result<Forwarder> {
@@ -434,7 +434,7 @@ pub fn spawn_forwarder(
                 Some(Duration::from_secs(1)),
             );
             let peer_ok =
-                bassclient::control::peer_credentials(conn.as_fd()).is_ok_and(|c| c.uid == own || c.uid == 0);
+                bassport::control::peer_credentials(conn.as_fd()).is_ok_and(|c| c.uid == own || c.uid == 0);
             if !peer_ok {
                 let _ = send(
                     &conn,
@@ -471,7 +471,7 @@ pub fn spawn_forwarder(
                 while !stop.load(Ordering::Relaxed) {
                     let Ok(Some(request)) = recv(&conn) else { break };
                     let reply = match wire::decode_request(&request) {
-                        Ok(bassclient::control::Request::Status) => {
+                        Ok(bassport::control::Request::Status) => {
                             replica_status(&session, &key, request, signer.as_deref(), &*local)
                         }
                         _ => forward(&session, &key, request, signer.as_deref(), REQUEST_TIMEOUT),
@@ -532,14 +532,14 @@ fn random_nonce() -> [u8; 16] {
         std::fs::File::open("/dev/urandom").and_then(|mut f| std::io::Read::read_exact(&mut f, &mut n));
     if read.is_err() {
         // A nonce need only be unique, not secret.
-        n[..8].copy_from_slice(&bassclient::sys::monotonic_ns().to_le_bytes());
+        n[..8].copy_from_slice(&bassport::sys::monotonic_ns().to_le_bytes());
         n[8..].copy_from_slice(&crate::net::instance_id().to_le_bytes());
     }
     n
 }
 
 /// The mirror's own Status of its replica ([`crate::mirror`]'s core), for the forwarder.
-pub type LocalStatus = Arc<dyn Fn() -> bassclient::control::Status + Send + Sync>;
+pub type LocalStatus = Arc<dyn Fn() -> bassport::control::Status + Send + Sync>;
 
 /// How long a Status on a replica waits for the source's live Status (the mirror's own answer
 /// does not wait for the network longer than this).
@@ -553,16 +553,16 @@ fn replica_status(
     key: &str,
     request: Vec<u8>,
     signer: Option<&Signer>,
-    local: &(dyn Fn() -> bassclient::control::Status + Send + Sync),
+    local: &(dyn Fn() -> bassport::control::Status + Send + Sync),
 ) -> Vec<u8> {
     let mut status = local();
     if let Some(r) = status.replica.as_mut().filter(|r| r.link_up) {
         let live = forward(session, key, request, signer, LIVE_STATUS_TIMEOUT);
-        if let Ok(bassclient::control::Reply::Status(s)) = wire::decode_reply(&live) {
+        if let Ok(bassport::control::Reply::Status(s)) = wire::decode_reply(&live) {
             r.source_status = Some(Box::new(s));
         }
     }
-    wire::encode_reply(&bassclient::control::Reply::Status(status))
+    wire::encode_reply(&bassport::control::Reply::Status(status))
 }
 
 fn forward(
@@ -576,7 +576,7 @@ fn forward(
     let mut nonce = [0u8; 16];
     if let Some(s) = signer {
         nonce = random_nonce();
-        let (user, time_ns) = (s.credentials.user.clone(), bassclient::sys::realtime_ns());
+        let (user, time_ns) = (s.credentials.user.clone(), bassport::sys::realtime_ns());
         let signature = s.credentials.sign(key, &signed_part(time_ns, &nonce, &user, &request));
         get = get.attachment(Signed { user, time_ns, nonce, signature }.encode());
     }
@@ -658,8 +658,8 @@ mod tests {
         let key = "bass/src/control";
         let policy = Policy { allowed: vec!["ws1".into()], credentials: Arc::new(robot), key: key.into() };
         let seen = Mutex::new(Seen::default());
-        let now = bassclient::sys::realtime_ns();
-        let stop = wire::encode_request(&bassclient::control::Request::Stop);
+        let now = bassport::sys::realtime_ns();
+        let stop = wire::encode_request(&bassport::control::Request::Stop);
         let a = signed(&ws1, key, &stop, now, [1; 16]);
         assert_eq!(policy.authorize(&stop, Some(&a), &seen).unwrap().0, "ws1");
         let e = policy.authorize(&stop, Some(&a), &seen).unwrap_err();
@@ -673,7 +673,7 @@ mod tests {
         let e = policy.authorize(&stop, Some(&forged.encode()), &seen).unwrap_err();
         assert!(e.contains("signature that is not its"), "{e}");
         // ws1's signature over another request, or for another broker's key.
-        let status = wire::encode_request(&bassclient::control::Request::Status);
+        let status = wire::encode_request(&bassport::control::Request::Status);
         assert!(policy.authorize(&status, Some(&signed(&ws1, key, &stop, now, [4; 16])), &seen).is_err());
         assert!(policy
             .authorize(&stop, Some(&signed(&ws1, "bass/other/control", &stop, now, [5; 16])), &seen)

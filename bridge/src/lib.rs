@@ -4,6 +4,7 @@
 //! Two binaries share this library: `bass-bridge`, the installed one, and
 //! `bass-bridge-faults`, a test-only build of the same code that also takes `--fault`
 //! (deterministic message faults for the network suite; never installed).
+#![forbid(unsafe_code)]
 
 pub mod clock;
 pub mod control;

@@ -1,4 +1,5 @@
 //! `bass-bridge`, the installed binary: `serve` and `mirror` (docs/network.md).
+#![forbid(unsafe_code)]
 
 use clap::Parser;
 

@@ -414,8 +414,8 @@ pub enum BridgeState {
 
 impl BridgeState {
     /// The state of a port whose header says `s` (`None`: a value this version does not know).
-    pub fn of_port(s: Option<bassclient::State>) -> BridgeState {
-        use bassclient::State;
+    pub fn of_port(s: Option<bassport::State>) -> BridgeState {
+        use bassport::State;
         match s {
             Some(State::Idle) => BridgeState::Idle,
             Some(State::Starting) => BridgeState::Starting,
@@ -477,10 +477,10 @@ pub struct SourceState {
 }
 
 /// Checks a broker or replica name used in key expressions (`--name`, `--source`): a port
-/// name (`bassclient::paths::check_name`), so no `* $ # / ?` or spaces, which would make a
+/// name (`bassport::paths::check_name`), so no `* $ # / ?` or spaces, which would make a
 /// key expression match other sources.
 pub fn check_key_name(option: &str, name: &str) -> Result<(), UsageError> {
-    bassclient::paths::check_name(name).map_err(|_| {
+    bassport::paths::check_name(name).map_err(|_| {
         UsageError(format!(
             "{option} {}: use 1 to 64 characters of A-Z a-z 0-9 . _ - (not starting with '.'): \
              no wildcard or key-expression characters such as * $ # / ?",
@@ -491,7 +491,7 @@ pub fn check_key_name(option: &str, name: &str) -> Result<(), UsageError> {
 
 /// Checks `--namespace`: chunks of [`check_key_name`]'s characters separated by `/`.
 pub fn check_namespace(ns: &str) -> Result<(), UsageError> {
-    if ns.split('/').all(|c| bassclient::paths::check_name(c).is_ok()) {
+    if ns.split('/').all(|c| bassport::paths::check_name(c).is_ok()) {
         return Ok(());
     }
     Err(UsageError(format!(
@@ -503,8 +503,8 @@ pub fn check_namespace(ns: &str) -> Result<(), UsageError> {
 
 /// A random instance id (not cryptographic: it only tells two `serve` runs apart).
 pub fn instance_id() -> u64 {
-    let t = bassclient::sys::realtime_ns();
-    let mono = bassclient::sys::monotonic_ns();
+    let t = bassport::sys::realtime_ns();
+    let mono = bassport::sys::monotonic_ns();
     let pid = u64::from(std::process::id());
     let mut x = t ^ mono.rotate_left(17) ^ pid.rotate_left(40) ^ 0x9E37_79B9_7F4A_7C15;
     x ^= x >> 33;

@@ -31,7 +31,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Result};
-use bassclient::Port;
+use bassport::Port;
 use zenoh::sample::SampleKind;
 use zenoh::Wait;
 
@@ -182,7 +182,7 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
     let clock = session
         .declare_queryable(clock_key.clone())
         .callback(move |q| {
-            let now = bassclient::sys::monotonic_ns().to_le_bytes();
+            let now = bassport::sys::monotonic_ns().to_le_bytes();
             // A keyed answer (HMAC, ~1 us, not a signature's ~20 us that would skew the probe).
             let sig = clock_keys.as_ref().and_then(|k| {
                 k.answer(

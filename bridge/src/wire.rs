@@ -37,7 +37,7 @@
 
 use std::mem::{offset_of, size_of};
 
-use bassclient::format::chunk_flags;
+use bassport::format::chunk_flags;
 
 /// `b"BASSNET\0"`.
 pub const MAGIC: [u8; 8] = *b"BASSNET\0";
@@ -321,7 +321,7 @@ pub fn decode(b: &[u8]) -> Result<Chunk<'_>, DecodeError> {
         return field("epoch", 0);
     }
     // Frames are numbered from 1 and a source chunk starts at a multiple of its size plus 1.
-    let max_frame = bassclient::format::MAX_FRAME_INDEX;
+    let max_frame = bassport::format::MAX_FRAME_INDEX;
     if h.first_frame == 0
         || h.first_frame > max_frame - u64::from(h.frames)
         || (h.first_frame - 1) % u64::from(h.frames) != 0

@@ -25,7 +25,7 @@ trap 'rm -rf "$WORK"' EXIT
 STAGE=$WORK/bass
 BUILT=${CARGO_TARGET_DIR:-$ROOT/target}/release
 for f in bassd bass bass-bridge libbassclient.so libbassclient.a; do
-  [[ -f $BUILT/$f ]] || { echo "build-deb: $BUILT/$f missing: run make build build-bridge (or make deb)" >&2; exit 1; }
+  [[ -f $BUILT/$f ]] || { echo "build-deb: $BUILT/$f missing: run make build-ship (or make deb)" >&2; exit 1; }
 done
 
 make -C "$ROOT" --no-print-directory install-files DESTDIR="$STAGE" PREFIX=/usr >"$WORK/install.log" 2>&1 \

@@ -16,10 +16,10 @@ use std::sync::{mpsc, Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use bassclient::format::{chunk_flags, error_code, State};
-use bassclient::reader::Port;
-use bassclient::sys::{monotonic_ns, realtime_ns};
-use bassclient::{ChunkMeta, Geometry, Source, Writer};
+use bassport::format::{chunk_flags, error_code, State};
+use bassport::reader::Port;
+use bassport::sys::{monotonic_ns, realtime_ns};
+use bassport::{ChunkMeta, Geometry, Source, Writer};
 
 use crate::device::{Capture, ReadEvent, RecordedChunk, StopSignal};
 use crate::rate_estimator::RateDll;
@@ -51,7 +51,7 @@ impl Shared {
             return;
         }
         tracing::info!("{message}");
-        self.writer().set_state(State::Stopped, bassclient::format::error_code::NONE, message);
+        self.writer().set_state(State::Stopped, bassport::format::error_code::NONE, message);
         self.stop.signal();
     }
 

@@ -3,8 +3,8 @@
 
 use std::time::Duration;
 
-use bassclient::control::AcquireRequest;
-use bassclient::paths;
+use bassport::control::AcquireRequest;
+use bassport::paths;
 
 use crate::policy::DevicePolicy;
 use crate::request::Limits;
@@ -32,7 +32,7 @@ pub struct Config {
     /// A control connection with no request for this long is closed (`--idle-timeout-ms`).
     pub idle_timeout: Duration,
     /// What holds the port (`--port-backing`; see crate::handoff).
-    pub port_backing: bassclient::Backing,
+    pub port_backing: bassport::Backing,
     /// Longest wait for a device to open and configure (`--open-timeout-ms`).
     pub open_timeout: Duration,
     /// Under a service manager with an fd store: how long readers wait for a restarted
@@ -52,7 +52,7 @@ impl Default for Config {
             policy: DevicePolicy::default(),
             limits: Limits::default(),
             idle_timeout: DEFAULT_IDLE_TIMEOUT,
-            port_backing: bassclient::Backing::File,
+            port_backing: bassport::Backing::File,
             open_timeout: DEFAULT_OPEN_TIMEOUT,
             restart_grace_ms: crate::supervise::DEFAULT_RESTART_GRACE_MS,
         }

@@ -106,11 +106,11 @@ pub fn float_to_s32(x: f32) -> i32 {
 mod tests {
     use super::*;
 
-    /// The names clients may force (`bassclient::args`, for `bass acquire -f`) are exactly the
+    /// The names clients may force (`basskit::args`, for `bass acquire -f`) are exactly the
     /// formats converted here, in the same order of preference.
     #[test]
     fn the_shared_format_names_are_the_converted_formats() {
-        assert_eq!(SampleFormat::PREFERENCE.map(SampleFormat::name), bassclient::args::SAMPLE_FORMAT_NAMES);
+        assert_eq!(SampleFormat::PREFERENCE.map(SampleFormat::name), basskit::args::SAMPLE_FORMAT_NAMES);
     }
 
     #[test]

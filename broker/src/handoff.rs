@@ -16,8 +16,8 @@
 
 use std::os::fd::{AsFd, BorrowedFd};
 
-use bassclient::control::{self, ErrorKind, PortFd, Reply};
-use bassclient::{memfd, Backing, PendingPort, PortParams, Writer};
+use bassport::control::{self, ErrorKind, PortFd, Reply};
+use bassport::{memfd, Backing, PendingPort, PortParams, Writer};
 
 use crate::capture::Acquisition;
 use crate::config::Config;
@@ -31,7 +31,7 @@ pub fn prepare(
     params: &PortParams,
     after: Option<u64>,
     resumable: bool,
-) -> bassclient::Result<PendingPort> {
+) -> bassport::Result<PendingPort> {
     match cfg.port_backing {
         Backing::File => Writer::prepare(&cfg.name, params).map(|mut p| {
             p.after_epoch(after);

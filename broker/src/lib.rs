@@ -12,12 +12,15 @@
 //! - [`rate_estimator`]: the device-clock rate estimator (a delay-locked loop);
 //! - [`pins`]: superseded ports still mapped by readers, and the bound on them;
 //! - [`os`]: the Linux edge on rustix (eventfd, signals, sleeps, scheduling, credentials, lock);
+// `unsafe` only in `os`, the broker's Linux edge (each block with its SAFETY comment).
+#![deny(unsafe_code)]
 
 pub mod capture;
 pub mod config;
 pub mod convert;
 pub mod device;
 pub mod handoff;
+#[allow(unsafe_code)] // the Linux edge
 pub mod os;
 pub mod pins;
 pub mod policy;

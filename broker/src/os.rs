@@ -1,8 +1,9 @@
 //! The Linux edge of the broker: eventfd, termination signals, absolute sleeps, real-time
 //! scheduling, peer credentials and the control socket's listener (the instance lock is
-//! `bassclient::instance`, shared with `bass-bridge mirror`).
+//! `basskit::instance`, shared with `bass-bridge mirror`).
 //! System calls go through rustix (and signal-hook for the signals); the few `unsafe`
-//! blocks left are calls neither wraps (SCHED_FIFO, SO_PEERGROUPS, getgrnam).
+//! blocks left are calls neither wraps (SO_PEERGROUPS, getgrnam, a write lease, an fd from the
+//! service manager); SCHED_FIFO is `bassport::sys::sched`'s.
 
 use std::io;
 use std::os::fd::{AsRawFd, BorrowedFd, OwnedFd, RawFd};
@@ -110,15 +111,7 @@ pub fn read_signal(s: &TermSignals) -> Option<u32> {
 
 /// Tries SCHED_FIFO at `priority` for the calling thread.
 pub fn set_realtime(priority: i32) -> io::Result<()> {
-    let param = libc::sched_param { sched_priority: priority };
-    // SAFETY: `param` is valid for the call; pthread_self() is the calling thread (rustix
-    // has no wrapper for the scheduling policy).
-    let r = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) };
-    if r == 0 {
-        Ok(())
-    } else {
-        Err(io::Error::from_raw_os_error(r))
-    }
+    bassport::sys::sched::set_fifo(priority).map_err(io::Error::from_raw_os_error)
 }
 
 /// Credentials of the peer of a connected Unix socket.
@@ -140,7 +133,7 @@ const SO_PEERGROUPS: libc::c_int = 59;
 
 /// Reads SO_PEERCRED (and SO_PEERGROUPS where available) of a connected socket.
 pub fn peer_credentials(fd: BorrowedFd<'_>) -> io::Result<Peer> {
-    let cred = bassclient::control::peer_credentials(fd)?;
+    let cred = bassport::control::peer_credentials(fd)?;
     let mut groups = vec![0u32; 256];
     let mut glen = (groups.len() * 4) as libc::socklen_t;
     // SAFETY: `groups` is valid for `glen` bytes; `fd` is an open socket; failure (old
@@ -182,7 +175,7 @@ pub fn group_id(name: &str) -> io::Result<u32> {
 
 // The instance lock and the runtime directory's file checks are shared with
 // `bass-bridge mirror`, which takes its replica's name the same way: libbassclient.
-use bassclient::instance::check_own;
+use basskit::instance::check_own;
 
 /// Binds and listens on a SEQPACKET socket `name` in `dir` (path `path`) created with mode
 /// `mode` (through the umask: no window with looser modes, no chmod through a path), then
@@ -195,8 +188,8 @@ pub fn listen_seqpacket_at(
     group: Option<u32>,
 ) -> io::Result<OwnedFd> {
     use rustix::fs::{AtFlags, FileType, Mode};
-    let fd = bassclient::control::seqpacket_socket()?;
-    let addr = bassclient::control::socket::unix_addr(path)?;
+    let fd = bassport::control::seqpacket_socket()?;
+    let addr = bassport::control::socket::unix_addr(path)?;
     // Called at start-up, before any other thread exists: the process-wide umask is ours.
     let old = rustix::process::umask(Mode::from_raw_mode(!mode & 0o777));
     let r = rustix::net::bind(&fd, &addr);
@@ -226,7 +219,7 @@ pub fn accept(listener: BorrowedFd<'_>) -> io::Result<Option<OwnedFd>> {
 
 /// Sets a send timeout on a socket, so that a client that never reads cannot block the broker.
 pub fn set_send_timeout(fd: BorrowedFd<'_>, t: Duration) -> io::Result<()> {
-    bassclient::control::socket::set_timeouts(fd, None, Some(t))
+    bassport::control::socket::set_timeouts(fd, None, Some(t))
 }
 
 /// Discards whatever the peer already sent on `fd` (before closing a refused connection,
@@ -249,4 +242,33 @@ pub fn is_out_of_fds(e: &io::Error) -> bool {
 pub fn spare_fd() -> io::Result<OwnedFd> {
     use rustix::fs::{Mode, OFlags};
     Ok(rustix::fs::open("/dev/null", OFlags::RDONLY | OFlags::CLOEXEC, Mode::empty())?)
+}
+
+/// Whether another open file (a reader's descriptor or mapping) refers to the inode of `fd`:
+/// a write lease (F_SETLEASE) is granted only while nobody else has the file open.
+pub fn held_elsewhere(fd: BorrowedFd<'_>) -> io::Result<bool> {
+    let fd = fd.as_raw_fd();
+    // SAFETY: fcntl(F_SETLEASE) on a descriptor borrowed for the call, with an int argument;
+    // no memory is passed. The lease is released at once below (a write lease exists only
+    // while no one else has the file open, so nobody can be waiting to break it).
+    if unsafe { libc::fcntl(fd, libc::F_SETLEASE, libc::F_WRLCK) } == 0 {
+        // SAFETY: as above.
+        unsafe { libc::fcntl(fd, libc::F_SETLEASE, libc::F_UNLCK) };
+        return Ok(false);
+    }
+    let e = io::Error::last_os_error();
+    match e.raw_os_error() {
+        Some(libc::EAGAIN) | Some(libc::EBUSY) => Ok(true),
+        _ => Err(e),
+    }
+}
+
+/// Takes ownership of a descriptor the service manager passed to this process (LISTEN_FDS).
+/// The caller must have it from `sd_notify::listen_fds_with_names(true)`, which checked that
+/// LISTEN_PID is ours and unset the variables, so that nothing else takes it.
+pub fn adopt_listen_fd(raw: RawFd) -> OwnedFd {
+    use std::os::fd::FromRawFd;
+    // SAFETY: per the contract above, the descriptor is open, was passed to this process and
+    // is owned by nobody else in it: we own it from here on.
+    unsafe { OwnedFd::from_raw_fd(raw) }
 }

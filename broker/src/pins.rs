@@ -16,7 +16,7 @@
 //! port and the new one together would exceed [`PIN_BUDGET_FACTOR`] x `--max-port-bytes`.
 
 use std::fs::File;
-use std::os::fd::AsRawFd;
+use std::os::fd::AsFd;
 
 /// Budget of pinned port memory for other users' Acquires, as a multiple of the largest port.
 pub const PIN_BUDGET_FACTOR: u64 = 2;
@@ -78,20 +78,7 @@ impl Ledger {
 
 /// Whether another open file (a reader's descriptor or mapping) refers to `file`'s inode.
 fn held_elsewhere(file: &File) -> std::io::Result<bool> {
-    let fd = file.as_raw_fd();
-    // SAFETY: fcntl(F_SETLEASE) on a descriptor we own, with an int argument; no memory is
-    // passed. The lease is released at once below (a write lease exists only while no one
-    // else has the file open, so nobody can be waiting to break it).
-    if unsafe { libc::fcntl(fd, libc::F_SETLEASE, libc::F_WRLCK) } == 0 {
-        // SAFETY: as above.
-        unsafe { libc::fcntl(fd, libc::F_SETLEASE, libc::F_UNLCK) };
-        return Ok(false);
-    }
-    let e = std::io::Error::last_os_error();
-    match e.raw_os_error() {
-        Some(libc::EAGAIN) | Some(libc::EBUSY) => Ok(true),
-        _ => Err(e),
-    }
+    crate::os::held_elsewhere(file.as_fd())
 }
 
 #[cfg(test)]
@@ -120,14 +107,14 @@ mod tests {
     #[test]
     fn a_memfd_port_is_pinned_while_a_reader_holds_its_own_descriptor_or_mapping() {
         // As bassd hands a memfd port out: every reader gets its own read-only description
-        // (bassclient::memfd::reopen_read_only), which the lease sees like a file's reader.
-        let port = bassclient::memfd::create("pins-test", 8192).unwrap();
-        bassclient::memfd::seal(&port).unwrap();
-        let reader = File::from(bassclient::memfd::reopen_read_only(&port).unwrap());
+        // (bassport::memfd::reopen_read_only), which the lease sees like a file's reader.
+        let port = bassport::memfd::create("pins-test", 8192).unwrap();
+        bassport::memfd::seal(&port).unwrap();
+        let reader = File::from(bassport::memfd::reopen_read_only(&port).unwrap());
         let map = unsafe_free_map(&reader);
         drop(reader);
         let mut l = Ledger::default();
-        l.add(File::from(bassclient::memfd::reopen_read_only(&port).unwrap()), 8192);
+        l.add(File::from(bassport::memfd::reopen_read_only(&port).unwrap()), 8192);
         drop(port); // the writer is gone (its descriptor and mapping)
         assert_eq!(l.prune(), 8192, "a reader's mapping of the memfd still pins it");
         drop(map);

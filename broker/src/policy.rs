@@ -17,7 +17,7 @@
 //!
 //! Everything else is refused before anything is touched, with the reason named.
 
-use bassclient::control::DeviceInfo;
+use bassport::control::DeviceInfo;
 
 /// Card-reference PCMs a client may always name (with plain arguments).
 pub const CARD_PCMS: [&str; 5] = ["hw", "plughw", "dsnoop", "sysdefault", "default"];

@@ -7,13 +7,13 @@
 //! running acquisition stopped first (a device can usually be opened once); that failure
 //! leaves the port in the Error state with the message.
 
-use bassclient::control::AcquireRequest;
-use bassclient::format::{Geometry, DEVICE_LEN};
+use bassport::control::AcquireRequest;
+use bassport::format::{Geometry, DEVICE_LEN};
 
 use crate::convert::SampleFormat;
 use crate::device::sim::{SimKind, DEVICES};
 
-pub use bassclient::args::MAX_SAMPLE_RATE;
+pub use basskit::args::MAX_SAMPLE_RATE;
 
 /// Operator-set bounds a client's Acquire cannot exceed (bassd `--min-chunk-us`,
 /// `--max-rate`, `--max-channels`, `--max-window-s`). The defaults keep the capture

@@ -15,9 +15,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::Context;
-use bassclient::control::{Reply, Request, Status};
-use bassclient::format::{error_code, State};
-use bassclient::sys::monotonic_ns;
+use bassport::control::{Reply, Request, Status};
+use bassport::format::{error_code, State};
+use bassport::sys::monotonic_ns;
 
 use crate::capture::Acquisition;
 use crate::device;

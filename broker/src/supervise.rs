@@ -17,9 +17,9 @@
 
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom, Write};
-use std::os::fd::{AsFd, FromRawFd, OwnedFd};
+use std::os::fd::{AsFd, OwnedFd};
 
-use bassclient::control::AcquireRequest;
+use bassport::control::AcquireRequest;
 use sd_notify::NotifyState;
 use serde::{Deserialize, Serialize};
 
@@ -153,10 +153,8 @@ impl Supervisor {
         };
         let (mut port, mut state) = (None, None);
         for (raw, fd_name) in fds {
-            // SAFETY: the service manager passed this descriptor to this process (LISTEN_PID
-            // is ours, checked by listen_fds_with_names, which also unset the variables, so
-            // nothing else takes it): we own it from here on.
-            let fd = unsafe { OwnedFd::from_raw_fd(raw) };
+            // From listen_fds_with_names(true): passed to this process, the variables unset.
+            let fd = crate::os::adopt_listen_fd(raw);
             match fd_name.as_str() {
                 PORT_FD_NAME if port.is_none() => port = Some(File::from(fd)),
                 STATE_FD_NAME if state.is_none() => state = Some(File::from(fd)),

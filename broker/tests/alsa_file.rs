@@ -11,7 +11,7 @@ use std::os::fd::AsRawFd;
 use std::path::Path;
 
 use bass_test_support::*;
-use bassclient::testsignal::pattern_sample;
+use basskit::testsignal::pattern_sample;
 
 const NFPC: u32 = 441;
 const CHUNKS: u64 = 10;

@@ -6,8 +6,8 @@
 use std::time::{Duration, Instant};
 
 use bass_test_support::*;
-use bassclient::format::{error_code, State};
-use bassclient::{Error, Port};
+use bassport::format::{error_code, State};
+use bassport::{Error, Port};
 
 const RATE: u32 = 48000;
 

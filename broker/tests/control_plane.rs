@@ -5,10 +5,10 @@ use std::os::fd::AsFd;
 use std::process::Command;
 
 use bass_test_support::*;
-use bassclient::control;
-use bassclient::format::State;
-use bassclient::testsignal::pattern_sample;
-use bassclient::Error;
+use basskit::testsignal::pattern_sample;
+use bassport::control;
+use bassport::format::State;
+use bassport::Error;
 
 #[test]
 fn every_service_works_through_the_socket() {
@@ -219,7 +219,7 @@ fn sigterm_stops_the_capture_marks_the_port_stopped_and_removes_the_socket() {
         wait_frame(&port, 80);
         let waiter = std::thread::spawn({
             let path = b.port_path();
-            move || bassclient::Port::open_path(&path).unwrap().wait(u64::MAX >> 8, PATIENCE)
+            move || bassport::Port::open_path(&path).unwrap().wait(u64::MAX >> 8, PATIENCE)
         });
         b.signal(sig);
         assert!(b.wait_exit().success());
@@ -401,7 +401,7 @@ fn idle_control_connections_are_closed_and_clients_reconnect() {
 /// event: it would end on some interrupting Acquires and not others).
 #[test]
 fn interrupting_acquires_are_each_one_restarted_and_never_a_stopped() {
-    use bassclient::stream::{Config, Control, Stream};
+    use bassport::stream::{Config, Control, Stream};
     use std::sync::{Arc, Mutex};
     let dir = TempDir::new("interrupt");
     let b = Bassd::start(dir.path(), "default", &[], &[]);

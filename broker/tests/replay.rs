@@ -8,9 +8,9 @@
 use std::path::Path;
 
 use bass_test_support::*;
-use bassclient::format::{chunk_flags, error_code, State};
-use bassclient::testsignal::pattern_sample;
-use bassclient::Error;
+use basskit::testsignal::pattern_sample;
+use bassport::format::{chunk_flags, error_code, State};
+use bassport::Error;
 
 fn wav_channels(path: &Path) -> Vec<Vec<i32>> {
     let mut r = hound::WavReader::open(path).unwrap();
@@ -157,7 +157,7 @@ fn a_relative_replay_path_is_refused_as_relative_and_bass_acquire_resolves_it() 
 }
 
 /// Waits until the replay on `port` has ended; returns its message.
-fn replay_end(port: &bassclient::Port) -> String {
+fn replay_end(port: &bassport::Port) -> String {
     let deadline = std::time::Instant::now() + PATIENCE;
     loop {
         let info = port.info().unwrap();
@@ -243,7 +243,7 @@ fn another_chunk_size_or_a_sidecar_that_disagrees_is_refused_by_name() {
     wait_frame(&port, 800);
     assert_eq!(read_frames(&port, 1, 800)[0][799], pattern_sample(800, 0));
     // A sidecar claiming a loss outside its file.
-    let side = bassclient::sidecar::path_of(&wav);
+    let side = basskit::sidecar::path_of(&wav);
     let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(&side).unwrap()).unwrap();
     v["losses"] = serde_json::json!([{"first_frame": 700, "frames": 500}]);
     v["recording"]["lost_frames"] = serde_json::json!(500);
@@ -257,8 +257,8 @@ fn another_chunk_size_or_a_sidecar_that_disagrees_is_refused_by_name() {
 /// 8000 Hz, 100-frame chunks, the audio `runs` (first frame, chunks, frames lost before it;
 /// sample = frame index) and `frames` frames in all from frame 1 (the rest lost at the end).
 fn mcap_recording(dir: &Path, name: &str, runs: &[(u64, u64, u64)], frames: u64) -> std::path::PathBuf {
-    use bassclient::ros2::{self, AudioDataStamped, ChunkInfo, Header, Time};
-    use bassclient::sidecar::{Acquisition, Lost, Recording, Sidecar};
+    use basskit::ros2::{self, AudioDataStamped, ChunkInfo, Header, Time};
+    use basskit::sidecar::{Acquisition, Lost, Recording, Sidecar};
     use std::collections::BTreeMap;
     let mut w = mcap::WriteOptions::new()
         .profile("ros2")
@@ -350,7 +350,7 @@ fn mcap_recording(dir: &Path, name: &str, runs: &[(u64, u64, u64)], frames: u64)
 /// Reads the port from frame 1 until the replay has ended and every frame is read: the
 /// frames delivered (checked: sample = frame index) and the loss reported, as (first frame
 /// of a block after a loss, loss) pairs and the frames delivered.
-fn read_to_the_end(port: &bassclient::Port) -> (Vec<(u64, u64)>, Vec<u64>) {
+fn read_to_the_end(port: &bassport::Port) -> (Vec<(u64, u64)>, Vec<u64>) {
     let (mut out, mut nfr, mut losses, mut got) = (vec![0; 20_000], 1u64, Vec::new(), Vec::new());
     let deadline = std::time::Instant::now() + PATIENCE;
     loop {

@@ -2,9 +2,9 @@
 //! timestamps, overrun gap filling, the stall watchdog and device loss.
 
 use bass_test_support::*;
-use bassclient::format::{chunk_flags, error_code, State};
-use bassclient::testsignal::pattern_sample;
-use bassclient::Error;
+use basskit::testsignal::pattern_sample;
+use bassport::format::{chunk_flags, error_code, State};
+use bassport::Error;
 
 #[test]
 fn pattern_frames_arrive_exactly_with_nominal_timestamps() {

@@ -12,10 +12,10 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use bass_test_support::*;
-use bassclient::control::OpenedPort;
-use bassclient::format::{chunk_flags, error_code, State};
-use bassclient::testsignal::pattern_sample;
-use bassclient::{Error, Port};
+use basskit::testsignal::pattern_sample;
+use bassport::control::OpenedPort;
+use bassport::format::{chunk_flags, error_code, State};
+use bassport::{Error, Port};
 
 const RATE: u32 = 48_000;
 const NFPC: u32 = 480;
@@ -127,7 +127,7 @@ fn ready(mgr: &mut FakeManager) {
 /// The broker's Status once its acquisition runs: READY comes when the control socket
 /// serves, while the device of the start-up (or taken-back) acquisition may still be opening
 /// (Status shows epoch 0 until then).
-fn acquired(b: &Bassd) -> bassclient::control::Status {
+fn acquired(b: &Bassd) -> bassport::control::Status {
     let t0 = Instant::now();
     loop {
         let st = b.client().status().unwrap();
@@ -165,7 +165,7 @@ fn ride_through(backing: &str, kills: &[i32]) -> (Seen, Bassd, TempDir, Vec<Dura
     stored(&mut mgr);
     let port = open(&b);
     let info = port.info().unwrap();
-    assert_eq!(info.version_minor, bassclient::format::VERSION_MINOR);
+    assert_eq!(info.version_minor, bassport::format::VERSION_MINOR);
     wait_frame(&port, info.last_frame_index + u64::from(NFPC));
     let epoch = port.epoch();
     let stop = Arc::new(AtomicBool::new(false));
@@ -358,8 +358,8 @@ enum Seen2 {
 }
 
 /// A callback stream on broker `name`'s port (by name), every event answered "go on".
-fn follow_stream(name: &str) -> (bassclient::stream::StreamHandle, Arc<std::sync::Mutex<Vec<Seen2>>>) {
-    use bassclient::stream::{Config, Control, Stream};
+fn follow_stream(name: &str) -> (bassport::stream::StreamHandle, Arc<std::sync::Mutex<Vec<Seen2>>>) {
+    use bassport::stream::{Config, Control, Stream};
     let port = Arc::new(Port::open(name).expect("open the port by name"));
     let log = Arc::new(std::sync::Mutex::new(Vec::new()));
     let (lb, le) = (log.clone(), log.clone());
@@ -446,14 +446,14 @@ fn check_tiling(log: &[Seen2]) -> (u64, u64) {
 /// (consecutive repeats once), its blocks (epoch, first frame, frames, loss).
 #[derive(Default, Debug)]
 struct DocsReader {
-    codes: Vec<bassclient::ffi::bass_result>,
+    codes: Vec<bassclient::bass_result>,
     blocks: Vec<(u64, u64, u64, u64)>,
 }
 
 /// The reader loop of docs/c-api.md, "Reading", call for call through the C ABI (N = one
 /// chunk), until `stop`.
 fn docs_reader(name: &str, stop: Arc<AtomicBool>, seen: Arc<std::sync::Mutex<DocsReader>>) -> JoinHandle<()> {
-    use bassclient::ffi::*;
+    use bassclient::*;
     let name = std::ffi::CString::new(name).unwrap();
     std::thread::spawn(move || {
         const N: usize = NFPC as usize;
@@ -554,8 +554,7 @@ fn a_waiting_stream_and_the_docs_reader_follow_a_resume_after_the_restart_grace(
     b.wait_exit();
     // The grace passes: both readers are told the writer is gone, and wait on.
     eventually("WriterGone on the stream and the docs reader", || {
-        let docs_told =
-            docs.lock().unwrap().codes.contains(&bassclient::ffi::bass_result::BASS_ERR_WRITER_GONE);
+        let docs_told = docs.lock().unwrap().codes.contains(&bassclient::bass_result::BASS_ERR_WRITER_GONE);
         (events(&log).len() == 1 && docs_told).then_some(())
     });
     assert_eq!(events(&log), [format!("WriterGone {{ pid: {pid} }}")]);
@@ -581,7 +580,7 @@ fn a_waiting_stream_and_the_docs_reader_follow_a_resume_after_the_restart_grace(
     assert_eq!(zeros, info.gap_frames, "zero frames delivered vs the port's gap_frames");
     assert!(info.gap_frames > 0);
     let d = docs.lock().unwrap();
-    use bassclient::ffi::bass_result::*;
+    use bassclient::bass_result::*;
     assert_eq!(
         d.codes.iter().filter(|&&c| c != BASS_ERR_TIMEOUT).copied().collect::<Vec<_>>(),
         [BASS_ERR_WRITER_GONE]
@@ -631,7 +630,7 @@ fn a_waiting_stream_and_the_docs_reader_follow_a_stalled_device_through_its_rest
     eventually("the second stall", || (device(&log) == 2).then_some(()));
     eventually("the docs reader past the second stall", || {
         let c = &docs.lock().unwrap().codes;
-        (c.iter().filter(|&&c| c == bassclient::ffi::bass_result::BASS_ERR_DEVICE).count() == 2).then_some(())
+        (c.iter().filter(|&&c| c == bassclient::bass_result::BASS_ERR_DEVICE).count() == 2).then_some(())
     });
     stop.store(true, Ordering::Release);
     reader.join().unwrap();
@@ -649,7 +648,7 @@ fn a_waiting_stream_and_the_docs_reader_follow_a_stalled_device_through_its_rest
     // Half a second of the pattern in each run, the stalls' silence as GAP in between.
     assert!(blocks_after(&std::sync::Mutex::new(log.clone()), "Resumed") >= 40);
     let d = docs.lock().unwrap();
-    use bassclient::ffi::bass_result::*;
+    use bassclient::bass_result::*;
     let codes: Vec<_> = d.codes.iter().filter(|&&c| c != BASS_ERR_TIMEOUT).copied().collect();
     assert_eq!(codes, [BASS_ERR_DEVICE, BASS_ERR_DEVICE], "{:?}", d.codes);
     assert_eq!(check_docs_tiling(&d), 0);
@@ -692,7 +691,7 @@ fn a_memfd_successor_that_did_not_take_the_port_back_is_a_new_epoch_readers_foll
     let (lost, _) = check_tiling(&log);
     assert_eq!(lost, 0, "the new acquisition from its first frame, nothing of it lost");
     let d = docs.lock().unwrap();
-    use bassclient::ffi::bass_result::*;
+    use bassclient::bass_result::*;
     let codes: Vec<_> = d.codes.iter().filter(|&&c| c != BASS_ERR_TIMEOUT).copied().collect();
     assert_eq!(codes, [BASS_ERR_RESTARTED], "{:?}", d.codes);
     check_docs_tiling(&d);
@@ -704,7 +703,7 @@ fn a_memfd_successor_that_did_not_take_the_port_back_is_a_new_epoch_readers_foll
 /// layout definition).
 fn grace_in(path: &std::path::Path) -> u32 {
     let bytes = std::fs::read(path).unwrap();
-    let at = std::mem::offset_of!(bassclient::format::Header, restart_grace_ms);
+    let at = std::mem::offset_of!(bassport::format::Header, restart_grace_ms);
     u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap())
 }
 
@@ -796,7 +795,7 @@ fn a_forged_store_a_port_at_frame_2_62_is_refused_at_take_back() {
     wait_frame(&open(&b), 1);
     b.signal(libc::SIGKILL);
     b.wait_exit();
-    let at = std::mem::offset_of!(bassclient::format::Header, last_frame_index) as u64;
+    let at = std::mem::offset_of!(bassport::format::Header, last_frame_index) as u64;
     let f = std::fs::OpenOptions::new().write(true).open(b.port_path()).unwrap();
     std::os::unix::fs::FileExt::write_all_at(&f, &(1u64 << 62).to_le_bytes(), at).unwrap();
     let b2 = start(dir.path(), "forgedfar", &mgr, &ACQUIRE, mgr.handed());

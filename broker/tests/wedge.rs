@@ -8,8 +8,8 @@
 use std::time::{Duration, Instant};
 
 use bass_test_support::*;
-use bassclient::control::Client;
-use bassclient::format::{error_code, State};
+use bassport::control::Client;
+use bassport::format::{error_code, State};
 
 /// SIGTERM must end bassd within this (the goal is 1 s; the bound leaves room for a loaded
 /// 2-core test machine, and the measured time is printed).

@@ -5,9 +5,9 @@ use std::io::Write;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use bassclient::control::Client;
-use bassclient::paths::DEFAULT_NAME;
-use bassclient::{Error, Port};
+use bassport::control::Client;
+use bassport::paths::DEFAULT_NAME;
+use bassport::{Error, Port};
 use clap::{CommandFactory, Parser, Subcommand};
 use serde_json::json;
 
@@ -17,7 +17,7 @@ use crate::meter::{self, MeterArgs};
 use crate::out::{self, note, outln};
 use crate::plot::{self, PlotArgs};
 use crate::record::{self, RecordArgs};
-use bassclient::args::{parse_seconds, AcquireArgs};
+use basskit::args::{parse_seconds, AcquireArgs};
 
 const EXIT_CODES: &str = "\
 Exit codes: 0 success; 1 other failure; 2 usage error (or a request the broker refused as
@@ -160,7 +160,7 @@ fn explain(e: Error, name: &str, device: Option<&str>) -> anyhow::Error {
 /// Runs one parsed command line.
 pub fn run(cli: &Cli) -> Result<()> {
     let name = cli.name.as_str();
-    bassclient::paths::check_name(name).map_err(|e| Exit::new(exit::USAGE, format!("--name: {e}")))?;
+    bassport::paths::check_name(name).map_err(|e| Exit::new(exit::USAGE, format!("--name: {e}")))?;
     let timeout = Duration::from_secs_f64(cli.timeout);
     match &cli.command {
         Command::Devices { json } => {
@@ -198,7 +198,7 @@ pub fn run(cli: &Cli) -> Result<()> {
 }
 
 fn acquire(name: &str, a: &AcquireCmd, timeout: Duration) -> Result<()> {
-    let default = bassclient::control::AcquireRequest::default().device;
+    let default = bassport::control::AcquireRequest::default().device;
     let device = a.device.as_deref().or(a.device_opt.as_deref()).unwrap_or(&default);
     let req = a.params.request(device).map_err(|m| Exit::new(exit::USAGE, m))?;
     let t0 = Instant::now();
@@ -226,9 +226,9 @@ fn acquire(name: &str, a: &AcquireCmd, timeout: Duration) -> Result<()> {
 
 /// The port a broker reported: its path, or (a `--port-backing memfd` broker, whose port has
 /// no file there) the port by name, handed over by the broker.
-fn open_reported(path: &std::path::Path, name: &str) -> bassclient::Result<Port> {
+fn open_reported(path: &std::path::Path, name: &str) -> bassport::Result<Port> {
     match Port::open_path(path) {
-        Err(bassclient::Error::NotFound { .. }) => Port::open(name),
+        Err(bassport::Error::NotFound { .. }) => Port::open(name),
         other => other,
     }
 }

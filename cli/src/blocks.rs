@@ -10,13 +10,13 @@
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
-use bassclient::format::{chunk_flags, State};
-use bassclient::{Error, Port};
+use bassport::format::{chunk_flags, State};
+use bassport::{Error, Port};
 use serde::Serialize;
 
 use crate::follow::{after_stop, open_port, AfterStop, Outage};
 use crate::out::outln;
-use bassclient::args::parse_seconds;
+use basskit::args::parse_seconds;
 
 /// Largest block (frames per channel) `--block` accepts.
 pub const MAX_BLOCK: u64 = 1 << 24;

@@ -15,7 +15,7 @@
 
 use std::fmt;
 
-use bassclient::Error;
+use bassport::Error;
 
 /// Success.
 pub const OK: i32 = 0;

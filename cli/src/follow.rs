@@ -10,9 +10,9 @@
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
-use bassclient::control::Client;
-use bassclient::format::State;
-use bassclient::{Error, Port};
+use bassport::control::Client;
+use bassport::format::State;
+use bassport::{Error, Port};
 
 use crate::exit::{self, Exit};
 use crate::out::note;

@@ -1,7 +1,7 @@
 //! `bass`, the command-line tool of the bass broker, as a library (the binary and the
 //! integration tests are thin layers over it). It talks to `bassd` only through the control
-//! protocol and the port, both in `bassclient`; the Acquire options it shares with `bassd`
-//! are `bassclient::args::AcquireArgs`.
+//! protocol and the port, both in `bassport`; the Acquire options it shares with `bassd`
+//! are `basskit::args::AcquireArgs`.
 //!
 //! - [`bass`]: the `bass` command line and its dispatch (devices, acquire, stop, status,
 //!   completions);
@@ -13,6 +13,7 @@
 //! - [`wav`]: the WAV writer, header parser and repair of `bass record`;
 //! - [`exit`]: the documented exit codes and how errors map onto them;
 //! - [`out`]: stdout and stderr as Unix tools use them (a closed pipe ends a command quietly).
+#![forbid(unsafe_code)]
 
 pub mod bass;
 pub mod blocks;

@@ -8,13 +8,13 @@ use std::io::IsTerminal;
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
-use bassclient::Error;
+use bassport::Error;
 use serde::Serialize;
 
 use crate::blocks::{dbfs, gaps_in, levels};
 use crate::follow::{after_stop, open_port, AfterStop, Outage};
 use crate::out::{self, note, outln};
-use bassclient::args::parse_seconds;
+use basskit::args::parse_seconds;
 
 /// A peak at or above this (dBFS) counts as clipping.
 pub const CLIP_DBFS: f64 = -0.01;

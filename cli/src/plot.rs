@@ -7,12 +7,12 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
-use bassclient::format::chunk_flags;
+use bassport::format::chunk_flags;
 use plotters::prelude::*;
 
 use crate::exit::{self, Exit};
 use crate::follow::open_port;
-use bassclient::args::parse_seconds;
+use basskit::args::parse_seconds;
 
 /// Width of the picture (pixels).
 const WIDTH: u32 = 1200;

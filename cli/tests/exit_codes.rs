@@ -81,7 +81,7 @@ fn a_port_that_does_not_fit_in_the_port_directory_is_refused_with_exit_2_and_the
     assert_eq!(code(&o), exit::USAGE, "a full port directory is a refusal: {t}");
     assert!(t.contains("needs") && t.contains("MiB") && t.contains("free"), "names the sizes: {t}");
     let s = b.client().status().unwrap();
-    assert_eq!((s.epoch, s.state), (a.epoch, bassclient::format::State::Capturing as u32), "{s:?}");
+    assert_eq!((s.epoch, s.state), (a.epoch, bassport::format::State::Capturing as u32), "{s:?}");
     drop(b);
 }
 

@@ -12,8 +12,8 @@ use std::time::Instant;
 
 use bass_cli::record::convert;
 use bass_test_support::*;
-use bassclient::format::chunk_flags;
-use bassclient::testsignal::pattern_sample;
+use basskit::testsignal::pattern_sample;
+use bassport::format::chunk_flags;
 use serde_json::Value;
 
 /// The samples of a WAV file, per channel.

@@ -8,7 +8,7 @@ use std::path::Path;
 use std::process::{Command, Output, Stdio};
 
 use bass_test_support::*;
-use bassclient::testsignal::pattern_sample;
+use basskit::testsignal::pattern_sample;
 use serde_json::Value;
 
 /// Reads an MCAP recording of sim:pattern with PyPI `mcap` (its seeking reader, which reads a

@@ -1,446 +1,257 @@
-//! The port writer: creates a port (a file in the runtime directory, or a sealed memfd, see
-//! [`crate::memfd`]) and publishes chunks into it.
-//!
-//! Used by the broker, and through the C ABI by simulators and test rigs.
+//! C ABI of the port writer, for simulators and test rigs: create, publish, set state, close.
+//! Conventions in [`super`].
 
-use std::fs::File;
-use std::os::fd::OwnedFd;
-use std::path::{Path, PathBuf};
-use std::sync::atomic::Ordering::{Relaxed, Release};
-use std::sync::Arc;
+use std::ffi::c_char;
+use std::sync::{Arc, Mutex};
 
-use crate::error::{Error, Result};
-use crate::format::{self, ChunkEntry, Geometry, Header, Layout, State};
-use crate::memfd;
-use crate::paths;
-use crate::portfile;
-use crate::ring::{Ring, Source};
-use crate::shm::Mapping;
-use crate::sys;
-use crate::waker::Waker;
+use super::bass_result;
+use super::{boundary, c_str, nonnull, nonnull_mut, put, Failure, Registry};
+use bassport::error::Error;
+use bassport::format::{self, chunk_flags, Geometry, State};
+use bassport::ring::Source;
+use bassport::writer::{ChunkMeta, PortParams, Writer};
 
-mod pending;
-mod replica;
-mod resume;
-
-pub use pending::PendingPort;
-use pending::{split_port_path, Place, Previous};
-
-/// Parameters of a new port.
-#[derive(Clone, Debug)]
-pub struct PortParams {
-    /// Geometry (channels, rate, nFPC, nCOP).
-    pub geometry: Geometry,
-    /// Device name recorded in the header.
-    pub device: String,
-    /// Group owning the file (mode 0640), if not the creator's.
-    pub group: Option<u32>,
+/// Opaque handle of a port writer.
+pub struct bass_writer {
+    _private: [u8; 0],
 }
 
-/// Timestamps and flags of a chunk.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct ChunkMeta {
-    /// CLOCK_MONOTONIC (ns) of the chunk's first frame; 0 = now.
+/// Timestamps and flags given with a published chunk (0 timestamps mean "now").
+#[repr(C)]
+pub struct bass_chunk_meta {
+    /// CLOCK_MONOTONIC (ns) of the chunk's first frame.
     pub mono_ns: u64,
-    /// CLOCK_REALTIME (ns) of the chunk's first frame; 0 = now.
+    /// CLOCK_REALTIME (ns) of the chunk's first frame.
     pub realtime_ns: u64,
-    /// [`format::chunk_flags`].
+    /// `BASS_CHUNK_*` flags.
     pub flags: u32,
 }
 
-/// What holds a port's memory.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Backing {
-    /// A file in the runtime directory: readers open it by path; it outlives its writer, so
-    /// the last window can be read after a broker crash. Readers check its size on every
-    /// call (a shrunk file would kill them with SIGBUS).
-    File,
-    /// A sealed memfd (see [`crate::memfd`]): no path; readers get a descriptor from the
-    /// broker; its size cannot change, so readers skip the size check; it lives only while
-    /// a writer or a reader holds it.
-    Memfd,
+static WRITERS: Registry<Mutex<Writer>> = Registry::new();
+
+fn writer(w: *mut bass_writer) -> Result<Arc<Mutex<Writer>>, Failure> {
+    WRITERS.get(nonnull_mut(w, "writer")? as usize)
 }
 
-/// Writes one port. One writer per port; not shareable between threads without a lock.
-pub struct Writer {
-    mapping: Arc<Mapping>,
-    waker: Waker,
-    file: File,
-    backing: Backing,
-    path: PathBuf,
-    geometry: Geometry,
-    layout: Layout,
-    epoch: u64,
-    /// Left to a successor ([`Writer::leave_to_successor`]): dropping it changes nothing.
-    handed_over: bool,
+/// Creates the port `name` for writing (mode 0640, in `$BASS_RUNTIME_DIR` or /dev/shm),
+/// replacing a port of that name whose writer is gone or is this process. Readers of the
+/// replaced port get `BASS_ERR_RESTARTED`. The geometry comes in the order of
+/// `bass_acquire`: sample rate, nFramesPerChunk, nChunksOnPort, channels.
+///
+/// # Safety
+/// `name` and `device` (may be NULL) must be NUL-terminated; `out_writer` valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn bass_writer_create(
+    name: *const c_char,
+    device: *const c_char,
+    sample_rate: u32,
+    frames_per_chunk: u32,
+    chunks_on_port: u32,
+    channels: u32,
+    out_writer: *mut *mut bass_writer,
+) -> bass_result {
+    boundary("bass_writer_create", || {
+        // SAFETY: forwarded caller guarantee.
+        let name = unsafe { c_str(name, "name") }?;
+        // SAFETY: forwarded caller guarantee.
+        let device = if device.is_null() { "" } else { unsafe { c_str(device, "device") }? };
+        let out = nonnull_mut(out_writer, "out_writer")?;
+        let params = PortParams {
+            geometry: Geometry { channels, sample_rate, frames_per_chunk, chunks_on_port },
+            device: device.to_owned(),
+            group: None,
+        };
+        let id = WRITERS.insert(Mutex::new(Writer::create(name, &params)?));
+        // SAFETY: checked non-null; caller guarantees validity.
+        unsafe { put(out, id as *mut bass_writer) };
+        Ok(())
+    })
 }
 
-impl Writer {
-    /// Creates the port `name` in the runtime directory (see [`paths::runtime_dir`]).
-    pub fn create(name: &str, params: &PortParams) -> Result<Writer> {
-        Writer::prepare(name, params)?.commit()
+/// # Safety
+/// `meta` must be NULL or valid for a read.
+unsafe fn meta_from(meta: *const bass_chunk_meta) -> ChunkMeta {
+    if meta.is_null() {
+        return ChunkMeta::default();
     }
+    // SAFETY: non-null; caller guarantees validity.
+    let m = unsafe { &*meta };
+    ChunkMeta { mono_ns: m.mono_ns, realtime_ns: m.realtime_ns, flags: m.flags }
+}
 
-    /// Creates a port file at `path`, replacing (and marking superseded) any port there.
-    ///
-    /// The file is built under a temporary name and renamed into place, and its version is
-    /// written last, so no reader ever sees a half-initialised header.
-    ///
-    /// Create a writer, publish (a simulator or test rig; the broker is the writer in
-    /// production):
-    ///
-    /// ```
-    /// use bassclient::format::chunk_flags;
-    /// use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, State, Writer};
-    /// # let dir = std::env::temp_dir().join(format!("bass-doc-create-{}", std::process::id()));
-    /// # std::fs::create_dir_all(&dir).unwrap();
-    /// let path = dir.join("bass-sim.port");
-    /// let geometry = Geometry { channels: 2, sample_rate: 48000, frames_per_chunk: 480, chunks_on_port: 10 };
-    /// let params = PortParams { geometry, device: "sim".into(), group: None };
-    /// let mut w = Writer::create_at(&path, &params)?;
-    /// assert_eq!((w.state(), w.last_frame_index(), w.epoch()), (State::Starting, 0, 1));
-    ///
-    /// let chunk = vec![7i32; 480 * 2]; // frame-interleaved: L R L R ...
-    /// assert_eq!(w.publish(Source::Interleaved(&chunk), ChunkMeta::default())?, 480);
-    /// let gap = ChunkMeta { flags: chunk_flags::GAP, ..ChunkMeta::default() };
-    /// assert_eq!(w.publish(Source::Interleaved(&vec![0; 960]), gap)?, 960);
-    ///
-    /// let info = Port::open_path(&path)?.info()?;
-    /// assert_eq!((info.state, info.last_frame_index, info.chunks_published), (Some(State::Capturing), 960, 2));
-    /// w.remove()?;
-    /// # std::fs::remove_dir_all(&dir).ok();
-    /// # Ok::<(), bassclient::Error>(())
-    /// ```
-    pub fn create_at(path: &Path, params: &PortParams) -> Result<Writer> {
-        Writer::prepare_at(path, params)?.commit()
+fn publish(w: *mut bass_writer, src: Source<'_>, meta: ChunkMeta, out_lfi: *mut u64) -> Result<(), Failure> {
+    let w = writer(w)?;
+    let lfi = w.lock().unwrap_or_else(|e| e.into_inner()).publish(src, meta)?;
+    if !out_lfi.is_null() {
+        // SAFETY: non-null; the exporting function's caller guarantees validity.
+        unsafe { put(out_lfi, lfi) };
     }
+    Ok(())
+}
 
-    /// Builds the port `name` without publishing it: see [`Writer::prepare_at`].
-    pub fn prepare(name: &str, params: &PortParams) -> Result<PendingPort> {
-        Writer::prepare_at(&paths::port_path(name)?, params)
-    }
+/// Publishes one chunk of interleaved samples (`n_samples` = nFramesPerChunk × channels).
+/// `meta` (NULL: now, no flags) gives its timestamps; `*out_last_frame_index` (if not NULL)
+/// receives the new last frame index.
+///
+/// # Safety
+/// `samples` must be valid for `n_samples` reads; `meta` NULL or valid; `out_last_frame_index`
+/// NULL or valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn bass_writer_publish_interleaved(
+    writer: *mut bass_writer,
+    samples: *const i32,
+    n_samples: usize,
+    meta: *const bass_chunk_meta,
+    out_last_frame_index: *mut u64,
+) -> bass_result {
+    boundary("bass_writer_publish_interleaved", || {
+        let samples = nonnull(samples, "samples")?;
+        // SAFETY: non-null; caller guarantees `n_samples` readable samples.
+        let s = unsafe { std::slice::from_raw_parts(samples, n_samples) };
+        // SAFETY: forwarded caller guarantee.
+        let meta = unsafe { meta_from(meta) };
+        publish(writer, Source::Interleaved(s), meta, out_last_frame_index)
+    })
+}
 
-    /// Builds a complete port file for `path` under a temporary name — checked against the
-    /// free space, wholly allocated, header written except its epoch and version — and
-    /// touches nothing else: any port at `path` is only inspected. The broker prepares the
-    /// new port before it stops the old acquisition, so an Acquire that cannot have its port
-    /// fails with the old one intact. [`PendingPort::commit`] publishes it; dropping the
-    /// pending port removes the temporary file.
-    pub fn prepare_at(path: &Path, params: &PortParams) -> Result<PendingPort> {
-        let geometry = params.geometry.clone();
-        let layout = geometry.layout()?;
-        let (dir_path, name) = split_port_path(path)?;
-        let dir = portfile::open_dir(&dir_path)?;
-        let previous = Previous::inspect(&dir, &name, path)?;
-        portfile::remove_stale_temps(&dir, &dir_path, &name);
-        portfile::check_space(&dir, &dir_path, layout.total_size)?;
-        let (tmp_name, file) = portfile::create_temp(&dir, &dir_path, &name)?;
-        let mut pending = PendingPort {
-            place: Place::File { dir, dir_path, name, tmp_name: Some(tmp_name) },
-            path: path.to_owned(),
-            file,
-            mapping: None,
-            geometry,
-            layout,
-            previous,
-            after: None,
-        };
-        pending.build(params)?;
-        Ok(pending)
-    }
-
-    /// Builds the port `name` as a sealed memfd (see [`crate::memfd`]) without publishing it.
-    ///
-    /// Nothing is created in the runtime directory. The epoch continues from
-    /// `previous_epoch` (the port of the same name this one replaces, which the caller holds
-    /// and marks superseded) or from a port file of that name left there, whichever is
-    /// newer; [`PendingPort::commit`] marks such a left-over file superseded and removes it,
-    /// so that no reader opening the name by path finds a port that will never move again.
-    pub fn prepare_memfd(
-        name: &str,
-        params: &PortParams,
-        previous_epoch: Option<u64>,
-    ) -> Result<PendingPort> {
-        Writer::prepare_memfd_sealed(name, params, previous_epoch, false)
-    }
-
-    /// [`Writer::prepare_memfd`] for a port a successor may take back ([`Writer::resume`]):
-    /// sealed without `F_SEAL_FUTURE_WRITE`, the memfd's mode 0600 keeping other users from
-    /// reopening a reader's descriptor writable (see [`memfd::seal_resumable`]).
-    pub fn prepare_memfd_resumable(
-        name: &str,
-        params: &PortParams,
-        previous_epoch: Option<u64>,
-    ) -> Result<PendingPort> {
-        Writer::prepare_memfd_sealed(name, params, previous_epoch, true)
-    }
-
-    fn prepare_memfd_sealed(
-        name: &str,
-        params: &PortParams,
-        previous_epoch: Option<u64>,
-        resumable: bool,
-    ) -> Result<PendingPort> {
-        let path = paths::port_path(name)?;
-        let geometry = params.geometry.clone();
-        let layout = geometry.layout()?;
-        let (dir_path, file_name) = split_port_path(&path)?;
-        // A left-over port file (of a file-backed run): only looked at, replaced at commit.
-        let dir = portfile::open_dir(&dir_path).ok();
-        let previous = match &dir {
-            Some(d) => Previous::inspect(d, &file_name, &path)?,
-            None => None,
-        };
-        let file = memfd::create(name, layout.total_size)?;
-        let mut pending = PendingPort {
-            place: Place::Memfd { dir, name: file_name, resumable },
-            path,
-            file,
-            mapping: None,
-            geometry,
-            layout,
-            previous,
-            after: previous_epoch,
-        };
-        pending.build(params)?;
-        Ok(pending)
-    }
-
-    /// Path of the port file (for a memfd port: the path a file port of that name would
-    /// have; nothing is there).
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-
-    /// What holds the port's memory.
-    pub fn backing(&self) -> Backing {
-        self.backing
-    }
-
-    /// For a memfd port, a new read-only descriptor of it for one reader (see
-    /// [`memfd::reopen_read_only`]); None for a file port (readers open its path).
-    pub fn reader_fd(&self) -> Result<Option<OwnedFd>> {
-        match self.backing {
-            Backing::File => Ok(None),
-            Backing::Memfd => memfd::reopen_read_only(&self.file).map(Some),
+/// Publishes one chunk given as one array of `n_frames` (= nFramesPerChunk) samples per
+/// channel (`n_channels` = the port's channels).
+///
+/// # Safety
+/// `channels` must point to `n_channels` pointers each valid for `n_frames` reads; `meta`
+/// NULL or valid; `out_last_frame_index` NULL or valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn bass_writer_publish_planar(
+    writer: *mut bass_writer,
+    channels: *const *const i32,
+    n_channels: usize,
+    n_frames: usize,
+    meta: *const bass_chunk_meta,
+    out_last_frame_index: *mut u64,
+) -> bass_result {
+    boundary("bass_writer_publish_planar", || {
+        let channels = nonnull(channels, "channels")?;
+        if n_channels > format::MAX_CHANNELS as usize {
+            return Err(Error::InvalidArgument(format!("n_channels = {n_channels}")).into());
         }
-    }
+        // SAFETY: caller guarantees `n_channels` readable pointers.
+        let ptrs = unsafe { std::slice::from_raw_parts(channels, n_channels) };
+        let mut planes = Vec::with_capacity(n_channels);
+        for (c, &p) in ptrs.iter().enumerate() {
+            if p.is_null() {
+                return Err(Failure::NullAt("channels", c));
+            }
+            // SAFETY: caller guarantees `n_frames` readable samples per channel.
+            planes.push(unsafe { std::slice::from_raw_parts(p, n_frames) });
+        }
+        // SAFETY: forwarded caller guarantee.
+        let meta = unsafe { meta_from(meta) };
+        publish(writer, Source::Planar(&planes), meta, out_last_frame_index)
+    })
+}
 
-    /// The port's geometry.
-    pub fn geometry(&self) -> &Geometry {
-        &self.geometry
-    }
+/// Publishes one zero-filled chunk flagged `BASS_CHUNK_GAP` (frames the device did not
+/// deliver), counted in the header's gap frames.
+///
+/// # Safety
+/// `meta` NULL or valid; `out_last_frame_index` NULL or valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn bass_writer_publish_gap(
+    writer: *mut bass_writer,
+    meta: *const bass_chunk_meta,
+    out_last_frame_index: *mut u64,
+) -> bass_result {
+    boundary("bass_writer_publish_gap", || {
+        // SAFETY: forwarded caller guarantee.
+        let mut meta = unsafe { meta_from(meta) };
+        meta.flags |= chunk_flags::GAP;
+        publish(writer, Source::Zeros, meta, out_last_frame_index)
+    })
+}
 
-    /// The port's layout.
-    pub fn layout(&self) -> &Layout {
-        &self.layout
-    }
+/// Starts a writer that has published nothing yet at frame `first_frame`: its next chunk gets
+/// that index (a replica following another port's frame indices). `first_frame` must start a
+/// chunk: `(first_frame - 1) % nFramesPerChunk == 0`.
+///
+/// # Safety
+/// None beyond passing a value returned by `bass_writer_create` (anything else is reported).
+#[no_mangle]
+pub unsafe extern "C" fn bass_writer_start_at(writer: *mut bass_writer, first_frame: u64) -> bass_result {
+    boundary("bass_writer_start_at", || {
+        let w = self::writer(writer)?;
+        w.lock().unwrap_or_else(|e| e.into_inner()).start_at(first_frame)?;
+        Ok(())
+    })
+}
 
-    /// The acquisition epoch of this port.
-    pub fn epoch(&self) -> u64 {
-        self.epoch
-    }
+/// Publishes `n_frames` (a whole number of chunks) zero-filled frames flagged
+/// `BASS_CHUNK_GAP` that stand for frames lost upstream or on the network; they are counted
+/// in the port's `gap_frames` and `lost_upstream_frames`. A gap longer than the window costs
+/// one window of writes. `*out_last_frame_index` (if not NULL) receives the new last frame.
+///
+/// # Safety
+/// `meta` NULL or valid; `out_last_frame_index` NULL or valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn bass_writer_publish_lost(
+    writer: *mut bass_writer,
+    n_frames: u64,
+    meta: *const bass_chunk_meta,
+    out_last_frame_index: *mut u64,
+) -> bass_result {
+    boundary("bass_writer_publish_lost", || {
+        let w = self::writer(writer)?;
+        // SAFETY: forwarded caller guarantee.
+        let meta = unsafe { meta_from(meta) };
+        let lfi = w.lock().unwrap_or_else(|e| e.into_inner()).publish_lost(n_frames, meta)?;
+        if !out_last_frame_index.is_null() {
+            // SAFETY: non-null; caller guarantees validity.
+            unsafe { put(out_last_frame_index, lfi) };
+        }
+        Ok(())
+    })
+}
 
-    fn header(&self) -> &Header {
-        self.mapping.header()
-    }
-
-    /// Index of the newest published frame.
-    pub fn last_frame_index(&self) -> u64 {
-        self.header().last_frame_index.load(Relaxed)
-    }
-
-    /// Publishes one chunk of nFPC frames. Returns the new last frame index.
-    ///
-    /// The chunk comes frame-interleaved ([`Source::Interleaved`], nFPC × channels samples)
-    /// or as one slice of nFPC samples per channel ([`Source::Planar`]); `meta` carries its
-    /// timestamps (0: now) and [`format::chunk_flags`]. Readers waiting for its frames wake.
-    ///
-    /// ```
-    /// use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
-    /// # let dir = std::env::temp_dir().join(format!("bass-doc-publish-{}", std::process::id()));
-    /// # std::fs::create_dir_all(&dir).unwrap();
-    /// # let path = dir.join("bass-doc.port");
-    /// let geometry = Geometry { channels: 2, sample_rate: 8000, frames_per_chunk: 2, chunks_on_port: 4 };
-    /// let mut w = Writer::create_at(&path, &PortParams { geometry, device: "doc".into(), group: None })?;
-    /// w.publish(Source::Interleaved(&[1, -1, 2, -2]), ChunkMeta::default())?;
-    /// let lfi = w.publish(Source::Planar(&[&[3, 4], &[-3, -4]]), ChunkMeta::default())?;
-    /// assert_eq!(lfi, 4);
-    /// // A chunk of the wrong size is refused, naming the sizes.
-    /// assert!(w.publish(Source::Interleaved(&[1, 2, 3]), ChunkMeta::default()).is_err());
-    ///
-    /// let port = Port::open_path(&path)?;
-    /// let (mut l, mut r, mut nfr) = (vec![0; 4], vec![0; 4], 1);
-    /// port.get_audio_data(4, &mut nfr, &mut [&mut l, &mut r])?;
-    /// assert_eq!((l, r), (vec![1, 2, 3, 4], vec![-1, -2, -3, -4]));
-    /// # drop(port);
-    /// # w.remove()?;
-    /// # std::fs::remove_dir_all(&dir).ok();
-    /// # Ok::<(), bassclient::Error>(())
-    /// ```
-    pub fn publish(&mut self, src: Source<'_>, meta: ChunkMeta) -> Result<u64> {
-        let nfpc = self.geometry.frames_per_chunk as usize;
-        let channels = self.geometry.channels as usize;
-        match &src {
-            Source::Interleaved(s) if s.len() != nfpc * channels => {
+/// Sets the port state (`BASS_STATE_*`), with an error code and message (may be NULL) for
+/// `BASS_STATE_ERROR`, and wakes waiting readers.
+///
+/// # Safety
+/// `message` must be NULL or NUL-terminated.
+#[no_mangle]
+pub unsafe extern "C" fn bass_writer_set_state(
+    writer: *mut bass_writer,
+    state: u32,
+    error_code: u32,
+    message: *const c_char,
+) -> bass_result {
+    boundary("bass_writer_set_state", || {
+        let w = self::writer(writer)?;
+        let st = match State::from_u32(state) {
+            Some(s @ (State::Idle | State::Capturing | State::Stopped | State::Error | State::Starting)) => s,
+            _ => {
                 return Err(Error::InvalidArgument(format!(
-                    "interleaved chunk of {} samples; this port needs {nfpc} frames x {channels} channels = {}",
-                    s.len(),
-                    nfpc * channels
-                )))
+                    "state = {state} (use BASS_STATE_IDLE..BASS_STATE_ERROR or BASS_STATE_STARTING)"
+                ))
+                .into())
             }
-            Source::Planar(p) if p.len() != channels => {
-                return Err(Error::InvalidArgument(format!(
-                    "planar chunk with {} channels; this port has {channels}",
-                    p.len()
-                )))
-            }
-            Source::Planar(p) => {
-                if let Some((c, s)) = p.iter().enumerate().find(|(_, s)| s.len() != nfpc) {
-                    return Err(Error::InvalidArgument(format!(
-                        "planar chunk: channel {c} has {} frames; this port needs {nfpc}",
-                        s.len()
-                    )));
-                }
-            }
-            _ => {}
-        }
-        let h = self.mapping.header();
-        let lfi = h.last_frame_index.load(Relaxed);
-        if lfi + nfpc as u64 > format::MAX_FRAME_INDEX {
-            return Err(Error::InvalidArgument(format!("frame index {lfi} would pass the format's limit")));
-        }
-        let table = self.mapping.chunk_table(&self.layout, self.geometry.chunks_on_port);
-        let entry = &table[((lfi / nfpc as u64) % u64::from(self.geometry.chunks_on_port)) as usize];
-        let ring = Ring {
-            last_frame_index: &h.last_frame_index,
-            write_intent: &h.write_intent,
-            samples: self.mapping.samples(&self.layout, self.geometry.channels),
-            frames_on_port: self.layout.frames_on_port,
         };
-        let now_mono = sys::monotonic_ns();
-        let mono = if meta.mono_ns == 0 { now_mono } else { meta.mono_ns };
-        let real = if meta.realtime_ns == 0 { sys::realtime_ns() } else { meta.realtime_ns };
-        let new_lfi = ring.publish(lfi, nfpc, channels, &src, || {
-            write_entry(entry, lfi + 1, mono, real, meta.flags, nfpc as u32);
-        });
-        h.chunks_published.fetch_add(1, Relaxed);
-        if matches!(src, Source::Zeros) {
-            h.gap_frames.fetch_add(nfpc as u64, Relaxed);
-        }
-        h.heartbeat_mono_ns.store(now_mono, Relaxed);
-        let bits = if matches!(State::from_u32(h.state.load(Relaxed)), Some(State::Idle | State::Starting)) {
-            h.state.store(State::Capturing as u32, Release);
-            u32::MAX
-        } else {
-            sys::chunk_bit(lfi / nfpc as u64)
-        };
-        h.futex.fetch_add(1, Release);
-        self.waker.wake(bits);
-        self.check_intact()?;
-        Ok(new_lfi)
-    }
+        // SAFETY: forwarded caller guarantee.
+        let msg = if message.is_null() { "" } else { unsafe { c_str(message, "message") }? };
+        w.lock().unwrap_or_else(|e| e.into_inner()).set_state(st, error_code, msg);
+        Ok(())
+    })
+}
 
-    /// `Corrupt` if the port file shrank under the writer's (guarded) mapping: the SIGBUS
-    /// guard replaced it with zero pages, so what was published since reaches no reader.
-    pub(crate) fn check_intact(&self) -> Result<()> {
-        if !self.mapping.broken() {
+/// Closes a writer: the port shows `BASS_STATE_STOPPED` (unless in error) and keeps its
+/// frames for readers. NULL does nothing; a second close is `BASS_ERR_INVALID_HANDLE`.
+///
+/// # Safety
+/// None beyond passing a value returned by `bass_writer_create` (anything else is reported).
+#[no_mangle]
+pub unsafe extern "C" fn bass_writer_close(writer: *mut bass_writer) -> bass_result {
+    boundary("bass_writer_close", || {
+        if writer.is_null() {
             return Ok(());
         }
-        Err(Error::Corrupt(format!(
-            "the port file {} shrank under the writer: its mapping was replaced by zero pages \
-             that no reader sees; this port cannot be published any more",
-            self.path.display()
-        )))
-    }
-
-    /// Whether the last wake of the readers was handed to the wake thread (many readers
-    /// waiting) rather than made by the writer itself; see [`crate::waker`].
-    pub fn wakes_through_helper(&self) -> bool {
-        !self.waker.is_direct()
-    }
-
-    /// Sets the state (with an error code and message for [`State::Error`]) and wakes readers.
-    pub fn set_state(&self, state: State, code: u32, message: &str) {
-        let h = self.header();
-        format::write_text(&h.message, message);
-        h.error_code.store(code, Relaxed);
-        h.state.store(state as u32, Release);
-        wake(h);
-    }
-
-    /// The current state.
-    pub fn state(&self) -> State {
-        State::from_u32(self.header().state.load(Relaxed)).unwrap_or(State::Error)
-    }
-
-    /// Counts `n` recovered device overruns.
-    pub fn add_xruns(&self, n: u64) {
-        self.header().xruns.fetch_add(n, Relaxed);
-    }
-
-    /// Counts `n` zero-filled frames published inside data chunks (a gap that did not span a
-    /// whole chunk); whole zero chunks (`Source::Zeros`) are counted by `publish`.
-    pub fn add_gap_frames(&self, n: u64) {
-        self.header().gap_frames.fetch_add(n, Relaxed);
-    }
-
-    /// Publishes the device-clock rate estimate (Hz).
-    pub fn set_rate_estimate(&self, hz: f64) {
-        let mhz = if hz.is_finite() && hz > 0.0 { (hz * 1000.0).round() as u64 } else { 0 };
-        self.header().rate_estimate_mhz.store(mhz, Relaxed);
-    }
-
-    /// Records that the writer is alive without publishing.
-    pub fn heartbeat(&self) {
-        self.header().heartbeat_mono_ns.store(sys::monotonic_ns(), Relaxed);
-    }
-
-    /// Stops the acquisition: the port keeps its frames and shows [`State::Stopped`].
-    pub fn stop(&self) {
-        if !self.handed_over && matches!(self.state(), State::Idle | State::Starting | State::Capturing) {
-            self.set_state(State::Stopped, format::error_code::NONE, "");
-        }
-    }
-
-    /// Stops an acquisition that ended on an error: the port shows [`State::Stopped`] (the
-    /// window stays), its error code is cleared and its message says what ended it.
-    /// Returns the error message it cleared, or None when the port was not in error.
-    pub fn clear_error(&self) -> Option<String> {
-        if self.state() != State::Error {
-            return None;
-        }
-        let old = format::read_text(&self.header().message);
-        self.set_state(State::Stopped, format::error_code::NONE, &format!("stopped after an error: {old}"));
-        Some(old)
-    }
-
-    /// Stops and removes the port file (readers that have it mapped keep their view). A
-    /// memfd port has no file: it is only stopped, and goes when its last holder closes it.
-    pub fn remove(self) -> Result<()> {
-        self.stop();
-        if self.backing == Backing::Memfd {
-            return Ok(());
-        }
-        std::fs::remove_file(&self.path).map_err(|e| Error::io(format!("remove {}", self.path.display()), e))
-    }
-}
-
-impl Drop for Writer {
-    fn drop(&mut self) {
-        self.stop();
-    }
-}
-
-fn wake(h: &Header) {
-    h.futex.fetch_add(1, Release);
-    sys::futex_wake_all(&h.futex);
-}
-
-fn write_entry(e: &ChunkEntry, first: u64, mono: u64, real: u64, flags: u32, frames: u32) {
-    e.first_frame.store(first, Relaxed);
-    e.mono_ns.store(mono, Relaxed);
-    e.realtime_ns.store(real, Relaxed);
-    e.flags.store(flags, Relaxed);
-    e.frames.store(frames, Relaxed);
+        WRITERS.remove(writer as usize).map(drop)
+    })
 }

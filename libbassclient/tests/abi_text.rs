@@ -9,7 +9,7 @@ use std::cell::RefCell;
 use std::collections::BTreeMap;
 use std::ffi::{c_int, CStr};
 
-use bassclient::ffi::{
+use bassclient::{
     bass_last_error, bass_port_open, bass_result, bass_result_name, bass_result_str, bass_state_str,
     bass_version,
 };

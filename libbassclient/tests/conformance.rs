@@ -9,7 +9,7 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::ptr;
 
-use bassclient::ffi::*;
+use bassclient::*;
 
 fn check(call: &str, r: bass_result) {
     if r != bass_result::BASS_OK {

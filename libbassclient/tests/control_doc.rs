@@ -3,7 +3,7 @@
 //! again, and compared with the example as JSON values — a field renamed, added or dropped
 //! in the code and not in the doc (or the other way round) fails here.
 
-use bassclient::control::wire;
+use bassport::control::wire;
 
 fn doc_examples() -> Vec<(usize, String)> {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/control-protocol.md");

@@ -12,7 +12,7 @@ mod common;
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use bassclient::ffi::bass_result;
+use bassclient::bass_result;
 use common::read_repo_file as read;
 
 /// Identifiers (ASCII letters, digits, `_`, not starting with a digit) in `text`.
@@ -82,7 +82,7 @@ fn the_c_examples_use_only_declared_constants() {
 
 use std::mem::{offset_of, size_of};
 
-use bassclient::format::{chunk_flags, ChunkEntry, Header, CHUNK_ENTRY_SIZE, HEADER_SIZE};
+use bassport::format::{chunk_flags, ChunkEntry, Header, CHUNK_ENTRY_SIZE, HEADER_SIZE};
 
 /// The size of the field a projection `|h| &h.field` reaches (`size_of_val` needs a value).
 fn field_size<S, T>(_: fn(&S) -> &T) -> usize {
@@ -141,7 +141,7 @@ fn the_docs_header_table_has_every_field_of_format_rs_at_its_offset_and_size() {
         started_mono_ns, lost_upstream_frames, message, device];
     // The list above is complete: a field added to format.rs fails here until it is listed.
     let names: Vec<&str> = layout.iter().map(|f| f.0).collect();
-    assert_eq!(names, pub_fields(&read("libbassclient/src/format.rs"), "Header"));
+    assert_eq!(names, pub_fields(&read("port/src/format.rs"), "Header"));
     let docs = docs_table(&read("docs/port-format.md"), "### Header");
     assert_eq!(docs, owned(layout), "docs/port-format.md's header table differs from format.rs");
     let (_, offset, size) = docs.last().unwrap();
@@ -152,7 +152,7 @@ fn the_docs_header_table_has_every_field_of_format_rs_at_its_offset_and_size() {
 fn the_docs_chunk_entry_table_has_every_field_of_format_rs_at_its_offset_and_size() {
     let layout = fields![ChunkEntry: first_frame, mono_ns, realtime_ns, flags, frames];
     let names: Vec<&str> = layout.iter().map(|f| f.0).collect();
-    assert_eq!(names, pub_fields(&read("libbassclient/src/format.rs"), "ChunkEntry"));
+    assert_eq!(names, pub_fields(&read("port/src/format.rs"), "ChunkEntry"));
     let docs = read("docs/port-format.md");
     assert!(docs.contains(&format!("### Chunk table entry ({CHUNK_ENTRY_SIZE} bytes)")));
     assert_eq!(docs_table(&docs, "### Chunk table entry"), owned(layout));

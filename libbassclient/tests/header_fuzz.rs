@@ -8,8 +8,8 @@
 
 mod common;
 
-use bassclient::format::{self, HEADER_SIZE, VERSION_MAJOR, VERSION_MINOR};
-use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
+use bassport::format::{self, HEADER_SIZE, VERSION_MAJOR, VERSION_MINOR};
+use bassport::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
 use proptest::prelude::*;
 use std::collections::BTreeMap;
 use std::time::Duration;
@@ -180,7 +180,7 @@ fn a_header_describing_more_than_the_file_is_refused() {
     let path = common::temp_port_path("short");
     std::fs::write(&path, &bytes).unwrap();
     let err = Port::open_path(&path).err().expect("must refuse a short file");
-    assert!(matches!(err, bassclient::Error::Corrupt(_)), "{err}");
+    assert!(matches!(err, bassport::Error::Corrupt(_)), "{err}");
     std::fs::remove_file(&path).unwrap();
 }
 

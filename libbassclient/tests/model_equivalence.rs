@@ -5,7 +5,7 @@
 
 mod common;
 
-use bassclient::{ChunkMeta, Geometry, Port, Source};
+use bassport::{ChunkMeta, Geometry, Port, Source};
 use common::{temp_port_path, SeedPort};
 use proptest::prelude::*;
 
@@ -62,8 +62,8 @@ fn chunk_samples(seed: u64, len: usize) -> Vec<i32> {
 fn run(nfpc: u32, ncop: u32, channels: u32, ops: &[Op]) -> Result<(), TestCaseError> {
     let path = temp_port_path("model");
     let geometry = Geometry { channels, sample_rate: 48000, frames_per_chunk: nfpc, chunks_on_port: ncop };
-    let params = bassclient::PortParams { geometry, device: "model".into(), group: None };
-    let mut writer = bassclient::Writer::create_at(&path, &params).expect("create port");
+    let params = bassport::PortParams { geometry, device: "model".into(), group: None };
+    let mut writer = bassport::Writer::create_at(&path, &params).expect("create port");
     let port = Port::open_path(&path).expect("open port");
     let mut model = SeedPort::new(nfpc as usize, ncop as usize, channels as usize);
     let nfop = (nfpc * ncop) as usize;
@@ -119,8 +119,8 @@ fn zero_frame_before_any_data_reads_as_zero() {
     // lfi = 0: ofi = 0, so frame 0 is "on the port" and reads as one zero frame.
     let path = temp_port_path("zero");
     let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: 4, chunks_on_port: 3 };
-    let params = bassclient::PortParams { geometry, device: String::new(), group: None };
-    let writer = bassclient::Writer::create_at(&path, &params).unwrap();
+    let params = bassport::PortParams { geometry, device: String::new(), group: None };
+    let writer = bassport::Writer::create_at(&path, &params).unwrap();
     let port = Port::open_path(&path).unwrap();
     let (mut l, mut r) = (vec![7; 12], vec![7; 12]);
     let mut nfr = 0;
@@ -137,12 +137,12 @@ fn zero_frame_before_any_data_reads_as_zero() {
 fn loss_moves_nfr_to_the_oldest_frame_on_the_port() {
     let path = temp_port_path("loss");
     let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: 2, chunks_on_port: 3 };
-    let params = bassclient::PortParams { geometry, device: String::new(), group: None };
-    let mut writer = bassclient::Writer::create_at(&path, &params).unwrap();
+    let params = bassport::PortParams { geometry, device: String::new(), group: None };
+    let mut writer = bassport::Writer::create_at(&path, &params).unwrap();
     let port = Port::open_path(&path).unwrap();
     for _ in 0..5 {
         let mut s = vec![0; 4];
-        bassclient::testsignal::fill_pattern_interleaved(&mut s, 2, writer.last_frame_index() + 1);
+        basskit::testsignal::fill_pattern_interleaved(&mut s, 2, writer.last_frame_index() + 1);
         writer.publish(Source::Interleaved(&s), ChunkMeta::default()).unwrap();
     }
     // lfi = 10, nFOP = 6: the port holds frames 5..=10.
@@ -151,8 +151,8 @@ fn loss_moves_nfr_to_the_oldest_frame_on_the_port() {
     let got = port.get_audio_data(100, &mut nfr, &mut [&mut l, &mut r]).unwrap();
     assert_eq!((got.frames, got.loss, nfr), (6, 3, 11));
     for i in 0..6 {
-        assert_eq!(l[i], bassclient::testsignal::pattern_sample(5 + i as u64, 0));
-        assert_eq!(r[i], bassclient::testsignal::pattern_sample(5 + i as u64, 1));
+        assert_eq!(l[i], basskit::testsignal::pattern_sample(5 + i as u64, 0));
+        assert_eq!(r[i], basskit::testsignal::pattern_sample(5 + i as u64, 1));
     }
     writer.remove().unwrap();
 }

@@ -13,8 +13,8 @@ use std::path::{Path, PathBuf};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use bassclient::control::{self, PortFd, Reply};
-use bassclient::{Error, Geometry, Port, PortParams, Writer};
+use bassport::control::{self, PortFd, Reply};
+use bassport::{Error, Geometry, Port, PortParams, Writer};
 use rustix::net::{
     AddressFamily, SendAncillaryBuffer, SendAncillaryMessage, SendFlags, SocketFlags, SocketType,
 };
@@ -92,7 +92,7 @@ fn open_by_name_takes_the_broker_s_memfd_only_when_there_is_no_file_and_falls_ba
     // A leftover of an earlier run with this pid, if any.
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    std::env::set_var(bassclient::paths::RUNTIME_DIR_ENV, &dir);
+    std::env::set_var(bassport::paths::RUNTIME_DIR_ENV, &dir);
     let fds_before = open_fds();
 
     // No broker, no file.

@@ -4,9 +4,9 @@
 
 mod common;
 
-use bassclient::format::chunk_flags;
-use bassclient::testsignal::{fill_pattern_interleaved, pattern_expected};
-use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+use basskit::testsignal::{fill_pattern_interleaved, pattern_expected};
+use bassport::format::chunk_flags;
+use bassport::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
 use common::{temp_port_path, SeedPort};
 use proptest::prelude::*;
 

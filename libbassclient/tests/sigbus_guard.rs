@@ -1,4 +1,4 @@
-//! The SIGBUS guard (`bassclient::sigbus`): a port file shrunk under a reader's mapping is an
+//! The SIGBUS guard (`bassport::sigbus`): a port file shrunk under a reader's mapping is an
 //! error of the call, not the death of the reader; any other SIGBUS still reaches whoever
 //! handled it before (or kills the process, as without the guard).
 //!
@@ -12,7 +12,7 @@ use std::fs::OpenOptions;
 use std::os::unix::process::ExitStatusExt;
 use std::time::{Duration, Instant};
 
-use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
+use bassport::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
 
 fn port_with_chunks(tag: &str) -> (std::path::PathBuf, Writer) {
     let path = common::temp_port_path(tag);

@@ -1,4 +1,4 @@
-//! The callback stream (`bassclient::stream`): its blocks tile the stream exactly — every
+//! The callback stream (`bassport::stream`): its blocks tile the stream exactly — every
 //! frame delivered once, in order, or counted lost — across a lapped slow callback, a skip
 //! (frames the writer never had), a device gap, a restart (a new epoch at the same path) and
 //! the end of an acquisition, checked sample by sample against the pattern signal.
@@ -11,10 +11,10 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use bassclient::format::{chunk_flags, error_code};
-use bassclient::stream::{Block, Config, Control, Event, SampleLayout, Start, Stream};
-use bassclient::testsignal::{fill_pattern_interleaved, pattern_expected};
-use bassclient::{ChunkMeta, Geometry, PortParams, Source, State, Writer};
+use basskit::testsignal::{fill_pattern_interleaved, pattern_expected};
+use bassport::format::{chunk_flags, error_code};
+use bassport::stream::{Block, Config, Control, Event, SampleLayout, Start, Stream};
+use bassport::{ChunkMeta, Geometry, PortParams, Source, State, Writer};
 
 const NFPC: u32 = 16;
 const NCOP: u32 = 8;
@@ -410,7 +410,7 @@ fn a_handle_stops_a_waiting_stream_and_a_bad_config_is_refused() {
 /// The C exports refuse forged and closed handles and NULL arguments with their codes.
 #[test]
 fn the_c_exports_refuse_forged_handles_and_null_arguments() {
-    use bassclient::ffi::*;
+    use bassclient::*;
     let forged = 0x1230usize as *mut bass_stream;
     // SAFETY: the exports take any handle value (registry keys, never dereferenced).
     unsafe {
@@ -449,7 +449,7 @@ fn a_stream_over_a_port_opened_by_name_follows_a_restart_by_name() {
     std::env::set_var("BASS_RUNTIME_DIR", &dir);
     let mut w = Writer::create("named", &params()).unwrap();
     publish_pattern(&mut w, ChunkMeta::default());
-    let port = Arc::new(bassclient::Port::open("named").unwrap());
+    let port = Arc::new(bassport::Port::open("named").unwrap());
     let mut stream = Stream::new(port, Config::default().oldest()).unwrap();
     let mut next = Some(w);
     let mut kept = None;
@@ -533,7 +533,7 @@ struct CSeen {
 }
 
 unsafe extern "C" fn c_on_block(
-    _: *const bassclient::ffi::bass_block,
+    _: *const bassclient::bass_block,
     user: *mut std::ffi::c_void,
 ) -> std::ffi::c_int {
     // SAFETY: `user` is the test's `CSeen`, alive and used by this stream's thread only.
@@ -542,24 +542,24 @@ unsafe extern "C" fn c_on_block(
 }
 
 unsafe extern "C" fn c_on_event(
-    e: *const bassclient::ffi::bass_stream_event,
+    e: *const bassclient::bass_stream_event,
     user: *mut std::ffi::c_void,
 ) -> std::ffi::c_int {
     // SAFETY: the library passes a valid event; `user` is the test's `CSeen`.
     let (e, seen) = unsafe { (&*e, &mut *user.cast::<CSeen>()) };
     seen.events.push((e.kind, e.epoch, e.frame));
     // Go on after a refused priority; end at the end of the acquisition.
-    std::ffi::c_int::from(e.kind != bassclient::ffi::BASS_EVENT_REALTIME_REFUSED)
+    std::ffi::c_int::from(e.kind != bassclient::BASS_EVENT_REALTIME_REFUSED)
 }
 
 /// A C-ABI stream from the oldest frame over the port file at `path` (run on this thread).
 fn c_stream_run(
     path: &std::path::Path,
     priority: i32,
-    on_event: bassclient::ffi::bass_event_fn,
+    on_event: bassclient::bass_event_fn,
     seen: &mut CSeen,
 ) {
-    use bassclient::ffi::*;
+    use bassclient::*;
     let cpath = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
     let cfg = bass_stream_config {
         frames_per_call: 0,
@@ -599,7 +599,7 @@ fn c_events_carry_the_ports_epoch_before_any_restart() {
     let mut seen = CSeen::default();
     // Priority 1000 is out of SCHED_FIFO's range: always refused (EINVAL).
     c_stream_run(&path, 1000, Some(c_on_event), &mut seen);
-    use bassclient::ffi::*;
+    use bassclient::*;
     assert_eq!(
         seen.events,
         [(BASS_EVENT_REALTIME_REFUSED, 2, 0), (BASS_EVENT_STOPPED, 2, 2 * u64::from(NFPC))]

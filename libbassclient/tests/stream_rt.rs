@@ -11,10 +11,10 @@ use std::cell::Cell;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
-use bassclient::format::error_code;
-use bassclient::stream::{Config, Control, Event, SampleLayout, Start, Stream};
-use bassclient::testsignal::{fill_pattern_interleaved, pattern_expected};
-use bassclient::{ChunkMeta, Geometry, PortParams, Source, State, Writer};
+use basskit::testsignal::{fill_pattern_interleaved, pattern_expected};
+use bassport::format::error_code;
+use bassport::stream::{Config, Control, Event, SampleLayout, Start, Stream};
+use bassport::{ChunkMeta, Geometry, PortParams, Source, State, Writer};
 
 struct Counting;
 
@@ -108,7 +108,7 @@ fn run_writer(mut w: Writer, done: Arc<AtomicBool>, end: impl FnOnce(&Writer)) -
 fn the_steady_path_makes_no_allocation_in_100000_callbacks() {
     check_the_counter();
     let (_path, w) = writer("rt-steady");
-    let port = Arc::new(bassclient::Port::open_path(w.path()).unwrap());
+    let port = Arc::new(bassport::Port::open_path(w.path()).unwrap());
     let mut stream = Stream::new(port, Config { start: Start::Frame(1), ..Config::default() }).unwrap();
     let done = Arc::new(AtomicBool::new(false));
     let d = done.clone();

@@ -12,8 +12,8 @@ use std::io::{BufRead, BufReader, Write};
 use std::process::{Child, Stdio};
 use std::time::Duration;
 
-use bassclient::testsignal::fill_pattern_interleaved;
-use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+use basskit::testsignal::fill_pattern_interleaved;
+use bassport::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
 
 const CHANNELS: u32 = 2;
 const NFPC: u32 = 64;
@@ -153,7 +153,7 @@ fn run_reader(path: &std::path::Path, kind: usize) {
     loop {
         if blocking {
             if let Err(e) = port.wait(nfr + n as u64 - 1, Duration::from_secs(30)) {
-                assert!(matches!(e, bassclient::Error::Stopped { .. }), "wait: {e}");
+                assert!(matches!(e, bassport::Error::Stopped { .. }), "wait: {e}");
             }
         }
         let before = nfr;
@@ -164,7 +164,7 @@ fn run_reader(path: &std::path::Path, kind: usize) {
         lost += r.loss;
         if r.frames == 0 && r.loss == 0 {
             let info = port.info().unwrap();
-            if info.state == Some(bassclient::State::Stopped) && nfr > info.last_frame_index {
+            if info.state == Some(bassport::State::Stopped) && nfr > info.last_frame_index {
                 break;
             }
         }

@@ -7,8 +7,8 @@ mod common;
 use std::process::Stdio;
 use std::time::Duration;
 
-use bassclient::format::error_code;
-use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, State, Writer};
+use bassport::format::error_code;
+use bassport::{ChunkMeta, Error, Geometry, Port, PortParams, Source, State, Writer};
 
 const GUARD: Duration = Duration::from_secs(20);
 

@@ -10,8 +10,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use bassclient::testsignal::fill_pattern_interleaved;
-use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+use basskit::testsignal::fill_pattern_interleaved;
+use bassport::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
 
 const NFPC: u32 = 64;
 const CHUNKS: u64 = 600;

@@ -11,7 +11,7 @@ ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 cd "$ROOT"
 if [[ $(id -u) -ne 0 ]]; then echo "test-bridge: needs root (network namespaces)"; exit 1; fi
 # Exactly make test-rust's build (same feature unification), so nothing is rebuilt after it.
-cargo build --release --workspace --all-targets --features "$(cat scripts/bridge-features)" || exit 1
+make -C "$ROOT" --no-print-directory build-all || exit 1
 
 # iceoryx2 keeps a small per-machine management file (/dev/shm/iox2_*global_mgmt) after its
 # last node exits, by design; the ones this suite created are removed at the end, the ones

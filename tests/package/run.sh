@@ -54,7 +54,7 @@ cleanup() {
 }
 trap cleanup EXIT
 
-# 1. Build (no cargo: the binaries of make build / build-bridge).
+# 1. Build (no cargo: the binaries of make build-all).
 DEB=$(timeout 300 "$ROOT/broker/debian/build-deb.sh" "$WORK/deb" | tail -1) || fail "build-deb.sh failed"
 [[ -f $DEB ]] || fail "no package built"
 say "built $(basename "$DEB") ($(du -k "$DEB" | cut -f1) KiB) in $((SECONDS - T0)) s"

@@ -163,7 +163,7 @@ fn stream_table(w: &crate::wake::WakeResults, md: &mut String) {
     }
     let _ = writeln!(
         md,
-        "Callback streams (`bassclient::stream::Stream`, one chunk per block, from the live edge): chunk published \
+        "Callback streams (`bassport::stream::Stream`, one chunk per block, from the live edge): chunk published \
          (its `mono_ns`, which the block carries) → block callback entered, interleaved publish by publish with the \
          `Port::wait` readers (*blocking*) and the raw futex (1 reader: the ping-pong; 8 and 64: one FUTEX_WAKE of \
          that many waiters), every reader counted. The callback is entered once its block is copied out, so the \

@@ -13,7 +13,7 @@
 //! - the seed's BASC client: `GetBlocks` runs every 250 ms and calls getAudioData; the
 //!   latency of a chunk is from its publication to the poll that obtains it.
 //!
-//! - bass callback stream (`bassclient::stream::Stream`, one chunk per block): the time from
+//! - bass callback stream (`bassport::stream::Stream`, one chunk per block): the time from
 //!   the chunk's stamp to the block callback being entered; interleaved with the raw futex
 //!   and the `Port::wait` readers at 1, 8 and 64 readers.
 //!
@@ -22,13 +22,15 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
-use bassclient::sys::monotonic_ns;
-use bassclient::{ChunkMeta, Geometry, PortParams, Source, Writer};
+use bassport::sys::monotonic_ns;
+use bassport::{ChunkMeta, Geometry, PortParams, Source, Writer};
 
 use crate::procs::{finish_all, spawn_ready, Child};
 use crate::stats::{fmt_ns, fmt_ratio, median, quantile, spread};
 
+#[allow(unsafe_code)] // the raw futex and copy the wake is compared with
 mod raw;
+#[allow(unsafe_code)] // a port descriptor inherited from the parent
 mod readers;
 
 pub use raw::{child_futex_pong, child_futex_waiter, child_raw_waiter};

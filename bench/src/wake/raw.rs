@@ -5,8 +5,8 @@
 use std::sync::atomic::Ordering::{Acquire, Relaxed, Release};
 use std::time::Duration;
 
-use bassclient::sys::{futex_wait, futex_wake_all, monotonic_ns};
-use bassclient::{Port, State};
+use bassport::sys::{futex_wait, futex_wake_all, monotonic_ns};
+use bassport::{Port, State};
 
 use crate::procs::{finish_all, spawn_ready, Child};
 use crate::shm::Region;
@@ -27,7 +27,7 @@ pub(super) struct Pinger {
 
 impl Pinger {
     pub(super) fn start() -> Pinger {
-        let path = bassclient::paths::runtime_dir().join("bench-futex");
+        let path = bassport::paths::runtime_dir().join("bench-futex");
         let region = Region::create(&path, 4096);
         let mut kid = Child::spawn("futex-pong", &[path.display().to_string()]);
         kid.ready();
@@ -112,7 +112,7 @@ pub(super) struct RawBroadcast {
 
 impl RawBroadcast {
     pub(super) fn start(readers: usize) -> RawBroadcast {
-        let path = bassclient::paths::runtime_dir().join("bench-futex-n");
+        let path = bassport::paths::runtime_dir().join("bench-futex-n");
         let region = Region::create(&path, RAW_REGION_BYTES);
         let kids = spawn_ready(readers, "futex-waiter", &[path.display().to_string()]);
         RawBroadcast { path, region, kids, block: vec![7; WAKE_NFPC as usize] }
@@ -195,7 +195,7 @@ pub fn child_futex_waiter(args: &[String]) {
 /// Child: like `wake-reader`, but blocks with a bare FUTEX_WAIT on the port header's futex
 /// word (read-only mapping) instead of `Port::wait`.
 pub fn child_raw_waiter(args: &[String]) {
-    use bassclient::format::Header;
+    use bassport::format::Header;
     use std::mem::offset_of;
     let port = Port::open(&args[0]).expect("open port");
     let map = Region::open_ro(port.path(), 4096);

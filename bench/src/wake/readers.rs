@@ -3,8 +3,8 @@
 
 use std::time::{Duration, Instant};
 
-use bassclient::sys::monotonic_ns;
-use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, State, Writer};
+use bassport::sys::monotonic_ns;
+use bassport::{ChunkMeta, Error, Geometry, Port, PortParams, Source, State, Writer};
 
 use crate::procs::{finish_all, spawn_ready};
 
@@ -54,13 +54,13 @@ pub fn child_wake_reader(args: &[String]) {
     print!("{out}");
 }
 
-/// Child: a callback stream (`bassclient::stream::Stream`, one chunk per block, starting at
+/// Child: a callback stream (`bassport::stream::Stream`, one chunk per block, starting at
 /// the live edge); on entry to the block callback it takes CLOCK_MONOTONIC and records
 /// `lfi wake_ns data_ns` as `child_wake_reader` prints them (the block's `mono_ns` is its
 /// chunk's publish stamp; the samples are already in hand, so both latencies are the same).
 /// The callback does not allocate: it writes into a preallocated table printed at the end.
 pub fn child_stream_reader(args: &[String]) {
-    use bassclient::stream::{Config, Control, Event, Stream};
+    use bassport::stream::{Config, Control, Event, Stream};
     let cfg = Config { frames_per_call: super::WAKE_NFPC as usize, ..Config::default() };
     let mut stream = Stream::open(&args[0], cfg).expect("open stream");
     // Room for far more blocks than a run publishes; beyond it, samples are dropped, not grown.

@@ -2,6 +2,7 @@
 //! more option, `--fault PLAN` (bridge/src/fault.rs), given before the command:
 //! `bass-bridge-faults --fault drop=300 serve ...`. Built beside `bass-bridge` with the same
 //! features (Zenoh is compiled once) and never installed.
+#![forbid(unsafe_code)]
 
 use clap::Parser;
 

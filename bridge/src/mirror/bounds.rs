@@ -4,7 +4,7 @@
 //! message outside them is refused whoever sent it: a port the local broker would refuse to
 //! make for a local client is not made for a network peer either.
 
-use bassclient::Geometry;
+use bassport::Geometry;
 
 /// Operator bounds of the replica port (mirror command line).
 #[derive(clap::Args, Clone, Debug, PartialEq, Eq)]

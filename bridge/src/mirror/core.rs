@@ -26,9 +26,9 @@
 use std::collections::VecDeque;
 use std::path::PathBuf;
 
-use bassclient::control::{ReplicaStatus, Status};
-use bassclient::format::error_code;
-use bassclient::{Geometry, PortParams, State, Writer};
+use bassport::control::{ReplicaStatus, Status};
+use bassport::format::error_code;
+use bassport::{Geometry, PortParams, State, Writer};
 
 use super::bounds::Bounds;
 use super::replica::{publish, Replica};

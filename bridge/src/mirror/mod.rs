@@ -3,7 +3,7 @@
 //!
 //! The message handling (bounds, followed instance, rate limits, gaps, states) is
 //! [`core::Core`], pure and tested in-process; this module wires it to Zenoh, takes the
-//! replica's name (the instance lock, as bassd does: `bassclient::instance`), serves the
+//! replica's name (the instance lock, as bassd does: `basskit::instance`), serves the
 //! replica's control socket ([`crate::control`]), writes the status file and logs.
 //!
 //! - source unreachable (liveliness lost, or silent) longer than `--timeout`, or the source
@@ -21,14 +21,14 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
 use anyhow::{anyhow, Result};
-use bassclient::instance::{Instance, InstanceError};
-use bassclient::sys::monotonic_ns;
+use basskit::instance::{Instance, InstanceError};
+use bassport::sys::monotonic_ns;
 use zenoh::sample::SampleKind;
 use zenoh::Wait;
 
 use self::bounds::Bounds;
 use self::core::{Core, LogLimit, MirrorStatus};
-use bassclient::args::parse_seconds;
+use basskit::args::parse_seconds;
 
 use crate::clock::ClockEstimator;
 use crate::net::{self, NetOpts, UsageError};
@@ -328,7 +328,7 @@ fn write_status(p: &std::path::Path, st: &MirrorStatus) -> Result<()> {
 fn hostname() -> String {
     let h =
         std::fs::read_to_string("/proc/sys/kernel/hostname").map(|s| s.trim().to_owned()).unwrap_or_default();
-    // A host name that is not a valid port name part (bassclient::paths::check_name) is not used.
+    // A host name that is not a valid port name part (bassport::paths::check_name) is not used.
     if !h.is_empty() && h.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'.' || b == b'_') {
         h
     } else {

@@ -3,8 +3,8 @@
 //! buffer, no allocation per chunk), flags as the source had them ([`wire::port_flags`]),
 //! timestamps mapped to the local clock.
 
-use bassclient::format::chunk_flags;
-use bassclient::{ChunkMeta, Geometry, Source, Writer};
+use bassport::format::chunk_flags;
+use bassport::{ChunkMeta, Geometry, Source, Writer};
 
 use super::status::MirrorStatus;
 use crate::wire;
@@ -45,7 +45,7 @@ pub fn publish(
     samples: &mut Vec<i32>,
     now: u64,
     offset: Option<i64>,
-) -> bassclient::Result<u64> {
+) -> bassport::Result<u64> {
     let h = c.header;
     let mono = match offset {
         Some(off) if h.mono_ns != 0 => (h.mono_ns as i64).saturating_sub(off).max(1) as u64,

@@ -6,8 +6,8 @@ use std::collections::HashMap;
 use std::path::PathBuf;
 
 use bass_test_support::TempDir;
-use bassclient::format::chunk_flags;
-use bassclient::{Port, State};
+use bassport::format::chunk_flags;
+use bassport::{Port, State};
 use proptest::prelude::*;
 
 use super::bounds::Bounds;
@@ -131,7 +131,7 @@ fn a_chunk_at_frame_2_pow_62_is_refused_and_does_not_freeze_the_replica() {
         assert!(applied(r.send(&chunk(1, 1, 1 + k * n), T0 + k * 1_000_000)));
     }
     let far = (wire::MAX_FRAMES as u64) << 20; // aligned, and below the format's limit
-    let far = (bassclient::format::MAX_FRAME_INDEX - far) / n * n + 1;
+    let far = (bassport::format::MAX_FRAME_INDEX - far) / n * n + 1;
     assert_eq!(r.send(&chunk(1, 1, far), T0 + 5_000_000), Outcome::FarFrame);
     assert_eq!(r.core.st.refused_far_frames, 1);
     // The real stream goes on where it was.
@@ -555,7 +555,7 @@ fn a_fresh_chunk_after_a_backlog_of_late_ones_is_taken_when_the_clock_says_it_is
     assert!(applied(r2.core.on_message(&msg(late), T0, None)[0]));
     assert_eq!(r2.core.on_message(&msg(fresh), T0 + 1_000_000, None)[0], Outcome::FarFrame);
     // And a chunk at frame ~2^62 is refused with the clock too.
-    let far = (bassclient::format::MAX_FRAME_INDEX - 2 * n) / n * n + 1;
+    let far = (bassport::format::MAX_FRAME_INDEX - 2 * n) / n * n + 1;
     assert_eq!(r.core.on_message(&chunk(1, 1, far), T0 + 3_000_000, offset)[0], Outcome::FarFrame);
 }
 

@@ -3,7 +3,7 @@
 //! `rmw_zenoh_cpp` see a node `bass_bridge_<broker>` and subscribe to its topics with no ROS
 //! installation on the robot (docs/ros2.md):
 //!
-//! - `/bass/<broker>/audio` ([`bassclient::ros2::AUDIO_DATA_STAMPED`]): one message per chunk,
+//! - `/bass/<broker>/audio` ([`basskit::ros2::AUDIO_DATA_STAMPED`]): one message per chunk,
 //!   interleaved S32LE samples, `header.stamp` the CLOCK_REALTIME of its first frame;
 //!   RELIABLE, VOLATILE, KEEP_LAST 10;
 //! - `/bass/<broker>/audio_info` (`AudioInfo`): once per acquisition, TRANSIENT_LOCAL depth 1
@@ -15,7 +15,7 @@
 //!   full, port lapped, GAP chunks: never zeros presented as audio).
 //!
 //! The names, tokens and attachment are [`names`]; the type hashes [`typehash`]; the CDR
-//! payloads [`bassclient::ros2`]. The port reader hands each chunk to [`Exporter::offer`],
+//! payloads [`basskit::ros2`]. The port reader hands each chunk to [`Exporter::offer`],
 //! which never waits for the network (except, bounded, for a new port's backlog, as serve's
 //! own chunks do): a thread of its own encodes and puts.
 
@@ -29,7 +29,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context, Result};
-use bassclient::ros2::{self as msgs, AudioDataStamped, AudioInfo, ChunkInfo, Header, Time, Topics};
+use basskit::ros2::{self as msgs, AudioDataStamped, AudioInfo, ChunkInfo, Header, Time, Topics};
 use zenoh::Wait;
 use zenoh_ext::{AdvancedPublisherBuilderExt, MissDetectionConfig};
 
@@ -138,7 +138,7 @@ enum Zpub {
 impl Publisher {
     /// Puts `payload` with the attachment of message `sequence` (rmw_zenoh numbers from 1).
     fn put(&mut self, payload: &[u8], sequence: i64) {
-        let now = i64::try_from(bassclient::sys::realtime_ns()).unwrap_or(i64::MAX);
+        let now = i64::try_from(bassport::sys::realtime_ns()).unwrap_or(i64::MAX);
         let att = names::attachment(sequence, now, &self.gid).to_vec();
         if let Some(l) = self.latched.as_mut() {
             l.record(payload, &att);

@@ -1,5 +1,5 @@
 //! The RIHS01 type hash of a ROS 2 message (REP-2011 "type description"), computed from its
-//! `ros2msg` definition text ([`bassclient::ros2`]'s definitions, the form rosbag2 stores).
+//! `ros2msg` definition text ([`basskit::ros2`]'s definitions, the form rosbag2 stores).
 //!
 //! The hash is SHA-256 over one JSON text of the type's description:
 //!
@@ -239,7 +239,7 @@ pub fn rihs01(type_name: &str, definition: &str) -> Result<String, TypeHashError
 #[cfg(test)]
 mod tests {
     use super::*;
-    use bassclient::ros2;
+    use basskit::ros2;
 
     #[test]
     fn std_msgs_string_has_the_hash_rmw_zenoh_documents() {

@@ -7,7 +7,7 @@ use std::sync::mpsc::{SyncSender, TrySendError};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Result};
-use bassclient::{Error as PortError, Port};
+use bassport::{Error as PortError, Port};
 
 use super::state::{current_state, state_of, Followed};
 use super::{Outgoing, CATCH_UP_PATIENCE, STATE_REFRESH};
@@ -251,7 +251,7 @@ impl<'a> Reader<'a> {
             chunks_on_port: g.chunks_on_port,
             mono_ns: ci.map_or(0, |c| c.mono_ns),
             realtime_ns: ci.map_or(0, |c| c.realtime_ns),
-            send_mono_ns: bassclient::sys::monotonic_ns(),
+            send_mono_ns: bassport::sys::monotonic_ns(),
             source_lost: self.lost_frames,
             ..Default::default()
         };

@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::Result;
-use bassclient::Port;
+use bassport::Port;
 
 use super::conflict::Conflicts;
 use super::lock;
@@ -75,7 +75,7 @@ pub struct Followed {
     /// Acquisition epoch.
     pub epoch: u64,
     /// Geometry.
-    pub geometry: bassclient::Geometry,
+    pub geometry: bassport::Geometry,
 }
 
 /// The state of `port` for the state message: `state`, the port's error and newest frame,
@@ -128,8 +128,8 @@ mod tests {
             assert!(json.contains(&format!("\"state\":\"{name}\"")), "{json}");
             assert_eq!(serde_json::from_str::<SourceState>(&json).unwrap().state, s);
         }
-        assert_eq!(BridgeState::of_port(Some(bassclient::State::Starting)), BridgeState::Starting);
-        assert_eq!(BridgeState::of_port(Some(bassclient::State::Superseded)), BridgeState::Gone);
+        assert_eq!(BridgeState::of_port(Some(bassport::State::Starting)), BridgeState::Starting);
+        assert_eq!(BridgeState::of_port(Some(bassport::State::Superseded)), BridgeState::Gone);
         // A state this version does not know is not a state message.
         let json = serde_json::to_string(&SourceState::default()).unwrap().replace("\"gone\"", "\"melting\"");
         assert!(json.contains("melting") && serde_json::from_str::<SourceState>(&json).is_err());

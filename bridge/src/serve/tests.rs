@@ -4,9 +4,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use bass_test_support::TempDir;
-use bassclient::format::chunk_flags;
-use bassclient::testsignal::{fill_pattern_interleaved, pattern_expected};
-use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+use basskit::testsignal::{fill_pattern_interleaved, pattern_expected};
+use bassport::format::chunk_flags;
+use bassport::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
 use clap::{CommandFactory, Parser};
 
 use super::reader::Reader;

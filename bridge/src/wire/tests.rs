@@ -111,7 +111,7 @@ fn a_version_1_message_is_refused_naming_both_versions() {
 
 #[test]
 fn the_flags_are_the_ports_bit_for_bit_and_source_loss_has_a_bit_of_its_own() {
-    use bassclient::format::chunk_flags as cf;
+    use bassport::format::chunk_flags as cf;
     assert_eq!(
         (flags::GAP, flags::DISCONTINUITY, flags::TIME_ESTIMATED, flags::LATE),
         (cf::GAP, cf::DISCONTINUITY, cf::TIME_ESTIMATED, cf::LATE)

@@ -1,9 +1,10 @@
 //! `bassd`: the bass capture broker daemon. See docs/broker.md.
+#![forbid(unsafe_code)]
 
 use anyhow::{Context, Result};
-use bassclient::args::AcquireArgs;
 use bassd::request::Limits;
 use bassd::server::{self, Config, DEFAULT_MAX_PORT_BYTES};
+use basskit::args::AcquireArgs;
 use clap::Parser;
 
 /// bassd: the bass audio capture broker
@@ -19,7 +20,7 @@ use clap::Parser;
 )]
 struct BassdArgs {
     /// Broker name: port bass-NAME.port and socket bass-NAME.sock
-    #[arg(long, value_name = "NAME", default_value = bassclient::paths::DEFAULT_NAME)]
+    #[arg(long, value_name = "NAME", default_value = bassport::paths::DEFAULT_NAME)]
     name: String,
     /// Also let members of GROUP control the broker and read its port
     #[arg(long, value_name = "GROUP")]
@@ -52,7 +53,7 @@ struct BassdArgs {
     /// its port back from the fd store and go on (ms); 0 = do not use the fd store, a restart
     /// ends the acquisition (docs/broker.md, "Restarts that readers ride through")
     #[arg(long, value_name = "MS", default_value_t = bassd::supervise::DEFAULT_RESTART_GRACE_MS,
-          value_parser = clap::value_parser!(u32).range(0..=i64::from(bassclient::format::MAX_RESTART_GRACE_MS)))]
+          value_parser = clap::value_parser!(u32).range(0..=i64::from(bassport::format::MAX_RESTART_GRACE_MS)))]
     restart_grace_ms: u32,
     /// Start capturing from DEVICE at start-up (with the acquisition options below)
     #[arg(short = 'D', long = "acquire", value_name = "DEVICE")]
@@ -119,7 +120,7 @@ fn config(a: &BassdArgs) -> Result<Config> {
         None => None,
         Some(g) => Some(bassd::os::group_id(g).with_context(|| format!("--group {g}"))?),
     };
-    bassclient::paths::check_name(&a.name).with_context(|| format!("--name {}", a.name))?;
+    bassport::paths::check_name(&a.name).with_context(|| format!("--name {}", a.name))?;
     let h = &a.hardening;
     Ok(Config {
         name: a.name.clone(),
@@ -139,9 +140,9 @@ fn config(a: &BassdArgs) -> Result<Config> {
         open_timeout: std::time::Duration::from_millis(a.open_timeout_ms),
         restart_grace_ms: a.restart_grace_ms,
         port_backing: if a.port_backing == "memfd" {
-            bassclient::Backing::Memfd
+            bassport::Backing::Memfd
         } else {
-            bassclient::Backing::File
+            bassport::Backing::File
         },
     })
 }

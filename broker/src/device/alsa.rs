@@ -14,9 +14,9 @@ use std::time::Duration;
 use alsa::pcm::{Access, Frames, HwParams, TstampType, PCM};
 use alsa::poll::Descriptors;
 use alsa::{Direction, ValueOr};
-use bassclient::control::DeviceInfo;
-use bassclient::format::error_code;
-use bassclient::sys::monotonic_ns;
+use bassport::control::DeviceInfo;
+use bassport::format::error_code;
+use bassport::sys::monotonic_ns;
 
 use super::{Capture, ReadEvent, StopSignal};
 use crate::convert::{to_s32, SampleFormat};

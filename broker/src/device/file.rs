@@ -36,13 +36,13 @@ use std::fs::File;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
-use bassclient::format::{chunk_flags, error_code};
-use bassclient::sys::{monotonic_ns, realtime_ns};
-use bassclient::ChunkMeta;
+use bassport::format::{chunk_flags, error_code};
+use bassport::sys::{monotonic_ns, realtime_ns};
+use bassport::ChunkMeta;
 
 use super::mcap_file::{self, McapFrames};
 use super::{sleep_until, Capture, ReadEvent, RecordedChunk, StopSignal};
-use bassclient::sidecar::Sidecar;
+use basskit::sidecar::Sidecar;
 
 const NS_PER_MS: u64 = 1_000_000;
 /// Longest sleep of one read: a longer wait returns `Pending` in between.

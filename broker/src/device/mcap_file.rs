@@ -16,8 +16,8 @@ use std::fs::File;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
-use bassclient::ros2::{self, AudioDataStamped, ChunkInfo};
-use bassclient::sidecar::{ChunkRow, Lost, Sidecar};
+use basskit::ros2::{self, AudioDataStamped, ChunkInfo};
+use basskit::sidecar::{ChunkRow, Lost, Sidecar};
 use mcap::records::Record;
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 

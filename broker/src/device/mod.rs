@@ -9,7 +9,7 @@ pub mod sim;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use bassclient::control::DeviceInfo;
+use bassport::control::DeviceInfo;
 
 use crate::os::EventFd;
 
@@ -77,7 +77,7 @@ pub fn sleep_until(deadline: u64, stop: &StopSignal) -> bool {
         if stop.is_set() {
             return false;
         }
-        let now = bassclient::sys::monotonic_ns();
+        let now = bassport::sys::monotonic_ns();
         if now >= deadline {
             return true;
         }
@@ -124,7 +124,7 @@ pub enum ReadEvent {
     Stopped,
     /// The device failed for good (`code` is a `format::error_code`).
     Failed {
-        /// `bassclient::format::error_code`.
+        /// `bassport::format::error_code`.
         code: u32,
         /// What happened.
         message: String,
@@ -152,7 +152,7 @@ pub struct RecordedChunk {
     /// A GAP chunk (zeros; the buffer is not read).
     pub zeros: bool,
     /// Timestamps and flags, published as they are.
-    pub meta: bassclient::ChunkMeta,
+    pub meta: bassport::ChunkMeta,
 }
 
 /// A configured capture device, owned by the capture thread.
@@ -196,10 +196,10 @@ mod tests {
     #[test]
     fn sleep_until_returns_at_the_deadline_or_on_stop() {
         let stop = StopSignal::new().expect("eventfd");
-        let deadline = bassclient::sys::monotonic_ns() + 3_000_000;
+        let deadline = bassport::sys::monotonic_ns() + 3_000_000;
         assert!(sleep_until(deadline, &stop));
-        assert!(bassclient::sys::monotonic_ns() >= deadline);
+        assert!(bassport::sys::monotonic_ns() >= deadline);
         stop.signal();
-        assert!(!sleep_until(bassclient::sys::monotonic_ns() + 10_000_000_000, &stop));
+        assert!(!sleep_until(bassport::sys::monotonic_ns() + 10_000_000_000, &stop));
     }
 }

@@ -3,7 +3,7 @@
 //! [`super::precise_timers`]), any rate, chunk size and channel
 //! count. Their content is deterministic:
 //!
-//! - `sim:pattern` — `bassclient::testsignal::pattern_sample(frame, channel)`: every sample
+//! - `sim:pattern` — `basskit::testsignal::pattern_sample(frame, channel)`: every sample
 //!   names its device frame and channel;
 //! - `sim:sine` — a 440 Hz tone on channel 0, 660 Hz on channel 1 (then 880, 1100, ... Hz),
 //!   at half full scale;
@@ -26,9 +26,9 @@
 //! a burst; a read that returns more than a read's duration (at least [`LATE_NS`]) after its
 //! last frame was due is marked `late`, and its chunk is flagged `LATE`.
 
-use bassclient::format::error_code;
-use bassclient::sys::monotonic_ns;
-use bassclient::testsignal::pattern_sample;
+use basskit::testsignal::pattern_sample;
+use bassport::format::error_code;
+use bassport::sys::monotonic_ns;
 
 use super::{sleep_until, Capture, ReadEvent, StopSignal};
 

@@ -5,8 +5,8 @@ use std::os::fd::{AsFd, BorrowedFd, OwnedFd};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
-use bassclient::control::{self, ErrorKind, Reply};
-use bassclient::sys::monotonic_ns;
+use bassport::control::{self, ErrorKind, Reply};
+use bassport::sys::monotonic_ns;
 
 use crate::os;
 

@@ -8,11 +8,11 @@
 
 use std::sync::atomic::Ordering;
 
-use bassclient::control::{AcquireRequest, Acquired, ErrorKind, Reply};
-use bassclient::format::{error_code, State};
-use bassclient::portfile::mib;
-use bassclient::sys::monotonic_ns;
-use bassclient::PortParams;
+use bassport::control::{AcquireRequest, Acquired, ErrorKind, Reply};
+use bassport::format::{error_code, State};
+use bassport::portfile::mib;
+use bassport::sys::monotonic_ns;
+use bassport::PortParams;
 
 use super::opening::{answer, NextPort, OpenJob, Opened, Opening, Parked, Poll, MAX_STUCK_OPENS};
 use super::{Broker, STOP_TIMEOUT};
@@ -337,14 +337,14 @@ impl Broker {
 }
 
 /// Whether creating the port failed for want of space in its file system (ENOSPC).
-fn is_no_space(e: &bassclient::Error) -> bool {
-    matches!(e, bassclient::Error::Io { source, .. } if source.raw_os_error() == Some(libc::ENOSPC))
+fn is_no_space(e: &bassport::Error) -> bool {
+    matches!(e, bassport::Error::Io { source, .. } if source.raw_os_error() == Some(libc::ENOSPC))
 }
 
 /// Opens (and configures) the device of an Acquire (on a worker thread: it may block).
 fn open_device(
     kind: &DeviceKind,
-    g: &bassclient::Geometry,
+    g: &bassport::Geometry,
     format: Option<crate::convert::SampleFormat>,
 ) -> Result<Box<dyn Capture>, alsa::OpenError> {
     match kind {

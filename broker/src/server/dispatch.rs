@@ -3,7 +3,7 @@
 
 use std::os::fd::{AsFd, OwnedFd};
 
-use bassclient::control::{self, ErrorKind, Reply, Request, WireError};
+use bassport::control::{self, ErrorKind, Reply, Request, WireError};
 
 use super::accept::Conn;
 use super::{opening, Broker};

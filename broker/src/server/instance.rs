@@ -3,14 +3,14 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::bail;
-use bassclient::format::State;
-use bassclient::instance::{Instance, InstanceError};
-use bassclient::reader::Port;
+use basskit::instance::{Instance, InstanceError};
+use bassport::format::State;
+use bassport::reader::Port;
 
 use crate::config::Config;
 use crate::supervise::PORT_FD_NAME;
 
-/// The running daemon's name: the instance lock (`bassclient::instance`, the same as
+/// The running daemon's name: the instance lock (`basskit::instance`, the same as
 /// `bass-bridge mirror` takes), its socket removed at exit.
 pub(super) struct Files {
     pub(super) inst: Instance,

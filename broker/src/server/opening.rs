@@ -21,9 +21,9 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{mpsc, Arc};
 use std::time::Duration;
 
-use bassclient::control::{self, AcquireRequest, Reply};
-use bassclient::sys::monotonic_ns;
-use bassclient::{PendingPort, Writer};
+use bassport::control::{self, AcquireRequest, Reply};
+use bassport::sys::monotonic_ns;
+use bassport::{PendingPort, Writer};
 
 use crate::device::{alsa::OpenError, Capture};
 use crate::os::EventFd;
@@ -102,7 +102,7 @@ impl OpenJob {
         match self.rx.try_recv() {
             Ok(r) => Poll::Done(r),
             Err(mpsc::TryRecvError::Disconnected) => Poll::Done(Err(OpenError {
-                code: bassclient::format::error_code::INTERNAL,
+                code: bassport::format::error_code::INTERNAL,
                 message: "the device open ended without an answer (its thread panicked)".into(),
                 busy: false,
             })),

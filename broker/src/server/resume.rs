@@ -5,15 +5,15 @@
 //! indices are the recording's), starts a new acquisition instead, and the old port is
 //! marked superseded so that its readers are told (`Restarted`).
 
-use bassclient::control::{AcquireRequest, Status};
-use bassclient::format::{error_code, State};
-use bassclient::sys::monotonic_ns;
+use bassport::control::{AcquireRequest, Status};
+use bassport::format::{error_code, State};
+use bassport::sys::monotonic_ns;
 use std::fs::File;
 use std::os::fd::AsRawFd;
 use std::os::unix::fs::MetadataExt;
 use std::path::Path;
 
-use bassclient::{memfd, paths, Backing, Writer};
+use bassport::{memfd, paths, Backing, Writer};
 
 use super::opening::{NextPort, Opening};
 use super::Broker;

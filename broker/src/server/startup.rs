@@ -11,9 +11,9 @@
 //!
 //! An Acquire or a Stop from a client takes over: the retries end (the operator chose).
 
-use bassclient::control::{AcquireRequest, ErrorKind, Reply, Status};
-use bassclient::format::State;
-use bassclient::sys::monotonic_ns;
+use bassport::control::{AcquireRequest, ErrorKind, Reply, Status};
+use bassport::format::State;
+use bassport::sys::monotonic_ns;
 
 use super::Broker;
 

@@ -4,10 +4,10 @@ use std::fs::File;
 use std::path::Path;
 
 use anyhow::Result;
-use bassclient::format::chunk_flags;
+use bassport::format::chunk_flags;
 
 use crate::wav;
-use bassclient::sidecar::{self, Sidecar};
+use basskit::sidecar::{self, Sidecar};
 
 /// `bass record --check FILE.wav`: the one-line summary if the WAV and its sidecar agree,
 /// else every problem found.

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use crate::wav;
-use bassclient::sidecar::Sidecar;
+use basskit::sidecar::Sidecar;
 
 use super::recording::{Out, Recording};
 

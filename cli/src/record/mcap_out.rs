@@ -4,7 +4,7 @@
 //!
 //! The MCAP file (profile `ros2`, chunked, uncompressed, as rosbag2's MCAP plugin writes by
 //! default) holds three channels, each with a `ros2msg` schema and CDR messages from
-//! [`bassclient::ros2`]:
+//! [`basskit::ros2`]:
 //!
 //! - `/bass/<broker>/audio_info`: one `audio_common_msgs/msg/AudioInfo`;
 //! - `/bass/<broker>/chunk_info`: per run of frames (a port chunk, or its part in the file), a
@@ -15,7 +15,7 @@
 //!
 //! Frames the recorder lost are in no message (never zeros presented as audio): the next
 //! ChunkInfo's `lost_before` counts them. A metadata record `bass` holds the sidecar's file-level
-//! facts (acquisition, recording, losses: `bassclient::sidecar` without the rows, which are the
+//! facts (acquisition, recording, losses: `basskit::sidecar` without the rows, which are the
 //! ChunkInfo messages). `metadata.yaml` is there for rosbag2 releases that open only a bag
 //! directory (`ros2 bag play DIR`); the MCAP file alone is complete for every other reader.
 //!
@@ -37,12 +37,12 @@ use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
-use bassclient::ros2::{self, AudioDataStamped, AudioInfo, ChunkInfo, Header, Time, Topics};
-use bassclient::sidecar::{ChunkRow, Sidecar};
+use basskit::ros2::{self, AudioDataStamped, AudioInfo, ChunkInfo, Header, Time, Topics};
+use basskit::sidecar::{ChunkRow, Sidecar};
 
 /// Name of the metadata record holding the sidecar's facts.
 pub const METADATA_NAME: &str = "bass";
-/// Its key holding them as JSON (a `bassclient::sidecar::Sidecar` without chunk rows).
+/// Its key holding them as JSON (a `basskit::sidecar::Sidecar` without chunk rows).
 pub const METADATA_SIDECAR: &str = "sidecar";
 
 /// QoS offered (rosbag2's `offered_qos_profiles`, the integer form every rosbag2 release reads):

@@ -1,6 +1,6 @@
 //! `bass record FILE.wav`: reads the port losslessly (futex waits; a reader that keeps up
 //! never loses frames) and writes a WAV file ([`super::wav`]) plus a sidecar `FILE.wav.json`
-//! ([`bassclient::sidecar`]: the acquisition and one row per chunk — first frame,
+//! ([`basskit::sidecar`]: the acquisition and one row per chunk — first frame,
 //! CLOCK_MONOTONIC / CLOCK_REALTIME ns, flags), so the recording can be aligned with the
 //! robot's other sensors; and `bass record --check FILE.wav`, which verifies such a pair.
 //!
@@ -20,14 +20,14 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use bassclient::Error;
+use bassport::Error;
 
 use crate::exit::{self, Exit};
 use crate::follow::{after_stop, open_port, AfterStop, Outage};
 use crate::out::{note, outln};
 use crate::wav;
-use bassclient::args::parse_seconds;
-use bassclient::sidecar;
+use basskit::args::parse_seconds;
+use basskit::sidecar;
 
 mod check;
 mod check_mcap;
@@ -179,7 +179,7 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
     let port = open_port(name, timeout, None)?;
     let (spec, channels) = spec_of(a, &port)?;
     let max_frames = if mcap {
-        bassclient::format::MAX_FRAME_INDEX
+        bassport::format::MAX_FRAME_INDEX
     } else {
         (WAV_LIMIT - spec.format.header_len()) / spec.frame_bytes()
     };
@@ -242,12 +242,12 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
 fn start_of(
     name: &str,
     a: &RecordArgs,
-    port: &bassclient::Port,
+    port: &bassport::Port,
     timeout: Duration,
 ) -> Result<(sidecar::Acquisition, u64)> {
     let g = port.geometry();
     let info = port.info()?;
-    let device_format = bassclient::control::Client::connect(name)
+    let device_format = bassport::control::Client::connect(name)
         .and_then(|mut c| {
             c.set_timeout(timeout)?;
             c.status()
@@ -301,7 +301,7 @@ fn run_check(a: &RecordArgs) -> Result<()> {
 }
 
 /// The WAV format of the recording and the channels recorded.
-fn spec_of(a: &RecordArgs, port: &bassclient::Port) -> Result<(wav::Spec, Vec<u32>)> {
+fn spec_of(a: &RecordArgs, port: &bassport::Port) -> Result<(wav::Spec, Vec<u32>)> {
     let g = port.geometry();
     let channels: Vec<u32> = a.channels.clone().unwrap_or_else(|| (0..g.channels).collect());
     if let Some(c) = channels.iter().find(|&&c| c >= g.channels) {
@@ -327,7 +327,7 @@ fn open_mcap(
     layout: &mcap_out::Layout,
     name: &str,
     channels: usize,
-    port: &bassclient::Port,
+    port: &bassport::Port,
 ) -> Result<Out> {
     if let Some(dir) = layout.dir() {
         match std::fs::create_dir(dir) {
@@ -367,7 +367,7 @@ fn open_wav(a: &RecordArgs, side_path: &std::path::Path, spec: wav::Spec) -> Res
 fn record_loop(
     name: &str,
     a: &RecordArgs,
-    port: &bassclient::Port,
+    port: &bassport::Port,
     rec: &mut Recording,
     stop: &AtomicBool,
     limit: Option<u64>,

@@ -6,12 +6,12 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Result;
-use bassclient::format::chunk_flags;
-use bassclient::{Error, Port};
+use bassport::format::chunk_flags;
+use bassport::{Error, Port};
 
 use crate::blocks::levels;
 use crate::wav;
-use bassclient::sidecar::{self, ChunkRow, Lost, Sidecar};
+use basskit::sidecar::{self, ChunkRow, Lost, Sidecar};
 
 use super::checkpoint::{stage, IN_PROGRESS};
 use super::convert;

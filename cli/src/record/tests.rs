@@ -1,8 +1,8 @@
 //! Unit tests of the recorder: conversion, --from, --check and the read loop.
 
 use super::*;
-use bassclient::sidecar::{ChunkRow, Lost, Sidecar};
-use bassclient::Port;
+use basskit::sidecar::{ChunkRow, Lost, Sidecar};
+use bassport::Port;
 use std::fs::File;
 use std::path::Path;
 
@@ -93,14 +93,13 @@ fn check_accepts_a_pair_that_agrees_and_names_each_disagreement() {
 
 /// A port of 4 chunks of 10 frames (1 channel, sample = frame index) written in this
 /// process, and a recording of it from `from` into a WAV in `dir`.
-fn rig(dir: &Path, from: u64) -> (bassclient::Writer, Port, Recording) {
-    use bassclient::{Geometry, PortParams};
+fn rig(dir: &Path, from: u64) -> (bassport::Writer, Port, Recording) {
+    use bassport::{Geometry, PortParams};
     std::fs::create_dir_all(dir).unwrap();
     let geometry = Geometry { channels: 1, sample_rate: 8000, frames_per_chunk: 10, chunks_on_port: 4 };
     let path = dir.join("rec.port");
-    let w =
-        bassclient::Writer::create_at(&path, &PortParams { geometry, device: "unit".into(), group: None })
-            .unwrap();
+    let w = bassport::Writer::create_at(&path, &PortParams { geometry, device: "unit".into(), group: None })
+        .unwrap();
     let port = Port::open_path(&path).unwrap();
     let file = dir.join("r.wav");
     let spec = wav::Spec { channels: 1, sample_rate: 8000, bits: 32, format: wav::Format::Pcm };
@@ -128,11 +127,11 @@ fn rig(dir: &Path, from: u64) -> (bassclient::Writer, Port, Recording) {
     (w, port, rec)
 }
 
-fn publish(w: &mut bassclient::Writer, chunks: u64) {
+fn publish(w: &mut bassport::Writer, chunks: u64) {
     for _ in 0..chunks {
         let lfi = w.last_frame_index();
         let s: Vec<i32> = (lfi + 1..=lfi + 10).map(|f| f as i32).collect();
-        w.publish(bassclient::Source::Interleaved(&s), bassclient::ChunkMeta::default()).unwrap();
+        w.publish(bassport::Source::Interleaved(&s), bassport::ChunkMeta::default()).unwrap();
     }
 }
 
@@ -209,7 +208,7 @@ fn mcap_messages(path: &Path) -> Vec<(String, u32, Vec<u8>)> {
 
 #[test]
 fn an_mcap_recording_holds_every_frame_once_and_a_loss_in_no_message() {
-    use bassclient::ros2::{AudioDataStamped, AudioInfo, ChunkInfo};
+    use basskit::ros2::{AudioDataStamped, AudioInfo, ChunkInfo};
     let dir = std::env::temp_dir().join(format!("bass-rec-unit-{}-mcap", std::process::id()));
     let (mut w, port, mut rec) = rig(&dir, 5);
     let bag = dir.join("bag");

@@ -1,6 +1,6 @@
 //! Shared test helpers: temporary port paths, child-process entries, waiting for a thread to
 //! block, and the literal model of the seed's port. (The broker and fault suites share
-//! `tests/support`; this crate's own tests keep theirs here, as bassclient cannot depend on
+//! `tests/support`; this crate's own tests keep theirs here, as bassport cannot depend on
 //! a crate that depends on it outside its tests.)
 #![allow(dead_code)]
 
@@ -25,12 +25,12 @@ pub fn read_repo_file(rel: &str) -> String {
 }
 
 /// Samples of frames `first..first+frames` in `bufs` (one buffer per channel) that are not
-/// the pattern signal's (`bassclient::testsignal`); the fault suite's `count_corrupted`.
+/// the pattern signal's (`basskit::testsignal`); the fault suite's `count_corrupted`.
 pub fn count_not_pattern(first: u64, frames: usize, bufs: &[Vec<i32>]) -> u64 {
     let mut wrong = 0;
     for (c, buf) in bufs.iter().enumerate() {
         for (i, &s) in buf[..frames].iter().enumerate() {
-            if s != bassclient::testsignal::pattern_expected(first + i as u64, c as u32) {
+            if s != basskit::testsignal::pattern_expected(first + i as u64, c as u32) {
                 wrong += 1;
             }
         }

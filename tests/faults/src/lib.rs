@@ -6,6 +6,7 @@
 //!
 //! Every test prints its measured figures as lines starting with `FIGURE`, which
 //! `tests/faults/run.sh` collects into one summary.
+#![forbid(unsafe_code)]
 
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, Write};
@@ -13,7 +14,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdout, Command, Stdio};
 use std::time::Duration;
 
-use bassclient::testsignal::pattern_expected;
+use basskit::testsignal::pattern_expected;
 
 /// Prints one measured figure of item `item` (collected by run.sh).
 #[macro_export]
@@ -39,8 +40,7 @@ pub fn test_group() -> u32 {
     if is_root() {
         4242
     } else {
-        // SAFETY: getegid cannot fail.
-        unsafe { libc::getegid() }
+        rustix::process::getegid().as_raw()
     }
 }
 

@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 
 use bass_faults::{count_corrupted, figure, median_max, Agent, Rng};
 use bass_test_support::{acquire_req, Bassd, TempDir};
-use bassclient::{Error, Port};
+use bassport::{Error, Port};
 
 const PATIENCE: Duration = Duration::from_secs(20);
 

@@ -18,11 +18,11 @@ use std::time::Duration;
 
 use bass_faults::{figure, Agent, Fields};
 use bass_test_support::{acquire_req, Bassd, TempDir};
-use bassclient::testsignal::fill_pattern_interleaved;
-use bassclient::{ChunkMeta, Geometry, PortParams, Source, Writer};
+use basskit::testsignal::fill_pattern_interleaved;
+use bassport::{ChunkMeta, Geometry, PortParams, Source, Writer};
 
 fn proc_state(pid: u32) -> char {
-    bassclient::sys::process_start(pid).map(|(_, s)| s).unwrap_or('?')
+    bassport::sys::process_start(pid).map(|(_, s)| s).unwrap_or('?')
 }
 
 /// Ends a `--log-loss` reader (it must exit cleanly); its RESULT fields and LOSS lines, each

@@ -33,7 +33,7 @@ fn readers_killed_mid_read_and_mid_wait_leak_nothing_and_disturb_no_one() {
         r.expect_line("ready");
     }
     w.send("go");
-    let lfi_of = || bassclient::Port::open_path(&path).unwrap().info().unwrap().last_frame_index;
+    let lfi_of = || bassport::Port::open_path(&path).unwrap().info().unwrap().last_frame_index;
     // The writer publishes (past its set-up) before its descriptors are counted.
     bass_test_support::eventually("the writer's first chunks", || (lfi_of() >= 64 * 8).then_some(()));
     let fds_before = fd_targets(w.pid());

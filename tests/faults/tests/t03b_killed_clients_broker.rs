@@ -30,7 +30,7 @@ fn killed_readers_and_control_clients_leak_nothing_in_bassd() {
     bass_test_support::eventually("the first chunks", || {
         c.status()
             .ok()
-            .filter(|s| s.state() == Some(bassclient::State::Capturing) && s.last_frame_index >= 4800)
+            .filter(|s| s.state() == Some(bassport::State::Capturing) && s.last_frame_index >= 4800)
     });
     let fds_before = fd_count(b.pid());
     let entries_before = dir.entries();
@@ -72,7 +72,7 @@ fn killed_readers_and_control_clients_leak_nothing_in_bassd() {
     assert!(settled, "bassd kept file descriptors of killed clients: {fds_before} -> {fds_after}");
     assert_eq!(entries_after, entries_before);
     assert_eq!(st.epoch, epoch);
-    assert_eq!(st.state(), Some(bassclient::State::Capturing));
+    assert_eq!(st.state(), Some(bassport::State::Capturing));
     assert_eq!((st.xruns, st.gap_frames), (0, 0));
     assert_eq!(rf.u("corrupted"), 0);
     assert_eq!(rf.u("delivered") + rf.u("lost"), rf.u("requested"));

@@ -15,9 +15,9 @@ use std::time::{Duration, Instant};
 
 use bass_faults::{figure, Agent, Rng};
 use bass_test_support::TempDir;
-use bassclient::format::HEADER_SIZE;
-use bassclient::testsignal::fill_pattern_interleaved;
-use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
+use basskit::testsignal::fill_pattern_interleaved;
+use bassport::format::HEADER_SIZE;
+use bassport::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
 
 mod corrupt;
 
@@ -27,7 +27,7 @@ use corrupt::*;
 /// `device` are left out): a field added to format.rs and not here fails this test.
 #[test]
 fn the_fuzzed_fields_are_every_numeric_field_of_the_header() {
-    let src = include_str!("../../../libbassclient/src/format.rs");
+    let src = include_str!("../../../port/src/format.rs");
     let body = src.split("pub struct Header {").nth(1).and_then(|b| b.split("\n}").next()).expect("Header");
     let declared: Vec<&str> = body
         .lines()
@@ -230,7 +230,7 @@ fn foreign_magic_and_major_versions_are_refused_by_name() {
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]
 fn a_port_shrunk_under_a_reader_gives_corrupt_not_sigbus() {
-    // A reader of a port file is guarded against SIGBUS (bassclient::sigbus): a call that
+    // A reader of a port file is guarded against SIGBUS (bassport::sigbus): a call that
     // touches a page the shrink removed is refused with Corrupt (and the handle stays
     // refused, its mapping replaced by zero pages); a call that touches only pages still in
     // the file reads them. For 7 sizes from total - 1 down to 0, a fresh reader of a full
@@ -340,7 +340,7 @@ fn a_port_shrinking_while_a_reader_process_hammers_it_kills_no_reader() {
     // A reader process calls every size-dependent function in a loop while the file is cut
     // to one page and restored. The per-call size check cannot catch a shrink that lands
     // between it and the access (before the SIGBUS guard, 5 of 5 reader processes died of
-    // SIGBUS within 1-12 cycles); the guard (bassclient::sigbus) turns that SIGBUS into a
+    // SIGBUS within 1-12 cycles); the guard (bassport::sigbus) turns that SIGBUS into a
     // Corrupt error of the call. No reader may die, and every call must end Ok or Corrupt.
     let dir = TempDir::shm("corrupt-shrink-live");
     let path = dir.join("bass-shrink-live.port");

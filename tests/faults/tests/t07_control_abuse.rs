@@ -18,7 +18,7 @@ use bass_faults::{fd_count, figure, median_max, Agent};
 use bass_test_support::{
     acquire_req, eventually, impersonation_missing, nobody_in_group, skip, Bassd, TempDir, NOBODY,
 };
-use bassclient::control;
+use bassport::control;
 
 fn connect(path: &std::path::Path) -> OwnedFd {
     let fd = control::socket::connect(path).expect("connect");
@@ -107,7 +107,7 @@ fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
     eventually("the first chunks", || {
         good.status()
             .ok()
-            .filter(|s| s.state() == Some(bassclient::State::Capturing) && s.last_frame_index >= 4800)
+            .filter(|s| s.state() == Some(bassport::State::Capturing) && s.last_frame_index >= 4800)
     });
     let fds_before = fd_count(b.pid());
 
@@ -247,7 +247,7 @@ fn control_socket_abuse_is_refused_clearly_and_capture_carries_on() {
     // Everything still fine: same epoch, capturing, no xruns, no gaps, no fd leak.
     let s = good.status().unwrap();
     assert_eq!(s.epoch, epoch, "the abuse changed the acquisition");
-    assert_eq!(s.state(), Some(bassclient::State::Capturing));
+    assert_eq!(s.state(), Some(bassport::State::Capturing));
     assert_eq!((s.xruns, s.gap_frames), (0, 0), "the abuse caused xruns or gaps");
     drop(good);
     let settled = bass_test_support::wait_until(Duration::from_secs(5), || fd_count(b.pid()) <= fds_before);

@@ -16,13 +16,13 @@ use std::time::Duration;
 
 use bass_faults::{count_corrupted, figure, Rng};
 use bass_test_support::{acquire_req, eventually, Bassd, TempDir};
-use bassclient::{Error, Port};
+use bassport::{Error, Port};
 
 /// Waits until the broker captures in `epoch` (its first chunk is out); the status then.
-fn capturing(c: &mut bassclient::control::Client, epoch: u64) -> bassclient::control::Status {
+fn capturing(c: &mut bassport::control::Client, epoch: u64) -> bassport::control::Status {
     eventually(&format!("capture in epoch {epoch}"), || {
         let s = c.status().expect("status");
-        (s.epoch == epoch && s.state() == Some(bassclient::State::Capturing) && s.last_frame_index > 0)
+        (s.epoch == epoch && s.state() == Some(bassport::State::Capturing) && s.last_frame_index > 0)
             .then_some(s)
     })
 }
@@ -37,7 +37,7 @@ fn fds_but_superseded(pid: u32) -> usize {
     bass_faults::fd_targets(pid).iter().filter(|t| !is_superseded_port(t)).count()
 }
 
-fn refusal(r: bassclient::Result<bassclient::control::Acquired>) -> Option<String> {
+fn refusal(r: bassport::Result<bassport::control::Acquired>) -> Option<String> {
     match r {
         Ok(_) => None,
         Err(Error::Broker(m)) => Some(m),
@@ -53,7 +53,7 @@ fn bad_acquires_are_refused_clearly_and_the_last_valid_one_wins() {
     let b = Bassd::start_stock(dir.path(), "acq", &["--max-port-bytes", &cap.to_string()], &[]);
     let mut c = b.client();
     let first = c.acquire(&acquire_req("sim:pattern", 48000, 480, 20, 2)).expect("valid acquire");
-    let cases: Vec<(&str, bassclient::control::AcquireRequest, &str)> = vec![
+    let cases: Vec<(&str, bassport::control::AcquireRequest, &str)> = vec![
         ("nFramesPerChunk = 0", acquire_req("sim:pattern", 48000, 0, 20, 2), "invalid-argument"),
         ("nChunksOnPort = 0", acquire_req("sim:pattern", 48000, 480, 0, 2), "invalid-argument"),
         (

@@ -13,7 +13,7 @@ use std::sync::Arc;
 
 use bass_faults::{figure, Agent, Fields};
 use bass_test_support::TempDir;
-use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
+use bassport::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
 
 fn geometry() -> Geometry {
     Geometry { channels: 2, sample_rate: 48000, frames_per_chunk: 32, chunks_on_port: 4 }

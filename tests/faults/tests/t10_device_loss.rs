@@ -16,19 +16,19 @@ use std::time::{Duration, Instant};
 
 use bass_faults::{figure, median_max, Agent, Fields};
 use bass_test_support::{acquire_req, eventually, jack_missing, skip, Bassd, JackRig, Jackd, TempDir};
-use bassclient::format::error_code;
+use bassport::format::error_code;
 
 /// Waits until the broker captures in `epoch` and has published frame `frames`.
-fn capturing(c: &mut bassclient::control::Client, epoch: u64, frames: u64) {
+fn capturing(c: &mut bassport::control::Client, epoch: u64, frames: u64) {
     eventually(&format!("capture in epoch {epoch} up to frame {frames}"), || {
         let s = c.status().expect("status");
-        (s.epoch == epoch && s.state() == Some(bassclient::State::Capturing) && s.last_frame_index >= frames)
+        (s.epoch == epoch && s.state() == Some(bassport::State::Capturing) && s.last_frame_index >= frames)
             .then_some(())
     });
 }
 
 fn mono_ns() -> u64 {
-    bassclient::sys::monotonic_ns()
+    bassport::sys::monotonic_ns()
 }
 
 #[test]
@@ -74,7 +74,7 @@ fn killed_jackd_is_an_error_readers_see_and_a_new_acquire_resumes_in_a_new_epoch
         delays.push(Duration::from_nanos(dev.u("at_ns").saturating_sub(kill_ns)));
         codes.push(code);
         let s = c.status().unwrap();
-        assert_eq!(s.state(), Some(bassclient::State::Error), "status after the loss");
+        assert_eq!(s.state(), Some(bassport::State::Error), "status after the loss");
         assert_eq!(s.epoch, epoch);
         // Recovery: a new server and a new Acquire.
         jackd = Jackd::start(&rig.jack_name, 48000, logs.path());

@@ -1,4 +1,4 @@
-//! Item 12 — the window protocol (`bassclient::ring::Ring`) on heap memory, for Miri.
+//! Item 12 — the window protocol (`bassport::ring::Ring`) on heap memory, for Miri.
 //!
 //! One writer thread publishes the pattern signal into a small heap-backed ring while two
 //! reader threads read it with the same code the port reader uses. Pass: no sample is ever
@@ -10,8 +10,8 @@
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use bassclient::ring::{Ring, Source};
-use bassclient::testsignal::{fill_pattern_interleaved, pattern_expected};
+use basskit::testsignal::{fill_pattern_interleaved, pattern_expected};
+use bassport::ring::{Ring, Source};
 
 const CH: usize = 2;
 const NFPC: usize = 4;
@@ -89,7 +89,7 @@ fn heap_ring_readers_never_see_torn_frames_and_account_every_frame() {
 #[test]
 #[cfg_attr(miri, ignore = "Miri cannot mmap a file")]
 fn mapped_port_threads_never_see_torn_frames_and_account_every_frame() {
-    use bassclient::{ChunkMeta, Geometry, Port, PortParams, Writer};
+    use bassport::{ChunkMeta, Geometry, Port, PortParams, Writer};
     let dir = bass_test_support::TempDir::shm("tsan-port");
     let path = dir.join("bass-tsan.port");
     let geometry = Geometry {

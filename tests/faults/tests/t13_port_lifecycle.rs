@@ -24,7 +24,7 @@ use bass_test_support::{
     acquire_req, as_nobody, impersonation_missing, root_missing, setpriv, skip, wait_until, Bassd, TempDir,
     Tmpfs, NOBODY,
 };
-use bassclient::{Error, Port, State};
+use bassport::{Error, Port, State};
 
 /// Every frame on the port (oldest to newest), per channel, with epoch and last frame.
 fn window(path: &Path) -> (u64, u64, Vec<Vec<i32>>) {
@@ -52,7 +52,7 @@ fn wait_frames(b: &Bassd, frames: u64) {
     );
 }
 
-fn broker_error(r: bassclient::Result<bassclient::control::Acquired>) -> String {
+fn broker_error(r: bassport::Result<bassport::control::Acquired>) -> String {
     match r {
         Err(Error::Broker(m)) => m,
         Ok(a) => panic!("Acquire accepted (epoch {})", a.epoch),
@@ -215,11 +215,11 @@ fn a_planted_symlink_or_foreign_file_is_refused_and_its_target_untouched() {
     // The victim: a root file that happens to be a valid, stopped port.
     let victims = TempDir::shm("victim");
     let victim = victims.join("victim.port");
-    let g = bassclient::Geometry { channels: 2, sample_rate: 8000, frames_per_chunk: 80, chunks_on_port: 4 };
+    let g = bassport::Geometry { channels: 2, sample_rate: 8000, frames_per_chunk: 80, chunks_on_port: 4 };
     drop(
-        bassclient::Writer::create_at(
+        bassport::Writer::create_at(
             &victim,
-            &bassclient::PortParams { geometry: g, device: "v".into(), group: None },
+            &bassport::PortParams { geometry: g, device: "v".into(), group: None },
         )
         .unwrap(),
     );
@@ -291,10 +291,10 @@ fn a_root_reader_refuses_a_port_squatted_by_another_user() {
     assert!(st.success() || st.signal() == Some(libc::SIGKILL), "the squatting writer ended with {st}");
     // A link at the port's name, even to a root port, is not followed by a reader.
     let real = dir.join("bass-real.port");
-    let g = bassclient::Geometry { channels: 1, sample_rate: 8000, frames_per_chunk: 80, chunks_on_port: 4 };
-    let _w = bassclient::Writer::create_at(
+    let g = bassport::Geometry { channels: 1, sample_rate: 8000, frames_per_chunk: 80, chunks_on_port: 4 };
+    let _w = bassport::Writer::create_at(
         &real,
-        &bassclient::PortParams { geometry: g, device: "r".into(), group: None },
+        &bassport::PortParams { geometry: g, device: "r".into(), group: None },
     )
     .unwrap();
     std::fs::remove_file(&port).unwrap();
@@ -388,10 +388,10 @@ fn a_new_port_is_wholly_allocated_not_sparse() {
     let dir = TempDir::shm("alloc");
     let path = dir.join("bass-alloc.port");
     let g =
-        bassclient::Geometry { channels: 2, sample_rate: 48000, frames_per_chunk: 4800, chunks_on_port: 100 };
-    let w = bassclient::Writer::create_at(
+        bassport::Geometry { channels: 2, sample_rate: 48000, frames_per_chunk: 4800, chunks_on_port: 100 };
+    let w = bassport::Writer::create_at(
         &path,
-        &bassclient::PortParams { geometry: g, device: "a".into(), group: None },
+        &bassport::PortParams { geometry: g, device: "a".into(), group: None },
     )
     .unwrap();
     let m = std::fs::metadata(&path).unwrap();
@@ -416,10 +416,10 @@ fn a_temporary_port_left_by_a_dead_writer_is_removed_by_the_next_one() {
     std::fs::write(&dead, vec![1u8; 8192]).unwrap();
     let live = dir.join(&format!(".bass-stale.port.{}.99.tmp", std::process::id()));
     std::fs::write(&live, b"x").unwrap();
-    let g = bassclient::Geometry { channels: 1, sample_rate: 8000, frames_per_chunk: 80, chunks_on_port: 4 };
-    let _w = bassclient::Writer::create_at(
+    let g = bassport::Geometry { channels: 1, sample_rate: 8000, frames_per_chunk: 80, chunks_on_port: 4 };
+    let _w = bassport::Writer::create_at(
         &dir.join("bass-stale.port"),
-        &bassclient::PortParams { geometry: g, device: "s".into(), group: None },
+        &bassport::PortParams { geometry: g, device: "s".into(), group: None },
     )
     .unwrap();
     assert!(!dead.exists(), "the dead writer's temporary file is still there");
@@ -433,7 +433,7 @@ fn a_port_file_cut_under_the_broker_ends_the_acquisition_not_the_broker() {
     // reader waits on it. bassd's mapping is guarded like a reader's: its next publish fails,
     // the acquisition ends in error, and bassd stays up, says why in Status, and serves a new
     // Acquire whose port a reader reads intact. The reader of the cut port gets Corrupt.
-    use bassclient::testsignal::pattern_expected;
+    use basskit::testsignal::pattern_expected;
     use std::fs::OpenOptions;
     let dir = TempDir::shm("corrupt-cut-broker");
     let mut b = Bassd::start_stock(dir.path(), "cut", &[], &[]);
@@ -464,7 +464,7 @@ fn a_port_file_cut_under_the_broker_ends_the_acquisition_not_the_broker() {
     assert!(
         wait_until(Duration::from_secs(5), || {
             status = b.client().status().expect("status");
-            status.state == bassclient::State::Error as u32
+            status.state == bassport::State::Error as u32
         }),
         "status after the cut: {status:?}"
     );

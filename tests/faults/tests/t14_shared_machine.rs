@@ -163,7 +163,7 @@ fn a_root_broker_lives_in_run_bass_and_clients_find_it_before_dev_shm() {
         return;
     }
     let name = format!("t14sys-{}", std::process::id());
-    let sys = PathBuf::from(bassclient::paths::SYSTEM_RUNTIME_DIR);
+    let sys = PathBuf::from(bassport::paths::SYSTEM_RUNTIME_DIR);
     let group = test_group().to_string();
     // A squatter's files under the same name in /dev/shm must not shadow the system broker.
     let squat = PathBuf::from("/dev/shm").join(format!("bass-{name}.sock"));

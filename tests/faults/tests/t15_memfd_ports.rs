@@ -15,9 +15,9 @@ use bass_faults::{figure, Agent, Fields};
 use bass_test_support::{
     acquire_req, bin_path, impersonation_missing, nobody_in_group, skip, wait_until, Bassd, TempDir, NOBODY,
 };
-use bassclient::control::OpenedPort;
-use bassclient::testsignal::pattern_expected;
-use bassclient::{Error, Port, State};
+use basskit::testsignal::pattern_expected;
+use bassport::control::OpenedPort;
+use bassport::{Error, Port, State};
 
 const PATIENCE: Duration = Duration::from_secs(20);
 

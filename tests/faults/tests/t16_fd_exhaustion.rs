@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use bass_faults::{fd_count, figure};
 use bass_test_support::{wait_until, Bassd, TempDir};
-use bassclient::control::Client;
+use bassport::control::Client;
 
 const LIMIT: u64 = 40;
 const CONNECTIONS: usize = 60;

@@ -16,9 +16,9 @@ use std::time::{Duration, Instant};
 
 use bass_faults::figure;
 use bass_test_support::{Bassd, TempDir, PATIENCE};
-use bassclient::format::{error_code, State};
-use bassclient::reader::FOREIGN_WRITER_SILENCE;
-use bassclient::{Error, Port};
+use bassport::format::{error_code, State};
+use bassport::reader::FOREIGN_WRITER_SILENCE;
+use bassport::{Error, Port};
 
 const UNSHARE: [&str; 4] = ["unshare", "--pid", "--fork", "--kill-child"];
 /// The child reader's environment variable (see `reader_in_a_namespace_child`).
@@ -147,7 +147,7 @@ fn reader_in_a_namespace_child() {
     let Some(dir) = std::env::var_os(CHILD) else { return };
     assert_eq!(std::process::id(), 1, "not in a pid namespace of its own");
     let sock = std::path::Path::new(&dir).join("bass-host.sock");
-    let mut c = bassclient::control::Client::connect_path(&sock, "host")
+    let mut c = bassport::control::Client::connect_path(&sock, "host")
         .expect("a broker outside this pid namespace is trusted (root or this user)");
     let st = c.status().expect("and answers");
     assert_eq!(st.state, State::Capturing as u32);

@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
-use bassclient::control::Client;
-use bassclient::Port;
+use bassport::control::Client;
+use bassport::Port;
 
 use crate::{bassd_bin, send_signal, OwnedChild, PATIENCE};
 
@@ -189,7 +189,7 @@ impl Bassd {
     }
 
     /// A control client, if the broker answers.
-    pub fn try_client(&self) -> bassclient::Result<Client> {
+    pub fn try_client(&self) -> bassport::Result<Client> {
         Client::connect_path(&self.socket(), &self.name)
     }
 

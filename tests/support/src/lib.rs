@@ -8,7 +8,9 @@
 //! Nothing here mocks the thing under test: every helper starts real processes and uses real
 //! shared memory. Every wait is bounded (a guard against a hanging test, never a pass/fail on
 //! timing).
+#![deny(unsafe_code)]
 
+#[allow(unsafe_code)] // pre_exec: descriptors handed to a child bassd as a service manager would
 mod bassd;
 mod bins;
 mod cli;

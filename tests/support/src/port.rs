@@ -2,8 +2,8 @@
 
 use std::path::Path;
 
-use bassclient::control::AcquireRequest;
-use bassclient::Port;
+use bassport::control::AcquireRequest;
+use bassport::Port;
 
 use crate::PATIENCE;
 

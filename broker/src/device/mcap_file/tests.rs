@@ -4,9 +4,9 @@
 use std::collections::BTreeMap;
 use std::io::Cursor;
 
-use bassclient::format::chunk_flags;
-use bassclient::ros2::{self, AudioDataStamped, ChunkInfo, Header, Time};
-use bassclient::sidecar::{Acquisition, Lost, Recording, Sidecar};
+use basskit::ros2::{self, AudioDataStamped, ChunkInfo, Header, Time};
+use basskit::sidecar::{Acquisition, Lost, Recording, Sidecar};
+use bassport::format::chunk_flags;
 
 use super::*;
 

@@ -8,9 +8,9 @@ use std::path::Path;
 use std::time::Duration;
 
 use bass_test_support::TempDir;
-use bassclient::format::Header;
-use bassclient::testsignal::fill_pattern_interleaved;
-use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
+use basskit::testsignal::fill_pattern_interleaved;
+use bassport::format::Header;
+use bassport::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
 
 pub const NFPC: u32 = 16;
 pub const NCOP: u32 = 4;
@@ -21,7 +21,7 @@ pub fn width<T>(_: fn(&Header) -> &T) -> usize {
 }
 
 /// Every header field as (name, offset, width in bytes), from the one definition of the
-/// layout (`bassclient::format::Header`), not typed in: a field added there is fuzzed here.
+/// layout (`bassport::format::Header`), not typed in: a field added there is fuzzed here.
 macro_rules! fields {
     ($($f:ident),* $(,)?) => { [$((stringify!($f), offset_of!(Header, $f), width(|h| &h.$f))),*] };
 }

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
-use bassclient::Port;
+use bassport::Port;
 use clap::Args;
 
 use super::*;
@@ -55,8 +55,7 @@ pub(super) fn hold_connections(a: &HoldArgs) {
     let mut held = Vec::new();
     let (mut refused, mut last) = (0, String::new());
     for _ in 0..a.n {
-        match bassclient::control::Client::connect_path(socket, name).and_then(|mut c| c.status().map(|_| c))
-        {
+        match bassport::control::Client::connect_path(socket, name).and_then(|mut c| c.status().map(|_| c)) {
             Ok(c) => held.push(c),
             Err(e) => {
                 refused += 1;
@@ -75,7 +74,7 @@ pub(super) fn hold_connections(a: &HoldArgs) {
 /// Connects to a broker's control socket and sends status requests forever, to be
 /// SIGKILLed mid-request.
 pub(super) fn control_victim(a: &BrokerArgs) {
-    let mut c = bassclient::control::Client::connect_path(&a.socket, &a.name).expect("connect");
+    let mut c = bassport::control::Client::connect_path(&a.socket, &a.name).expect("connect");
     say!("ready pid={}", std::process::id());
     loop {
         let _ = c.status();
@@ -86,8 +85,8 @@ pub(super) fn control_victim(a: &BrokerArgs) {
 /// one line per round (`ROUND i ok epoch=E` or `ROUND i refused ...`), then `RESULT` and
 /// holds every mapping until stdin closes.
 pub(super) fn pin_loop(a: &PinArgs) {
-    let mut c = bassclient::control::Client::connect_path(&a.broker.socket, &a.broker.name).expect("connect");
-    let req = bassclient::control::AcquireRequest {
+    let mut c = bassport::control::Client::connect_path(&a.broker.socket, &a.broker.name).expect("connect");
+    let req = bassport::control::AcquireRequest {
         device: a.device.clone(),
         sample_rate: a.rate,
         frames_per_chunk: a.nfpc,

@@ -26,6 +26,7 @@
 //! Arguments are parsed with clap (`bass-fault-agent ROLE --help`); a bad value is an error
 //! naming the option, exit status 2. Output lines go through `say!`: if the test stops
 //! reading, the agent ends quietly with status 0 instead of panicking on EPIPE.
+#![deny(unsafe_code)]
 
 use std::fmt;
 use std::io::{BufRead, ErrorKind, Write};
@@ -34,7 +35,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use bassclient::{Error, Port};
+use bassport::{Error, Port};
 use clap::{Args, Parser, Subcommand};
 
 /// Prints one line for the test on stdout.
@@ -47,6 +48,7 @@ macro_rules! say {
 mod broker;
 mod readers;
 mod victims;
+#[allow(unsafe_code)] // clock_nanosleep(TIMER_ABSTIME)
 mod writer;
 
 use broker::{control_victim, hold_connections, pin_loop, BrokerArgs, HoldArgs, PinArgs};
@@ -162,6 +164,7 @@ fn stdin_stop_flag() -> Arc<AtomicBool> {
     flag
 }
 
+#[allow(unsafe_code)] // adopts the port descriptor the test passed
 fn open(a: &PortArg) -> Port {
     if let Some(fd) = a.fd {
         use std::os::fd::FromRawFd;

@@ -6,11 +6,11 @@ use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use bass_faults::count_corrupted;
-use bassclient::testsignal::pattern_expected;
-use bassclient::{Error, Port, State};
+use basskit::testsignal::pattern_expected;
+use bassport::{Error, Port, State};
 use clap::{Args, ValueEnum};
 
-use bassclient::sys::monotonic_ns;
+use bassport::sys::monotonic_ns;
 
 use super::writer::own_status_kb;
 use super::*;

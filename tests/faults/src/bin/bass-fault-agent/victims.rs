@@ -4,7 +4,7 @@
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
-use bassclient::{Error, Port};
+use bassport::{Error, Port};
 use clap::{Args, ValueEnum};
 
 use super::*;

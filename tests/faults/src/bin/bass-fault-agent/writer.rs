@@ -3,11 +3,11 @@
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use bassclient::testsignal::fill_pattern_interleaved;
-use bassclient::{ChunkMeta, Geometry, PortParams, Source, Writer};
+use basskit::testsignal::fill_pattern_interleaved;
+use bassport::{ChunkMeta, Geometry, PortParams, Source, Writer};
 use clap::Args;
 
-use bassclient::sys::monotonic_ns;
+use bassport::sys::monotonic_ns;
 
 use super::*;
 

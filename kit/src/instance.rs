@@ -22,7 +22,7 @@ use std::io::{self, Read, Write};
 use std::os::fd::OwnedFd;
 use std::path::{Path, PathBuf};
 
-use crate::paths;
+use bassport::paths;
 
 /// Why a name could not be taken.
 #[derive(Debug, thiserror::Error)]

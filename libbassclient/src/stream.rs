@@ -1,4 +1,4 @@
-//! C ABI of the callback stream ([`crate::stream`]): `bass_stream_start` (bass's own thread),
+//! C ABI of the callback stream ([`bassport::stream`]): `bass_stream_start` (bass's own thread),
 //! `bass_stream_create` + `bass_stream_run` (the caller's thread), `bass_stream_stop` (any
 //! thread, also inside a callback) and `bass_stream_close`. Conventions in [`super`].
 
@@ -7,9 +7,9 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::thread::ThreadId;
 
 use super::{bass_port, bass_result, boundary, nonnull, nonnull_mut, put, Failure, Registry};
-use crate::error::Error;
-use crate::format::MESSAGE_LEN;
-use crate::stream::{Block, Config, Control, Event, SampleLayout, Start, Stopper, Stream, StreamHandle};
+use bassport::error::Error;
+use bassport::format::MESSAGE_LEN;
+use bassport::stream::{Block, Config, Control, Event, SampleLayout, Start, Stopper, Stream, StreamHandle};
 
 /// Start at the oldest frame in the window.
 pub const BASS_START_OLDEST: u32 = 0;

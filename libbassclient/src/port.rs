@@ -10,8 +10,8 @@ use super::{
     boundary, c_str, copy_text, nonnull, nonnull_mut, put, Failure, Registry, BASS_DEVICE_LEN,
     BASS_MESSAGE_LEN, BASS_WAIT_FOREVER,
 };
-use crate::error::Error;
-use crate::reader::{ChunkInfo, Port, PortInfo, View};
+use bassport::error::Error;
+use bassport::reader::{ChunkInfo, Port, PortInfo, View};
 
 /// Opaque handle of an open port (reader).
 pub struct bass_port {

@@ -95,7 +95,7 @@ impl Port {
     ///
     /// ```
     /// use std::time::Duration;
-    /// use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+    /// use bassport::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
     /// # let dir = std::env::temp_dir().join(format!("bass-doc-open-{}", std::process::id()));
     /// # std::fs::create_dir_all(&dir).unwrap();
     /// # std::env::set_var("BASS_RUNTIME_DIR", &dir);
@@ -113,7 +113,7 @@ impl Port {
     /// # drop(port);
     /// # w.remove()?;
     /// # std::fs::remove_dir_all(&dir).ok();
-    /// # Ok::<(), bassclient::Error>(())
+    /// # Ok::<(), bassport::Error>(())
     /// ```
     pub fn open(name: &str) -> Result<Port> {
         let path = paths::port_path(name)?;
@@ -155,7 +155,7 @@ impl Port {
     /// Opens the port file at `path` (the caller chose the file: its owner is not checked).
     ///
     /// ```
-    /// use bassclient::{Error, Geometry, Port, PortParams, Writer};
+    /// use bassport::{Error, Geometry, Port, PortParams, Writer};
     /// # let dir = std::env::temp_dir().join(format!("bass-doc-open-path-{}", std::process::id()));
     /// # std::fs::create_dir_all(&dir).unwrap();
     /// let path = dir.join("bass-doc.port");
@@ -167,7 +167,7 @@ impl Port {
     /// # drop(port);
     /// # w.remove()?;
     /// # std::fs::remove_dir_all(&dir).ok();
-    /// # Ok::<(), bassclient::Error>(())
+    /// # Ok::<(), bassport::Error>(())
     /// ```
     pub fn open_path(path: &Path) -> Result<Port> {
         Port::open_path_named(path, &path.display().to_string(), None)
@@ -345,7 +345,7 @@ impl Port {
     /// counted in [`Read::loss`] and the block starts at the oldest frame still there:
     ///
     /// ```
-    /// use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+    /// use bassport::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
     /// # let dir = std::env::temp_dir().join(format!("bass-doc-gad-{}", std::process::id()));
     /// # std::fs::create_dir_all(&dir).unwrap();
     /// # let path = dir.join("bass-doc.port");
@@ -364,7 +364,7 @@ impl Port {
     /// # drop(port);
     /// # w.remove()?;
     /// # std::fs::remove_dir_all(&dir).ok();
-    /// # Ok::<(), bassclient::Error>(())
+    /// # Ok::<(), bassport::Error>(())
     /// ```
     pub fn get_audio_data(&self, max: usize, nfr: &mut u64, out: &mut [&mut [i32]]) -> Result<Read> {
         if out.is_empty() || out.len() > self.geometry.channels as usize {
@@ -432,7 +432,7 @@ impl Port {
     ///
     /// ```
     /// use std::time::Duration;
-    /// use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
+    /// use bassport::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
     /// # let dir = std::env::temp_dir().join(format!("bass-doc-wait-{}", std::process::id()));
     /// # std::fs::create_dir_all(&dir).unwrap();
     /// # let path = dir.join("bass-doc.port");
@@ -453,7 +453,7 @@ impl Port {
     /// # drop(port);
     /// # w.remove()?;
     /// # std::fs::remove_dir_all(&dir).ok();
-    /// # Ok::<(), bassclient::Error>(())
+    /// # Ok::<(), bassport::Error>(())
     /// ```
     pub fn wait(&self, frame: u64, timeout: Duration) -> Result<u64> {
         let timeout_ns = u64::try_from(timeout.as_nanos()).unwrap_or(u64::MAX);
@@ -589,8 +589,8 @@ impl Port {
     /// Timestamps and flags of the chunk that holds `frame`.
     ///
     /// ```
-    /// use bassclient::format::chunk_flags;
-    /// use bassclient::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
+    /// use bassport::format::chunk_flags;
+    /// use bassport::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};
     /// # let dir = std::env::temp_dir().join(format!("bass-doc-chunk-{}", std::process::id()));
     /// # std::fs::create_dir_all(&dir).unwrap();
     /// # let path = dir.join("bass-doc.port");
@@ -605,7 +605,7 @@ impl Port {
     /// # drop(port);
     /// # w.remove()?;
     /// # std::fs::remove_dir_all(&dir).ok();
-    /// # Ok::<(), bassclient::Error>(())
+    /// # Ok::<(), bassport::Error>(())
     /// ```
     pub fn chunk_info(&self, frame: u64) -> Result<ChunkInfo> {
         self.check_size()?;

@@ -28,7 +28,7 @@
 //! `std_msgs` and `builtin_interfaces` packages; their comments are left out.
 //!
 //! ```
-//! use bassclient::ros2::{AudioDataStamped, Header, Time};
+//! use basskit::ros2::{AudioDataStamped, Header, Time};
 //! let header = Header { stamp: Time::from_ns(1_700_000_000_250_000_000), frame_id: String::new() };
 //! let mut bytes = Vec::new();
 //! AudioDataStamped::encode_samples(&header, &[1, -2, 3, -4], &mut bytes);
@@ -216,7 +216,7 @@ pub struct ChunkInfo {
     pub chunk_first_frame: u64,
     /// Frames per chunk of the port.
     pub chunk_frames: u32,
-    /// The chunk's flags ([`crate::format::chunk_flags`]).
+    /// The chunk's flags ([`bassport::format::chunk_flags`]).
     pub flags: u32,
     /// CLOCK_MONOTONIC of the chunk's first frame, ns.
     pub monotonic_ns: u64,

@@ -25,7 +25,7 @@ impl Writer {
     /// until the window has passed `first_frame`).
     ///
     /// ```
-    /// # use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+    /// # use bassport::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
     /// # let dir = std::env::temp_dir().join(format!("bass-doc-start-at-{}", std::process::id()));
     /// # std::fs::create_dir_all(&dir).unwrap();
     /// # let path = dir.join("bass-doc.port");
@@ -41,7 +41,7 @@ impl Writer {
     /// assert_eq!((r.frames, r.loss, &out[..4]), (4, 0, &[1, 2, 3, 4][..]));
     /// # w.remove()?;
     /// # std::fs::remove_dir_all(&dir).ok();
-    /// # Ok::<(), bassclient::Error>(())
+    /// # Ok::<(), bassport::Error>(())
     /// ```
     pub fn start_at(&mut self, first_frame: u64) -> Result<()> {
         let nfpc = u64::from(self.geometry.frames_per_chunk);
@@ -81,7 +81,7 @@ impl Writer {
     /// last + 1` does nothing.
     ///
     /// ```
-    /// # use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+    /// # use bassport::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
     /// # let dir = std::env::temp_dir().join(format!("bass-doc-skip-to-{}", std::process::id()));
     /// # std::fs::create_dir_all(&dir).unwrap();
     /// # let path = dir.join("bass-doc.port");
@@ -99,7 +99,7 @@ impl Writer {
     /// assert_eq!((r.frames, &out[..2]), (2, &[15, 16][..]));
     /// # w.remove()?;
     /// # std::fs::remove_dir_all(&dir).ok();
-    /// # Ok::<(), bassclient::Error>(())
+    /// # Ok::<(), bassport::Error>(())
     /// ```
     pub fn skip_to(&mut self, first: u64) -> Result<u64> {
         let nfpc = u64::from(self.geometry.frames_per_chunk);

@@ -1,8 +1,8 @@
 //! The command-line vocabulary bass's programs share — `bassd`, `bass`, `bass-bridge` —, so
 //! that a value means the same everywhere: durations ([`parse_seconds`]), the bounds of an
-//! Acquire ([`MAX_SAMPLE_RATE`], [`SAMPLE_FORMAT_NAMES`]) and, with the `cli` feature (clap),
-//! the Acquire options themselves (`AcquireArgs`, used by `bassd --acquire` and
-//! `bass acquire`). The C library is built without the feature.
+//! Acquire ([`MAX_SAMPLE_RATE`], [`SAMPLE_FORMAT_NAMES`]) and the Acquire options themselves
+//! ([`AcquireArgs`], clap; used by `bassd --acquire` and `bass acquire`). The C library does
+//! not link this crate.
 
 /// Highest sample rate an Acquire may ask for (Hz).
 pub const MAX_SAMPLE_RATE: u32 = 768_000;
@@ -26,11 +26,10 @@ pub fn parse_seconds(s: &str) -> Result<f64, String> {
     Ok(v)
 }
 
-#[cfg(feature = "cli")]
 mod acquire {
     use super::{MAX_SAMPLE_RATE, SAMPLE_FORMAT_NAMES};
-    use crate::control::AcquireRequest;
-    use crate::format::MAX_CHANNELS;
+    use bassport::control::AcquireRequest;
+    use bassport::format::MAX_CHANNELS;
 
     /// Acquire parameters shared by `bassd --acquire DEVICE` and `bass acquire [DEVICE]`; the
     /// defaults are the seed's ([`AcquireRequest::default`]). Every number is range-checked by
@@ -143,13 +142,12 @@ mod acquire {
         clap::builder::PossibleValuesParser::new(SAMPLE_FORMAT_NAMES)
     }
 }
-#[cfg(feature = "cli")]
 pub use acquire::AcquireArgs;
 
-#[cfg(all(test, feature = "cli"))]
+#[cfg(test)]
 mod tests {
     use super::*;
-    use crate::control::AcquireRequest;
+    use bassport::control::AcquireRequest;
     use clap::Parser;
 
     #[derive(Parser, Debug)]

@@ -2,7 +2,7 @@
 //!
 //! Each call opens a connection to the broker's control socket, sends one request, waits
 //! for the reply and closes the connection (the broker keeps no per-client state). The
-//! conventions of [`crate::ffi`] apply: `bass_result` codes, `bass_last_error()` for the
+//! conventions of [the crate] apply: `bass_result` codes, `bass_last_error()` for the
 //! detail, no panic crosses the boundary. A broker that is not running gives
 //! `BASS_ERR_NO_BROKER`; a request the broker refuses gives `BASS_ERR_BROKER` with the
 //! broker's message in `bass_last_error()`.
@@ -14,8 +14,8 @@ use std::ffi::c_char;
 use super::{
     bass_result, boundary, c_str, copy_text, nonnull_mut, Failure, BASS_DEVICE_LEN, BASS_MESSAGE_LEN,
 };
-use crate::control::{AcquireRequest, Client, Status, DEFAULT_CHANNELS};
-use crate::paths::DEFAULT_NAME;
+use bassport::control::{AcquireRequest, Client, Status, DEFAULT_CHANNELS};
+use bassport::paths::DEFAULT_NAME;
 
 /// The state of a broker and of its current port, as returned by `bass_status()`.
 /// (Named `bass_broker_status` because C cannot have a type and a function both named

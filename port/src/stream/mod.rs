@@ -17,8 +17,8 @@
 //! of a port *file* checks its size (one `lseek`).
 //!
 //! ```
-//! use bassclient::stream::{Config, Control, Stream};
-//! use bassclient::{ChunkMeta, Geometry, PortParams, Source, Writer};
+//! use bassport::stream::{Config, Control, Stream};
+//! use bassport::{ChunkMeta, Geometry, PortParams, Source, Writer};
 //! # let dir = std::env::temp_dir().join(format!("bass-doc-stream-{}", std::process::id()));
 //! # std::fs::create_dir_all(&dir).unwrap();
 //! # let path = dir.join("bass-doc.port");
@@ -39,7 +39,7 @@
 //! assert_eq!(seen, [(1, 0, vec![1, 2], vec![-1, -2]), (3, 0, vec![3, 4], vec![-3, -4])]);
 //! # w.remove()?;
 //! # std::fs::remove_dir_all(&dir).ok();
-//! # Ok::<(), bassclient::Error>(())
+//! # Ok::<(), bassport::Error>(())
 //! ```
 
 use std::path::{Path, PathBuf};
@@ -55,7 +55,7 @@ use crate::sys::{self, FutexWait};
 mod thread;
 mod types;
 
-pub use thread::{set_fifo, StreamHandle};
+pub use thread::StreamHandle;
 pub use types::{Block, Config, Control, Event, SampleLayout, Start, Stopper};
 
 /// Longest futex wait between two looks at the stop flag while no block is due.
@@ -240,10 +240,10 @@ impl Stream {
         E: FnMut(&Event<'_>) -> Control,
     {
         // Put back when the run ends, also by a callback's panic.
-        let mut restore = thread::Restore(None);
+        let mut restore = sys::sched::Restore(None);
         if let Some(p) = self.cfg.realtime_priority {
-            let before = thread::Sched::current();
-            match set_fifo(p) {
+            let before = sys::sched::Sched::current();
+            match sys::sched::set_fifo(p) {
                 Ok(()) => restore.0 = before,
                 Err(errno) => {
                     if on_event(&Event::RealtimeRefused { errno }) == Control::Stop {

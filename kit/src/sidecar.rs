@@ -16,7 +16,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::format::{chunk_flags, MAX_CHANNELS, MAX_FRAME_INDEX};
+use bassport::format::{chunk_flags, MAX_CHANNELS, MAX_FRAME_INDEX};
 use serde::{Deserialize, Serialize};
 
 /// Every chunk flag a row may carry.

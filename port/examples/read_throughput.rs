@@ -1,10 +1,10 @@
 //! Read throughput of a 1-second stereo block (44.1 kHz) through `get_audio_data`, against
 //! memcpy of the same bytes, measured side by side in one run (medians of 31 runs).
-//! `cargo run --release -p bassclient --example read_throughput`
+//! `cargo run --release -p bassport --example read_throughput`
 
 use std::time::Instant;
 
-use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+use bassport::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(|a, b| a.partial_cmp(b).unwrap());

@@ -37,7 +37,7 @@ impl Writer {
     /// a memfd port, the path a file port of its name would have).
     ///
     /// ```
-    /// use bassclient::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
+    /// use bassport::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
     /// # let dir = std::env::temp_dir().join(format!("bass-doc-resume-{}", std::process::id()));
     /// # std::fs::create_dir_all(&dir).unwrap();
     /// # let path = dir.join("bass-doc.port");
@@ -59,7 +59,7 @@ impl Writer {
     /// # drop(port);
     /// # w2.remove()?;
     /// # std::fs::remove_dir_all(&dir).ok();
-    /// # Ok::<(), bassclient::Error>(())
+    /// # Ok::<(), bassport::Error>(())
     /// ```
     pub fn resume(file: File, path: &Path) -> Result<Writer> {
         let meta = file.metadata().map_err(|e| Error::io("fstat of the port to resume", e))?;

@@ -1,5 +1,11 @@
 //! Thin, checked wrappers over the Linux calls bass needs: futex, clocks, process liveness
-//! (all through rustix: no `unsafe` here).
+//! (through rustix, no `unsafe`), and in [`sched`] and [`peer`] the calls rustix does not
+//! wrap (libc, each `unsafe` block with its SAFETY comment).
+
+#[allow(unsafe_code)] // libc's getsockopt (SO_PEERCRED)
+pub mod peer;
+#[allow(unsafe_code)] // libc's sched_getscheduler, sched_getparam, sched_setscheduler
+pub mod sched;
 
 use std::num::NonZeroU32;
 use std::sync::atomic::AtomicU32;

@@ -111,7 +111,7 @@ impl State {
     /// The state's name (`"capturing"`); see [`State::c_name`].
     ///
     /// ```
-    /// use bassclient::format::State;
+    /// use bassport::format::State;
     /// assert_eq!(State::Starting.name(), "starting");
     /// assert_eq!(State::from_u32(1).map(State::name), Some("capturing"));
     /// ```

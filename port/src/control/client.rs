@@ -30,8 +30,8 @@ fn closed_without_reply() -> Error {
 ///
 /// ```no_run
 /// use std::time::Duration;
-/// use bassclient::control::{AcquireRequest, Client};
-/// use bassclient::Port;
+/// use bassport::control::{AcquireRequest, Client};
+/// use bassport::Port;
 ///
 /// let mut broker = Client::connect("default")?;
 /// let req = AcquireRequest { device: "sim:pattern".into(), sample_rate: 48000, ..Default::default() };
@@ -43,7 +43,7 @@ fn closed_without_reply() -> Error {
 /// let read = port.get_audio_data(4800, &mut nfr, &mut [&mut left, &mut right])?;
 /// println!("{} frames, {} lost; broker state {}", read.frames, read.loss, broker.status()?.state);
 /// broker.stop()?;
-/// # Ok::<(), bassclient::Error>(())
+/// # Ok::<(), bassport::Error>(())
 /// ```
 ///
 /// No broker of that name is an error naming it (runs without a broker):
@@ -52,7 +52,7 @@ fn closed_without_reply() -> Error {
 /// # let dir = std::env::temp_dir().join(format!("bass-doc-client-{}", std::process::id()));
 /// # std::fs::create_dir_all(&dir).unwrap();
 /// # std::env::set_var("BASS_RUNTIME_DIR", &dir);
-/// use bassclient::{control::Client, Error};
+/// use bassport::{control::Client, Error};
 /// let e = Client::connect("nobody-here").err().unwrap();
 /// assert!(matches!(e, Error::NoBroker { ref name, .. } if name == "nobody-here"));
 /// # std::fs::remove_dir_all(&dir).ok();

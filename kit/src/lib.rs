@@ -1,0 +1,18 @@
+//! What bass's programs (`bassd`, `bass`, `bass-bridge`, the bench) share and a client never
+//! needs; the C library does not link it.
+//!
+//! - [`args`]: the command-line vocabulary (durations, the Acquire options and their bounds);
+//! - [`instance`]: the instance lock, one process per name in a runtime directory;
+//! - [`sidecar`]: the sidecar of a recording (`FILE.wav.json`), for `bass record` and the replay;
+//! - [`ros2`]: the ROS 2 messages of bass (type names, definitions, CDR) for MCAP and topics;
+//! - [`testsignal`]: deterministic test signals (the pattern every sample of which names its
+//!   frame and channel).
+
+#![warn(missing_docs)]
+#![forbid(unsafe_code)]
+
+pub mod args;
+pub mod instance;
+pub mod ros2;
+pub mod sidecar;
+pub mod testsignal;
