@@ -49,8 +49,12 @@ pub const HEADER_LEN: usize = 96;
 pub const SAMPLE_FORMAT_S32: u16 = 1;
 /// Most frames a chunk may carry (a larger value is a corrupt or hostile message).
 pub const MAX_FRAMES: u32 = 1 << 20;
-/// Most channels.
-pub const MAX_CHANNELS: u16 = 64;
+/// Most channels: the port format's.
+pub const MAX_CHANNELS: u16 = {
+    let m = bassport::format::MAX_CHANNELS;
+    assert!(m <= u16::MAX as u32);
+    m as u16
+};
 
 /// Message flags: the port's chunk flags with their own bits, then the bridge's.
 pub mod flags {

@@ -16,8 +16,6 @@ pub struct Config {
     pub name: String,
     /// Group allowed to control the broker and read its port, besides its own user.
     pub group: Option<u32>,
-    /// Largest port file an Acquire may create (bytes).
-    pub max_port_bytes: u64,
     /// SCHED_FIFO priority of the capture thread (0 = none).
     pub rt_priority: i32,
     /// Stall watchdog threshold in ms (0 = max(4 chunks, 250 ms)).
@@ -45,7 +43,6 @@ impl Default for Config {
         Config {
             name: paths::DEFAULT_NAME.into(),
             group: None,
-            max_port_bytes: DEFAULT_MAX_PORT_BYTES,
             rt_priority: 70,
             stall_ms: 0,
             acquire: None,
@@ -60,7 +57,7 @@ impl Default for Config {
 }
 
 /// Default memory cap of a port: 512 MiB (about 23 minutes of 48 kHz stereo).
-pub const DEFAULT_MAX_PORT_BYTES: u64 = 512 << 20;
+pub use basskit::limits::DEFAULT_MAX_PORT_BYTES;
 /// Default idle timeout of a control connection.
 pub const DEFAULT_IDLE_TIMEOUT: Duration = Duration::from_secs(30);
 /// Default bound on one device open (`bassd --open-timeout-ms`).

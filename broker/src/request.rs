@@ -7,76 +7,19 @@
 //! running acquisition stopped first (a device can usually be opened once); that failure
 //! leaves the port in the Error state with the message.
 
+use basskit::limits::Holder;
 use bassport::control::AcquireRequest;
 use bassport::format::{Geometry, DEVICE_LEN};
 
 use crate::convert::SampleFormat;
 use crate::device::sim::{SimKind, DEVICES};
 
-pub use basskit::args::MAX_SAMPLE_RATE;
+pub use bassport::format::MAX_SAMPLE_RATE;
 
 /// Operator-set bounds a client's Acquire cannot exceed (bassd `--min-chunk-us`,
-/// `--max-rate`, `--max-channels`, `--max-window-s`). The defaults keep the capture
-/// thread of one acquisition on the simulated device below 5 % of a core (measured in
-/// docs/reliability.md) and a window below one hour; an operator widens them up to the
-/// format's own limits (768 kHz, 64 channels, 1-frame chunks).
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Limits {
-    /// Shortest chunk (µs): the capture thread wakes once per chunk.
-    pub min_chunk_us: u32,
-    /// Highest sample rate (Hz).
-    pub max_rate: u32,
-    /// Most channels.
-    pub max_channels: u32,
-    /// Longest window (nFramesPerChunk × nChunksOnPort / rate), in seconds.
-    pub max_window_s: u32,
-}
-
-impl Default for Limits {
-    fn default() -> Self {
-        Limits { min_chunk_us: 500, max_rate: 192_000, max_channels: 32, max_window_s: 3600 }
-    }
-}
-
-impl Limits {
-    /// Refuses a geometry outside the bounds, naming the bound and the option that widens it.
-    pub fn check(&self, g: &Geometry) -> Result<(), String> {
-        if g.sample_rate > self.max_rate {
-            return Err(format!(
-                "sampleRate = {} Hz is above this broker's limit of {} Hz (bassd --max-rate)",
-                g.sample_rate, self.max_rate
-            ));
-        }
-        if g.channels > self.max_channels {
-            return Err(format!(
-                "channels = {} is above this broker's limit of {} (bassd --max-channels)",
-                g.channels, self.max_channels
-            ));
-        }
-        let rate = u64::from(g.sample_rate.max(1));
-        if u64::from(g.frames_per_chunk) * 1_000_000 < u64::from(self.min_chunk_us) * rate {
-            return Err(format!(
-                "a chunk of {} frames at {} Hz lasts {:.1} µs, below this broker's minimum chunk \
-                 duration of {} µs (bassd --min-chunk-us)",
-                g.frames_per_chunk,
-                g.sample_rate,
-                f64::from(g.frames_per_chunk) * 1e6 / rate as f64,
-                self.min_chunk_us
-            ));
-        }
-        let window = u64::from(g.frames_per_chunk) * u64::from(g.chunks_on_port);
-        if window > u64::from(self.max_window_s) * rate {
-            return Err(format!(
-                "a window of {window} frames at {} Hz lasts {:.0} s, above this broker's limit of \
-                 {} s (bassd --max-window-s)",
-                g.sample_rate,
-                window as f64 / rate as f64,
-                self.max_window_s
-            ));
-        }
-        Ok(())
-    }
-}
+/// `--max-rate`, `--max-channels`, `--max-window-s`, `--max-port-bytes`): basskit's, which the
+/// mirror shares.
+pub use basskit::limits::Limits;
 
 /// Which device a request names.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -109,7 +52,7 @@ pub struct Checked {
 }
 
 /// Checks `r` against the format's limits, the operator's bounds and the broker's memory cap.
-pub fn check(r: &AcquireRequest, max_port_bytes: u64, limits: &Limits) -> Result<Checked, String> {
+pub fn check(r: &AcquireRequest, limits: &Limits) -> Result<Checked, String> {
     let name = r.device.as_str();
     if name.is_empty() {
         return Err("device name is empty".into());
@@ -146,16 +89,8 @@ pub fn check(r: &AcquireRequest, max_port_bytes: u64, limits: &Limits) -> Result
         frames_per_chunk: r.frames_per_chunk,
         chunks_on_port: r.chunks_on_port,
     };
-    let layout =
-        geometry.layout().map_err(|e| e.to_string().trim_start_matches("invalid argument: ").to_owned())?;
-    if layout.total_size > max_port_bytes {
-        return Err(format!(
-            "a window of {} x {} frames x {} channels needs a port of {} bytes, above this broker's memory cap of {} bytes (bassd --max-port-bytes)",
-            r.frames_per_chunk, r.chunks_on_port, r.channels, layout.total_size, max_port_bytes
-        ));
-    }
-    limits.check(&geometry)?;
-    Ok(Checked { geometry, device, format, port_bytes: layout.total_size })
+    let port_bytes = limits.check(&geometry, Holder::Broker)?;
+    Ok(Checked { geometry, device, format, port_bytes })
 }
 
 /// `file:PATH`, `file-renumber:PATH` or `file-loop:PATH` (after `sim:`); `None` for any other name.
@@ -203,7 +138,8 @@ mod tests {
 
     #[test]
     fn the_seed_defaults_pass() {
-        let c = check(&AcquireRequest::default(), 1 << 30, &Limits::default()).unwrap();
+        let c = check(&AcquireRequest::default(), &Limits { max_port_bytes: 1 << 30, ..Limits::default() })
+            .unwrap();
         assert_eq!(c.device, DeviceKind::Alsa("hw:1,0".into()));
         assert_eq!(c.geometry.frames_per_chunk, 2205);
     }
@@ -224,29 +160,29 @@ mod tests {
             (req("sim:sine", 10_000_000, 64, 20, 2), "sampleRate = 10000000"),
         ];
         for (r, want) in cases {
-            let e = check(&r, 64 << 20, &Limits::default()).unwrap_err();
+            let e = check(&r, &Limits { max_port_bytes: 64 << 20, ..Limits::default() }).unwrap_err();
             assert!(e.contains(want), "{r:?}: {e:?} does not mention {want:?}");
         }
         let mut forced = req("sim:sine", 48000, 64, 20, 2);
         forced.format = Some("U8".into());
-        assert!(check(&forced, 1 << 30, &Limits::default()).unwrap_err().contains("unknown sample format"));
+        assert!(check(&forced, &Limits::default()).unwrap_err().contains("unknown sample format"));
     }
 
     #[test]
     fn operator_bounds_refuse_a_starving_request_and_widened_bounds_accept_it() {
         let starving = req("sim:pattern", 768_000, 1, 4096, 64);
-        let e = check(&starving, 1 << 30, &Limits::default()).unwrap_err();
+        let e = check(&starving, &Limits::default()).unwrap_err();
         assert!(e.contains("--max-rate"), "{e}");
         let wide_rate = Limits { max_rate: 768_000, ..Limits::default() };
-        let e = check(&starving, 1 << 30, &wide_rate).unwrap_err();
+        let e = check(&starving, &wide_rate).unwrap_err();
         assert!(e.contains("--max-channels"), "{e}");
         let wide_ch = Limits { max_channels: 64, ..wide_rate };
-        let e = check(&starving, 1 << 30, &wide_ch).unwrap_err();
+        let e = check(&starving, &wide_ch).unwrap_err();
         assert!(e.contains("minimum chunk duration of 500 µs"), "{e}");
         let wide = Limits { min_chunk_us: 0, ..wide_ch };
-        assert!(check(&starving, 1 << 30, &wide).is_ok());
+        assert!(check(&starving, &wide).is_ok());
         let long = req("sim:pattern", 8000, 8000, 3601, 1);
-        assert!(check(&long, 1 << 30, &Limits::default()).unwrap_err().contains("--max-window-s"));
-        assert!(check(&req("sim:pattern", 8000, 4, 10, 1), 1 << 30, &Limits::default()).is_ok());
+        assert!(check(&long, &Limits::default()).unwrap_err().contains("--max-window-s"));
+        assert!(check(&req("sim:pattern", 8000, 4, 10, 1), &Limits::default()).is_ok());
     }
 }

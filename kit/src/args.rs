@@ -4,8 +4,7 @@
 //! ([`AcquireArgs`], clap; used by `bassd --acquire` and `bass acquire`). The C library does
 //! not link this crate.
 
-/// Highest sample rate an Acquire may ask for (Hz).
-pub const MAX_SAMPLE_RATE: u32 = 768_000;
+pub use bassport::format::MAX_SAMPLE_RATE;
 
 /// The sample formats an Acquire may force (ALSA's names), in the broker's order of
 /// preference (the broker's converters are checked against this list).

@@ -50,6 +50,9 @@ pub const SAMPLES_ALIGN: u64 = 4096;
 pub const SAMPLE_FORMAT_S32: u32 = 1;
 /// Most channels a port may carry.
 pub const MAX_CHANNELS: u32 = 64;
+/// Highest sample rate an acquisition may have (Hz): the bound of every Acquire, whatever an
+/// operator allows (`basskit::limits::Limits` holds the operator's narrower bounds).
+pub const MAX_SAMPLE_RATE: u32 = 768_000;
 /// Largest valid frame index; beyond it a header is corrupt (a million years at 192 kHz
 /// is far below this), and `frame + nFOP` can never overflow.
 pub const MAX_FRAME_INDEX: u64 = 1 << 62;

@@ -303,7 +303,7 @@ impl Core {
             frames_per_chunk: h.frames,
             chunks_on_port: h.chunks_on_port,
         };
-        if let Err(why) = self.bounds.check(&geometry) {
+        if let Err(why) = self.bounds.check(&geometry, super::bounds::Holder::Mirror) {
             self.st.invalid_messages += 1;
             if self.replica.is_none() {
                 self.st.error = Some(format!("cannot make the replica for this source: {why}"));

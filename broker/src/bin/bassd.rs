@@ -3,7 +3,7 @@
 
 use anyhow::{Context, Result};
 use bassd::request::Limits;
-use bassd::server::{self, Config, DEFAULT_MAX_PORT_BYTES};
+use bassd::server::{self, Config};
 use basskit::args::AcquireArgs;
 use clap::Parser;
 
@@ -25,10 +25,6 @@ struct BassdArgs {
     /// Also let members of GROUP control the broker and read its port
     #[arg(long, value_name = "GROUP")]
     group: Option<String>,
-    /// Memory cap of one port in bytes
-    #[arg(long, value_name = "N", default_value_t = DEFAULT_MAX_PORT_BYTES,
-          value_parser = clap::value_parser!(u64).range(1..))]
-    max_port_bytes: u64,
     /// SCHED_FIFO priority of the capture thread; 0 = none
     #[arg(long, value_name = "P", default_value_t = Config::default().rt_priority,
           value_parser = clap::value_parser!(i32).range(0..=99))]
@@ -73,21 +69,9 @@ struct Hardening {
     /// e.g. 'sim:file:/data/*', 'bass_jack'
     #[arg(long = "allow-device", value_name = "PATTERN")]
     allow_device: Vec<String>,
-    /// Shortest chunk a client may ask for, in µs
-    #[arg(long, value_name = "US", default_value_t = Limits::default().min_chunk_us)]
-    min_chunk_us: u32,
-    /// Highest sample rate a client may ask for (at most 768000)
-    #[arg(long, value_name = "HZ", default_value_t = Limits::default().max_rate,
-          value_parser = clap::value_parser!(u32).range(1..=768_000))]
-    max_rate: u32,
-    /// Most channels a client may ask for (at most 64)
-    #[arg(long, value_name = "N", default_value_t = Limits::default().max_channels,
-          value_parser = clap::value_parser!(u32).range(1..=64))]
-    max_channels: u32,
-    /// Longest window a client may ask for, in seconds
-    #[arg(long, value_name = "S", default_value_t = Limits::default().max_window_s,
-          value_parser = clap::value_parser!(u32).range(1..))]
-    max_window_s: u32,
+    /// What a client's Acquire may ask for (the mirror has the same options).
+    #[command(flatten)]
+    limits: Limits,
     /// Close control connections idle this long (ms)
     #[arg(long, value_name = "MS", default_value_t = server::DEFAULT_IDLE_TIMEOUT.as_millis() as u64,
           value_parser = clap::value_parser!(u64).range(1..))]
@@ -125,17 +109,11 @@ fn config(a: &BassdArgs) -> Result<Config> {
     Ok(Config {
         name: a.name.clone(),
         group,
-        max_port_bytes: a.max_port_bytes,
         rt_priority: a.rt_priority,
         stall_ms: a.stall_ms,
         acquire,
         policy: bassd::policy::DevicePolicy::new(&h.allow_device).map_err(anyhow::Error::msg)?,
-        limits: Limits {
-            min_chunk_us: h.min_chunk_us,
-            max_rate: h.max_rate,
-            max_channels: h.max_channels,
-            max_window_s: h.max_window_s,
-        },
+        limits: h.limits.clone(),
         idle_timeout: std::time::Duration::from_millis(h.idle_timeout_ms),
         open_timeout: std::time::Duration::from_millis(a.open_timeout_ms),
         restart_grace_ms: a.restart_grace_ms,

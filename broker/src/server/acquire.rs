@@ -82,7 +82,7 @@ impl Broker {
             tracing::error!("{msg}");
             return Some(Reply::error(ErrorKind::Device, &msg));
         }
-        let checked = match request::check(r, self.cfg.max_port_bytes, &self.cfg.limits) {
+        let checked = match request::check(r, &self.cfg.limits) {
             Ok(c) => c,
             Err(msg) => {
                 tracing::warn!("Acquire refused (nothing changed): {msg}");
@@ -315,7 +315,7 @@ impl Broker {
             return Ok(());
         }
         let current = self.current.as_ref().map_or(0, |a| a.port.size());
-        let budget = PIN_BUDGET_FACTOR.saturating_mul(self.cfg.max_port_bytes);
+        let budget = PIN_BUDGET_FACTOR.saturating_mul(self.cfg.limits.max_port_bytes);
         let total = pinned + current + new_bytes;
         if total > budget {
             return Err(format!(

@@ -85,7 +85,7 @@ impl Broker {
             }
         };
         let epoch = writer.epoch();
-        let checked = request::check(&stored.request, self.cfg.max_port_bytes, &self.cfg.limits);
+        let checked = request::check(&stored.request, &self.cfg.limits);
         let lfi = writer.last_frame_index();
         let why_not = if lfi > MAX_RESUMED_FRAME {
             Some(format!("its last frame index {lfi} is past {MAX_RESUMED_FRAME} (2^53)"))
