@@ -22,9 +22,9 @@ use std::time::{Duration, Instant};
 use bassport::sys::monotonic_ns;
 
 use crate::e2e::Proc;
-use crate::pipewire::{QUANTUM, RATE};
 use crate::procs::Child;
 use crate::stats::{fmt_ns, median, quantile};
+use crate::workload::{CLIENTS, QUANTUM, RATE};
 
 /// Per client count: (JACK delays, bass callback stream delays), ns.
 #[derive(Clone, Debug, Default)]
@@ -189,7 +189,7 @@ pub fn run(bassd: &Path, secs: f64) -> CallbackResults {
         res.skipped = Some("jackd not found (jackd2)".into());
         return res;
     }
-    for &n in crate::pipewire::CLIENTS {
+    for &n in CLIENTS {
         let jack = match jack_round(n, secs) {
             Ok(v) => v,
             Err(e) => {

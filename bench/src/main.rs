@@ -32,6 +32,7 @@ mod report;
 mod shm;
 mod stats;
 mod wake;
+mod workload;
 
 use std::path::PathBuf;
 

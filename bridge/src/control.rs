@@ -19,7 +19,7 @@ use rustix::net::{AddressFamily, RecvFlags, SendFlags, SocketAddrUnix, SocketFla
 use zenoh::Wait;
 
 use crate::credentials::Credentials;
-use crate::net::UsageError;
+use crate::usage::UsageError;
 
 /// How long a forwarded request may take end to end (an Acquire opens a device).
 const REQUEST_TIMEOUT: Duration = Duration::from_secs(10);

@@ -28,7 +28,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use ed25519_dalek::{Signer, SigningKey, VerifyingKey};
 
-use crate::net::UsageError;
+use crate::usage::UsageError;
 
 /// Options of `bass-bridge credentials`.
 #[derive(clap::Args, Debug)]

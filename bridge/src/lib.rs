@@ -14,10 +14,12 @@ pub mod fault;
 pub mod iox;
 pub mod mirror;
 pub mod net;
+pub mod patience;
 pub mod redact;
 pub mod ros2;
 pub mod serve;
 pub mod text;
+pub mod usage;
 pub mod wire;
 
 use clap::Subcommand;
@@ -59,7 +61,7 @@ pub fn main_with(cmd: Cmd, faults: fault::Faults) -> ! {
         Err(e) => {
             eprintln!("bass-bridge: {}", redact::redact(&text::escape(&format!("{e:#}"))));
             // What the user asked for cannot be done as asked: 2, as for a bad option.
-            let usage = e.chain().any(|c| c.downcast_ref::<net::UsageError>().is_some());
+            let usage = e.chain().any(|c| c.downcast_ref::<usage::UsageError>().is_some());
             std::process::exit(if usage { 2 } else { 1 });
         }
     }

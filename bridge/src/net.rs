@@ -50,10 +50,7 @@ pub struct NetOpts {
     pub insecure: bool,
 }
 
-/// An error in what the user asked for (exit status 2, like a bad option).
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct UsageError(pub String);
+pub use crate::usage::UsageError;
 
 /// A Zenoh configuration checked against the security policy, with what it was made from.
 pub struct Prepared {

@@ -40,10 +40,8 @@ use conflict::Conflicts;
 use reader::Reader;
 use state::StatePublisher;
 
-/// Longest wait for room in the queue while the backlog goes out. A network that takes longer
-/// (a dead link) ends the catch-up: from then on chunks are dropped and counted as usual, and
-/// the port lapping serve meanwhile is counted as loss.
-pub const CATCH_UP_PATIENCE: Duration = Duration::from_secs(1);
+use crate::patience::wait_until_finished;
+pub use crate::patience::CATCH_UP_PATIENCE;
 
 /// Longest wait at exit for the sender thread (it may be blocked in a `put()` on a dead link).
 pub const SENDER_PATIENCE: Duration = Duration::from_millis(250);
@@ -314,18 +312,6 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
     }
     tracing::info!("serve: terminated");
     Ok(())
-}
-
-/// Waits up to `patience` for `thread` to finish; whether it did.
-pub(crate) fn wait_until_finished<T>(thread: &std::thread::JoinHandle<T>, patience: Duration) -> bool {
-    let t0 = Instant::now();
-    while !thread.is_finished() {
-        if t0.elapsed() >= patience {
-            return false;
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    }
-    true
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {

@@ -3,28 +3,8 @@
 use crate::publish::Design;
 use crate::stats::{fmt_bytes, fmt_ns, fmt_ratio, median, min_max, spread};
 
+use super::goal::Goal;
 use super::Results;
-
-/// One line of the goal table.
-pub(super) struct Goal {
-    pub(super) part: &'static str,
-    pub(super) goal: String,
-    pub(super) measured: String,
-    pub(super) met: Option<bool>,
-    /// The repetitions fall on both sides of the threshold.
-    pub(super) borderline: bool,
-}
-
-pub(super) fn verdict(g: &Goal) -> &'static str {
-    match g.met {
-        Some(true) if g.borderline => "**met** (borderline: repetitions on both sides)",
-        Some(false) if g.borderline => "**missed** (borderline: repetitions on both sides)",
-        Some(true) => "**met**",
-        Some(false) => "**missed**",
-        None if g.measured.starts_with("not measured") => "not measured",
-        None => "measured (no numeric goal)",
-    }
-}
 
 pub(super) fn goals(r: &Results) -> Vec<Goal> {
     let mut g = Vec::new();

@@ -2,12 +2,14 @@
 //! the goal table ([`goals`]), one section per part ([`sections`]; part 7, the PipeWire
 //! comparison, in [`pipewire`]) and the plots ([`plots`]).
 
+mod goal;
 mod goals;
 mod pipewire;
 mod plots;
 mod sections;
 
-use goals::{goals, verdict};
+use goal::verdict;
+use goals::goals;
 use plots::plots;
 use sections::{e2e_section, memory_section, publish_section, read_section, wake_section};
 

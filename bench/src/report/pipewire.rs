@@ -5,7 +5,7 @@ use std::fmt::Write as _;
 use crate::pipewire::{pooled, Comparison, Round, Sched, Side, QUANTUM, RATE};
 use crate::stats::{fmt_ns, fmt_ratio, median, quantile};
 
-use super::goals::Goal;
+use super::goal::Goal;
 use super::Results;
 
 /// Pooled p50 and p99 of one system's rounds.

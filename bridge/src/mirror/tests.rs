@@ -103,7 +103,8 @@ fn applied(o: Outcome) -> bool {
 fn a_1_tib_geometry_is_refused_and_nothing_is_allocated() {
     let mut r = Rig::new("huge");
     // 96 bytes asking for 64 channels x 2^20 frames x 4095 chunks (~1 TiB): a GAP chunk, so
-    // the decoder takes it; the bounds refuse it.
+    // the decoder takes it; the format's own size limit refuses it (before the operator's
+    // bounds, as in bassd: no option could widen it).
     let h = Header {
         channels: 64,
         frames: 1 << 20,
@@ -117,7 +118,7 @@ fn a_1_tib_geometry_is_refused_and_nothing_is_allocated() {
     assert_eq!(r.core.st.invalid_messages, 1);
     assert!(r.dir.entries().is_empty(), "nothing made: {:?}", r.dir.entries());
     let err = r.core.st.error.clone().unwrap();
-    assert!(err.contains("cannot make the replica") && err.contains("--max-"), "{err}");
+    assert!(err.contains("cannot make the replica") && err.contains("exceeds the format's limit"), "{err}");
     // The real source then gets its replica, and the error goes.
     assert!(applied(r.send(&chunk(1, 1, 1), T0 + 1)));
     assert_eq!(r.core.st.error, None);

@@ -33,7 +33,7 @@ use basskit::ros2::{self as msgs, AudioDataStamped, AudioInfo, ChunkInfo, Header
 use zenoh::Wait;
 use zenoh_ext::{AdvancedPublisherBuilderExt, MissDetectionConfig};
 
-use crate::net::UsageError;
+use crate::usage::UsageError;
 use crate::wire;
 use names::{Distro, Entity, Kind, Qos, TopicInfo};
 
@@ -119,7 +119,7 @@ pub const QUEUE: usize = 16;
 pub const DEPTH: u32 = 10;
 
 /// Longest wait for room in the queue while a new port's backlog goes out (as serve's chunks).
-const CATCH_UP_PATIENCE: Duration = crate::serve::CATCH_UP_PATIENCE;
+use crate::patience::CATCH_UP_PATIENCE;
 
 /// One topic's publisher, its GID and the entity behind its token.
 struct Publisher {
@@ -397,7 +397,7 @@ impl Exporter {
     pub fn finish(self, patience: Duration) -> bool {
         let Exporter { tx, thread, .. } = self;
         drop(tx);
-        crate::serve::wait_until_finished(&thread, patience)
+        crate::patience::wait_until_finished(&thread, patience)
     }
 }
 

@@ -41,6 +41,7 @@ use bassport::sys::{monotonic_ns, realtime_ns};
 use bassport::ChunkMeta;
 
 use super::mcap_file::{self, McapFrames};
+use super::regular;
 use super::{sleep_until, Capture, ReadEvent, RecordedChunk, StopSignal};
 use basskit::sidecar::Sidecar;
 
@@ -150,7 +151,7 @@ pub fn open(path: &Path, mode: Mode, rate: u32, channels: u32, nfpc: u32) -> Res
         return open_mcap(path, mode, rate, channels, nfpc);
     }
     let name = format!("sim:{}{}", mode.prefix(), path.display());
-    let reader = hound::WavReader::new(BufReader::new(open_regular(path)?))
+    let reader = hound::WavReader::new(BufReader::new(regular::open(path, "WAV")?))
         .map_err(|e| format!("sim:file:{}: cannot read the WAV file: {e}", path.display()))?;
     let spec = reader.spec();
     check_shape(&name, spec.sample_rate, spec.channels, rate, channels)?;
@@ -213,7 +214,8 @@ fn check_shape(
 fn open_mcap(path: &Path, mode: Mode, rate: u32, channels: u32, nfpc: u32) -> Result<FileDevice, String> {
     let name = format!("sim:{}{}", mode.prefix(), path.display());
     let file = mcap_file::resolve(path).map_err(|e| format!("{name}: {e}"))?;
-    let (frames, side) = mcap_file::open(&file, open_regular(&file)?).map_err(|e| format!("{name}: {e}"))?;
+    let (frames, side) =
+        mcap_file::open(&file, regular::open(&file, "MCAP")?).map_err(|e| format!("{name}: {e}"))?;
     let file_channels = u16::try_from(side.recording.channels.len()).unwrap_or(u16::MAX);
     check_shape(&name, side.acquisition.sample_rate, file_channels, rate, channels)?;
     let total = side.recording.frames;
@@ -301,37 +303,6 @@ fn check_bound(name: &str, sidecar: Option<&Sidecar>, rec_first: u64, total: u64
             "{name}: its frames {rec_first}..={last} run past frame {MAX_REPLAY_FRAME} (2^53), the largest frame index a replay accepts"
         ),
     })
-}
-
-/// Opens `path` for reading if it is a regular file, without ever blocking: a FIFO (or a
-/// device node) would block `open` until someone writes to it, and with it the Acquire, every
-/// later request and bassd's shutdown. The open is non-blocking (a FIFO opens at once), the
-/// type is checked on the open descriptor (no race with a rename), then the descriptor is
-/// made blocking again for the reads of a regular file.
-pub(super) fn open_regular(path: &Path) -> Result<File, String> {
-    use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
-    let name = path.display();
-    let kind = if mcap_file::is_mcap(path) { "MCAP" } else { "WAV" };
-    let f = std::fs::OpenOptions::new()
-        .read(true)
-        .custom_flags(rustix::fs::OFlags::NONBLOCK.bits() as i32)
-        .open(path)
-        .map_err(|e| format!("sim:file:{name}: cannot read the {kind} file: {e}"))?;
-    let t = f.metadata().map_err(|e| format!("sim:file:{name}: {e}"))?.file_type();
-    if !t.is_file() {
-        let what = if t.is_fifo() {
-            "a FIFO"
-        } else if t.is_char_device() || t.is_block_device() {
-            "a device node"
-        } else if t.is_socket() {
-            "a socket"
-        } else {
-            "not a regular file"
-        };
-        return Err(format!("sim:file:{name} is {what}: give a regular {kind} file"));
-    }
-    rustix::fs::fcntl_setfl(&f, rustix::fs::OFlags::empty()).map_err(|e| format!("sim:file:{name}: {e}"))?;
-    Ok(f)
 }
 
 /// The GAP flag of a sidecar row.

@@ -1,5 +1,5 @@
 //! MCAP recordings of `bass record --format mcap` as a source of the file replay
-//! ([`super::file`]): the recording's facts become the [`Sidecar`] a WAV recording has, and its
+//! (`device::file`): the recording's facts become the [`Sidecar`] a WAV recording has, and its
 //! audio messages the frames a WAV holds, so the replay itself is the same for both.
 //!
 //! `sim:file:PATH.mcap` or `sim:file:DIR` (a bag directory holding one `.mcap` file). The file
@@ -312,7 +312,7 @@ fn check_messages(
 impl McapFrames {
     /// Starts reading the audio messages again from the start of the file.
     fn rewind(&mut self) -> Result<(), String> {
-        let f = super::file::open_regular(&self.path)?;
+        let f = super::regular::open(&self.path, "MCAP")?;
         self.reader = Some((f, LinearReader::new_with_options(options())));
         self.next_run = 0;
         self.current = None;

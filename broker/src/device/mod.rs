@@ -5,6 +5,7 @@
 pub mod alsa;
 pub mod file;
 pub mod mcap_file;
+mod regular;
 pub mod sim;
 
 use std::sync::atomic::{AtomicBool, Ordering};

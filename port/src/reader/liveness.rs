@@ -20,6 +20,11 @@ use std::sync::Mutex;
 use rustix::event::{PollFd, PollFlags};
 use rustix::process::{Pid, PidfdFlags};
 
+use std::sync::atomic::Ordering::{Acquire, Relaxed};
+
+use super::FOREIGN_WRITER_SILENCE;
+use crate::error::{Error, Result};
+use crate::format;
 use crate::sys;
 
 /// What is known about one writer (pid, start time).
@@ -95,6 +100,75 @@ fn ended(pidfd: &OwnedFd) -> bool {
         Ok(n) => n > 0 && !fds[0].revents().is_empty(),
         // EINTR and the like: not an answer; the process is taken as alive until asked again.
         Err(_) => false,
+    }
+}
+
+/// The port's questions about its writer: alive, gone for good, or replaced by a successor.
+impl super::Port {
+    /// `WriterGone` if the writer process is gone for good (see [`Port::writer_gone`]);
+    /// `Restarted` if it is dead and its broker serves another acquisition (see
+    /// [`Port::replaced_by_successor`]).
+    pub(super) fn check_writer_alive(&self) -> Result<()> {
+        let now = sys::monotonic_ns();
+        if self.writer_alive(|| now) {
+            return Ok(());
+        }
+        if self.replaced_by_successor() {
+            return Err(Error::Restarted);
+        }
+        match self.writer_gone(now) {
+            None => Ok(()),
+            Some(pid) => Err(Error::WriterGone { pid }),
+        }
+    }
+
+    /// For a memfd port whose writer is dead: whether the broker that handed it over now
+    /// serves a memfd port of another epoch (a successor that started a new acquisition
+    /// without taking this port back, so nobody can mark it superseded). One request on the
+    /// broker's control socket; false at once for a port file (its successor's commit marks
+    /// it) and for a descriptor of unknown origin.
+    pub(crate) fn replaced_by_successor(&self) -> bool {
+        let Some(name) = &self.broker else { return false };
+        crate::control::client::broker_memfd_epoch(name).is_some_and(|e| e != self.epoch)
+    }
+
+    /// Whether the writer process is running. In this pid namespace: its pidfd (see
+    /// `reader/liveness.rs`). A writer in another pid namespace (`writer_pid_ns`, minor 3)
+    /// cannot be looked up by pid: it counts as running while its heartbeat is younger than
+    /// [`FOREIGN_WRITER_SILENCE`] plus two chunk periods (bassd refreshes it every 25 ms, also
+    /// while its device is silent). `now` gives CLOCK_MONOTONIC (ns), read only for such a
+    /// writer (the pidfd path needs no clock).
+    pub(crate) fn writer_alive(&self, now: impl FnOnce() -> u64) -> bool {
+        let h = self.header();
+        let ns = h.writer_pid_ns.load(Relaxed);
+        if ns != 0 && sys::own_pid_ns().is_some_and(|own| own != ns) {
+            let g = &self.geometry;
+            let chunk_ns = u64::from(g.frames_per_chunk) * 1_000_000_000 / u64::from(g.sample_rate.max(1));
+            let silence = FOREIGN_WRITER_SILENCE.as_nanos() as u64 + 2 * chunk_ns;
+            return now().saturating_sub(h.heartbeat_mono_ns.load(Relaxed)) < silence;
+        }
+        self.watch.alive(h.writer_pid.load(Relaxed), h.writer_start_time.load(Relaxed))
+    }
+
+    /// The writer's pid if it is gone for good: its process has ended and no successor can
+    /// take the port back any more. A port whose writer left it to a successor (a broker
+    /// restarted by its service manager: `restart_grace_ms` in the header, minor 2) keeps
+    /// its readers waiting for `restart_grace_ms` after the last heartbeat; a successor that
+    /// takes it back continues the same frames. `now` is CLOCK_MONOTONIC (ns).
+    pub(crate) fn writer_gone(&self, now: u64) -> Option<u32> {
+        let h = self.header();
+        let pid = h.writer_pid.load(Relaxed);
+        if self.writer_alive(|| now) {
+            return None;
+        }
+        let grace_ms = h.restart_grace_ms.load(Relaxed).min(format::MAX_RESTART_GRACE_MS);
+        let grace_ns = u64::from(grace_ms) * 1_000_000;
+        let beat = h.heartbeat_mono_ns.load(Relaxed);
+        if grace_ns > 0 && now.saturating_sub(beat) < grace_ns {
+            return None;
+        }
+        // A successor that took over while we looked is not gone.
+        (h.writer_pid.load(Acquire) == pid).then_some(pid)
     }
 }
 

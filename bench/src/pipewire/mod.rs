@@ -30,31 +30,25 @@
 //! see the same machine. No realtime scheduling on either side.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use bassport::sys::monotonic_ns;
 use bassport::{Error, Port, State};
 
-use crate::e2e::{bassd_path, cpu_ns, Proc};
+use crate::e2e::{bassd_path, Proc};
 use crate::procs::{field, Child};
 use crate::stats::{fmt_ns, median, quantile};
 
-/// Client counts.
-pub const CLIENTS: &[usize] = &[1, 8, 64];
-/// PipeWire's quantum = bass's chunk (frames).
-pub const QUANTUM: u32 = 256;
-/// Sample rate of both.
-pub const RATE: u32 = 48000;
+pub use crate::workload::{CLIENTS, QUANTUM, RATE};
 
-/// The daemon configuration (`@RT_MODULE@` is replaced by the realtime module or nothing).
-const CONF: &str = include_str!("../pipewire/bench.conf");
-/// The capture clients' configuration.
-const CLIENT_CONF: &str = include_str!("../pipewire/client.conf");
-/// The capture client's source.
-const CLIENT_C: &str = include_str!("../pipewire/pw-capture-client.c");
+mod daemon;
+mod probe;
+
+use daemon::{pw_clients, tools, Daemon, Tools};
+pub use daemon::{Sched, RT_CLIENT, RT_DAEMON};
+use probe::{probe_bass_pacing, probe_timerfd, window};
 
 /// One system (PipeWire or bass) at one client count in one round.
 #[derive(Clone, Debug, Default)]
@@ -109,23 +103,6 @@ pub struct Side {
 pub fn pooled(rounds: &[Round], f: impl Fn(&Round) -> &Vec<f64>) -> Vec<f64> {
     rounds.iter().flat_map(|r| f(r).iter().copied()).collect()
 }
-
-/// Scheduling of both sides in one comparison.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Sched {
-    /// SCHED_OTHER everywhere: PipeWire without its realtime module, bassd `--rt-priority 0`.
-    #[default]
-    Normal,
-    /// SCHED_FIFO: the daemons' processing threads at [`RT_DAEMON`], the clients' at
-    /// [`RT_CLIENT`] (PipeWire's module-rt in the daemon and in each client; bassd's capture
-    /// thread; the bass readers set it themselves).
-    Fifo,
-}
-
-/// SCHED_FIFO priority of the daemons' threads in the realtime comparison (bassd's default).
-pub const RT_DAEMON: u32 = 70;
-/// SCHED_FIFO priority of the clients' threads in the realtime comparison.
-pub const RT_CLIENT: u32 = 60;
 
 /// One comparison (one scheduling) at every client count.
 #[derive(Clone, Debug, Default)]
@@ -212,218 +189,9 @@ pub fn bass_reader(lines: &[String], window: (u64, u64), nfpc: u64) -> ReaderSta
     r
 }
 
-/// The PipeWire tools and the compiled client.
-struct Tools {
-    client: PathBuf,
-    version: String,
-}
-
-/// Finds pipewire and pw-link, and compiles the capture client into `dir`.
-fn tools(dir: &Path) -> Result<Tools, String> {
-    let version = Command::new("pipewire")
-        .arg("--version")
-        .output()
-        .map_err(|e| format!("pipewire not found ({e}); scripts/install-deps.sh --with-bench installs it"))?;
-    // "pipewire\nCompiled with libpipewire 0.3.65\nLinked with libpipewire 0.3.65": the last word.
-    let version = String::from_utf8_lossy(&version.stdout)
-        .lines()
-        .find_map(|l| l.strip_prefix("Linked with libpipewire "))
-        .map_or_else(|| "version unknown".to_owned(), |v| format!("PipeWire {}", v.trim()));
-    Command::new("pw-link").arg("--version").output().map_err(|e| format!("pw-link not found: {e}"))?;
-    let pc = |what: &str| {
-        Command::new("pkg-config")
-            .args([what, "libpipewire-0.3"])
-            .output()
-            .ok()
-            .filter(|o| o.status.success())
-            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_owned())
-            .ok_or_else(|| "libpipewire-0.3 not found by pkg-config (libpipewire-0.3-dev)".to_owned())
-    };
-    let (cflags, libs) = (pc("--cflags")?, pc("--libs")?);
-    let src = dir.join("pw-capture-client.c");
-    std::fs::write(&src, CLIENT_C).map_err(|e| e.to_string())?;
-    let client = dir.join("pw-capture-client");
-    // PipeWire's headers use GNU statement expressions: included as system headers, so that
-    // -Wpedantic applies to our code only.
-    let flags = cflags.split_whitespace().map(|f| match f.strip_prefix("-I") {
-        Some(d) => format!("-isystem{d}"),
-        None => f.to_owned(),
-    });
-    let out = Command::new(std::env::var("CC").unwrap_or_else(|_| "cc".into()))
-        .args(["-std=c11", "-D_GNU_SOURCE", "-O2", "-Wall", "-Wextra", "-Wpedantic", "-Werror"])
-        .args(flags)
-        .arg("-o")
-        .arg(&client)
-        .arg(&src)
-        .args(libs.split_whitespace())
-        .output()
-        .map_err(|e| format!("cc: {e}"))?;
-    if !out.status.success() {
-        return Err(format!("compiling pw-capture-client failed: {}", String::from_utf8_lossy(&out.stderr)));
-    }
-    Ok(Tools { client, version })
-}
-
-/// A PipeWire daemon in its own runtime directory.
-struct Daemon {
-    proc: Proc,
-    dir: PathBuf,
-}
-
-impl Daemon {
-    fn start(dir: &Path, sched: Sched) -> Result<Daemon, String> {
-        let _ = std::fs::remove_dir_all(dir);
-        std::fs::create_dir_all(dir).map_err(|e| e.to_string())?;
-        let conf = dir.join("bench.conf");
-        std::fs::write(&conf, CONF.replace("@RT_MODULE@", &rt_module(sched, RT_DAEMON)))
-            .map_err(|e| e.to_string())?;
-        // The clients' configuration: Debian's client.conf, with the realtime module or not.
-        std::fs::write(
-            dir.join("client.conf"),
-            CLIENT_CONF.replace("@RT_MODULE@", &rt_module(sched, RT_CLIENT)),
-        )
-        .map_err(|e| e.to_string())?;
-        let log = std::fs::File::create(dir.join("pipewire.log")).map_err(|e| e.to_string())?;
-        let mut cmd = Command::new("pipewire");
-        cmd.arg("-c").arg(&conf).stdin(Stdio::null()).stdout(Stdio::null()).stderr(log);
-        env(&mut cmd, dir);
-        cmd.env("PIPEWIRE_CONFIG_NAME", &conf);
-        let proc = Proc(cmd.spawn().map_err(|e| format!("start pipewire: {e}"))?);
-        let t = Instant::now();
-        while !dir.join("pipewire-0").exists() {
-            if t.elapsed() > Duration::from_secs(5) {
-                return Err(format!("pipewire did not open its socket in 5 s (log: {})", dir.display()));
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        Ok(Daemon { proc, dir: dir.to_owned() })
-    }
-}
-
-/// PipeWire's realtime module at `prio`, for [`Sched::Fifo`]; nothing otherwise.
-fn rt_module(sched: Sched, prio: u32) -> String {
-    match sched {
-        Sched::Normal => String::new(),
-        Sched::Fifo => format!(
-            "{{ name = libpipewire-module-rt args = {{ rt.prio = {prio} nice.level = -11 rt.time.soft = -1 rt.time.hard = -1 }} }}"
-        ),
-    }
-}
-
-/// The private runtime directory of a PipeWire process (with the clients' configuration in
-/// it), and no session bus.
-fn env(cmd: &mut Command, dir: &Path) {
-    cmd.env("XDG_RUNTIME_DIR", dir)
-        .env("PIPEWIRE_RUNTIME_DIR", dir)
-        .env("PIPEWIRE_CONFIG_NAME", dir.join("client.conf"))
-        .env_remove("PIPEWIRE_REMOTE")
-        .env_remove("DBUS_SESSION_BUS_ADDRESS");
-}
-
-/// Starts `n` capture clients and links each to the source node.
-fn pw_clients(t: &Tools, d: &Daemon, n: usize) -> Result<Vec<Child>, String> {
-    let mut kids = Vec::new();
-    for k in 0..n {
-        let mut cmd = Command::new(&t.client);
-        cmd.args([format!("bench-pw-{k}"), QUANTUM.to_string(), RATE.to_string()]);
-        env(&mut cmd, &d.dir);
-        kids.push(Child::spawn_command(cmd));
-    }
-    for (k, kid) in kids.iter_mut().enumerate() {
-        kid.ready();
-        for (out, inp) in [("capture_FL", "input_1"), ("capture_FR", "input_2")] {
-            let mut cmd = Command::new("pw-link");
-            cmd.arg(format!("bench-source:{out}")).arg(format!("bench-pw-{k}:{inp}"));
-            env(&mut cmd, &d.dir);
-            let o = cmd.output().map_err(|e| format!("pw-link: {e}"))?;
-            if !o.status.success() {
-                return Err(format!("pw-link bench-pw-{k}:{inp}: {}", String::from_utf8_lossy(&o.stderr)));
-            }
-        }
-    }
-    Ok(kids)
-}
-
-/// Measures CPU of the daemon and the clients over `secs` seconds and runs `probe` meanwhile;
-/// returns (window, daemon CPU, clients CPU, probe samples).
-fn window(
-    daemon: u32,
-    clients: &[u32],
-    secs: f64,
-    sched: Sched,
-    probe: impl FnOnce(&AtomicBool) -> Vec<f64> + Send,
-) -> ((u64, u64), f64, f64, Vec<f64>) {
-    let stop = AtomicBool::new(false);
-    std::thread::scope(|s| {
-        let h = s.spawn(|| {
-            // The probe sleeps as the daemon's thread does: at its priority in the realtime run.
-            if sched == Sched::Fifo {
-                let _ = set_fifo(RT_DAEMON as i32);
-            }
-            probe(&stop)
-        });
-        let sum = |p: &[u32]| p.iter().map(|&p| cpu_ns(p)).sum::<u64>();
-        let (d0, c0, t0, m0) = (cpu_ns(daemon), sum(clients), Instant::now(), monotonic_ns());
-        std::thread::sleep(Duration::from_secs_f64(secs));
-        let (d1, c1, wall, m1) =
-            (cpu_ns(daemon), sum(clients), t0.elapsed().as_nanos() as f64, monotonic_ns());
-        stop.store(true, Ordering::Release);
-        let timer = h.join().expect("probe thread");
-        ((m0, m1), d1.saturating_sub(d0) as f64 / wall, c1.saturating_sub(c0) as f64 / wall, timer)
-    })
-}
-
 /// The chunk / quantum period in ns.
 fn period_ns() -> u64 {
     u64::from(QUANTUM) * 1_000_000_000 / u64::from(RATE)
-}
-
-/// The probes' sleeps: a random 3–6 ms, so that their wake-ups fall at every phase of the
-/// daemon's cycle (a probe locked to one phase could sit in the burst of woken clients every
-/// time, or never) and its median is the timer's own latency on the machine as loaded.
-fn probe_gap() -> u64 {
-    fastrand::u64(3_000_000..6_000_000)
-}
-
-/// Timer probe, PipeWire's way: an absolute timerfd on CLOCK_MONOTONIC, waited for in `poll`.
-fn probe_timerfd(stop: &AtomicBool) -> Vec<f64> {
-    use rustix::time::{
-        timerfd_create, timerfd_settime, Itimerspec, TimerfdClockId, TimerfdFlags, TimerfdTimerFlags,
-    };
-    let Ok(fd) = timerfd_create(TimerfdClockId::Monotonic, TimerfdFlags::CLOEXEC) else { return Vec::new() };
-    let mut out = Vec::new();
-    let mut due = monotonic_ns() + probe_gap();
-    while !stop.load(Ordering::Acquire) {
-        let ts = |ns: u64| rustix::time::Timespec {
-            tv_sec: (ns / 1_000_000_000) as i64,
-            tv_nsec: (ns % 1_000_000_000) as _,
-        };
-        let spec = Itimerspec { it_interval: ts(0), it_value: ts(due) };
-        if timerfd_settime(&fd, TimerfdTimerFlags::ABSTIME, &spec).is_err() {
-            break;
-        }
-        let mut fds = [rustix::event::PollFd::new(&fd, rustix::event::PollFlags::IN)];
-        let _ = rustix::event::poll(&mut fds, None);
-        out.push(monotonic_ns().saturating_sub(due) as f64);
-        let mut buf = [0u8; 8];
-        let _ = rustix::io::read(&fd, &mut buf);
-        due = monotonic_ns() + probe_gap();
-    }
-    out
-}
-
-/// Timer probe, bassd's way: its capture thread's `device::sleep_until`, without timer slack.
-fn probe_bass_pacing(stop: &AtomicBool) -> Vec<f64> {
-    bassd::device::precise_timers();
-    let Ok(never) = bassd::device::StopSignal::new() else { return Vec::new() };
-    let mut out = Vec::new();
-    let mut due = monotonic_ns() + probe_gap();
-    while !stop.load(Ordering::Acquire) {
-        bassd::device::sleep_until(due, &never);
-        out.push(monotonic_ns().saturating_sub(due) as f64);
-        due = monotonic_ns() + probe_gap();
-    }
-    out
 }
 
 /// One PipeWire round with `n` clients.
@@ -669,6 +437,7 @@ pub fn run(rounds: usize, secs: f64, realtime: bool) -> PwResults {
 
 #[cfg(test)]
 mod tests {
+    use super::daemon::{CLIENT_C, CONF};
     use super::*;
 
     fn lines(v: &[&str]) -> Vec<String> {
