@@ -32,7 +32,7 @@ while (($#)); do
     *) echo "ros2-check: unknown option $1 (--help)"; exit 2 ;;
   esac
 done
-# The ROS name of a broker name, as bass-bridge makes it (bassclient::ros2::name_token).
+# The ROS name of a broker name, as bass-bridge makes it (basskit::ros2::name_token).
 TOKEN=$(python3 -c '
 import re, sys
 t = re.sub(r"_+", "_", re.sub(r"[^A-Za-z0-9]", "_", sys.argv[1])).strip("_") or "bass"

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The fault and abuse suite (docs/reliability.md). Run by `make test-faults` after
-# `cargo build --release --workspace`. Honours $CARGO_TARGET_DIR (default target/).
+# The fault and abuse suite (docs/reliability.md). Run by `make test-faults`; builds through
+# `make build-all`. Honours $CARGO_TARGET_DIR (default target/).
 #
 #   1. the Rust fault tests (tests/faults/tests/t*.rs, #[ignore]d in plain `cargo test`),
 #      one at a time, in release;
@@ -46,13 +46,13 @@ step() { # name, command...
   fi
 }
 
-# The library (its cdylib for the C programs), bassd and bass, the agent and the tests.
-"$cargo" build --release -p bassclient -p bass-broker
-"$cargo" build --release -p bass-faults --bins --tests
+# The library (its cdylib for the C programs), bassd and bass, the agent and the tests: the
+# one build of the workspace every suite uses.
+make -C "$top" --no-print-directory build-all
 step "rust fault tests (release)" \
   "$cargo" test --release -p bass-faults -- --include-ignored --nocapture --test-threads=1
 step "corrupted ports (debug build, overflow checks)" \
-  "$cargo" test -p bass-faults --test t05_corrupt_ports -- --ignored --nocapture --test-threads=1
+  "$cargo" test -p bass-faults --test corrupt_ports -- --ignored --nocapture --test-threads=1
 
 # The C ABI under sanitizers. The Rust library itself is not instrumented: ASan/UBSan/TSan
 # check the C side of every call (and libc calls the library makes, e.g. memcpy, through
@@ -92,10 +92,10 @@ fi
 # Miri on the heap-backed ring (optional: needs a nightly toolchain with miri and rust-src).
 if [[ "${BASS_FAULTS_MIRI:-1}" != 0 ]] && "$cargo" +nightly miri --version >/dev/null 2>&1; then
   step "Miri: heap-backed ring" env CARGO_TARGET_DIR="$target/miri" \
-    "$cargo" +nightly miri test -p bass-faults --test t12_miri_ring -- --nocapture
+    "$cargo" +nightly miri test -p bass-faults --test miri_ring -- --nocapture
   ((last_ok)) && echo "FIGURE item 12: Miri: the heap-backed ring test ran with 0 undefined-behaviour or data-race reports" | tee -a "$log"
 else
-  echo "FIGURE item 12: SKIPPED Miri: no nightly toolchain with miri here (rustup toolchain install nightly --component miri rust-src; then: cargo +nightly miri test -p bass-faults --test t12_miri_ring)" | tee -a "$log"
+  echo "FIGURE item 12: SKIPPED Miri: no nightly toolchain with miri here (rustup toolchain install nightly --component miri rust-src; then: cargo +nightly miri test -p bass-faults --test miri_ring)" | tee -a "$log"
 fi
 
 # ThreadSanitizer on the whole Rust library (opt-in: rebuilds std with the sanitizer, a few
@@ -104,7 +104,7 @@ if [[ "${BASS_FAULTS_RUST_TSAN:-0}" == 1 ]]; then
   step "ThreadSanitizer: Rust library (nightly, -Zbuild-std)" env CARGO_TARGET_DIR="$target/tsan" \
     RUSTFLAGS="-Zsanitizer=thread" TSAN_OPTIONS=halt_on_error=1 \
     "$cargo" +nightly test -Zbuild-std --target "$(rustc -vV | sed -n 's/^host: //p')" \
-    -p bass-faults --test t12_miri_ring -- --nocapture
+    -p bass-faults --test miri_ring -- --nocapture
   ((last_ok)) && echo "FIGURE item 12: ThreadSanitizer on the instrumented Rust library (heap ring + mapped port, writer and reader threads): 0 reports" | tee -a "$log"
 else
   echo "FIGURE item 12: Rust-side ThreadSanitizer not run (opt-in: BASS_FAULTS_RUST_TSAN=1, needs nightly + rust-src)" | tee -a "$log"

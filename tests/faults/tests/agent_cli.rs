@@ -1,7 +1,7 @@
 //! The fault agent's own contract: its command line (clap) refuses a bad value with a clear
 //! error, and an agent whose test has stopped reading its stdout ends quietly (status 0, no
 //! panic) instead of dying on "failed printing to stdout: Broken pipe" — the panic CI saw in
-//! `pin-loop` when t13's member test read one line and let go.
+//! `pin-loop` when port_lifecycle's member test read one line and let go.
 
 use std::os::fd::OwnedFd;
 use std::process::{Child, Command, ExitStatus, Stdio};

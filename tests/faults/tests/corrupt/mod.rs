@@ -1,4 +1,4 @@
-//! What the corrupted-port cases of t05 share: the header's fields (from its one definition),
+//! What the corrupted-port cases of corrupt_ports share: the header's fields (from its one definition),
 //! a valid port to start from, and the exercise of every library call on a damaged file with
 //! the tally of what each returned.
 

@@ -35,7 +35,7 @@ fn the_fuzzed_fields_are_every_numeric_field_of_the_header() {
         .filter(|name| !matches!(*name, "message" | "device"))
         .collect();
     let fuzzed: Vec<&str> = fields().iter().map(|f| f.0).collect();
-    assert_eq!(fuzzed, declared, "t05's fields against format.rs's Header");
+    assert_eq!(fuzzed, declared, "corrupt_ports's fields against format.rs's Header");
 }
 #[test]
 #[ignore = "fault suite: run by tests/faults/run.sh"]

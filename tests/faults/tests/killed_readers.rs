@@ -5,7 +5,7 @@
 //! kills); the long-lived readers get 0 corrupted samples and exact accounting; the
 //! writer's open file descriptors are the same before and after; the runtime directory
 //! holds only the port file (a reader creates nothing, so nothing can leak).
-//! The broker variant (bassd, control connections) is in t03b_killed_clients_broker.rs.
+//! The broker variant (bassd, control connections) is in killed_control_clients.rs.
 
 use std::time::{Duration, Instant};
 

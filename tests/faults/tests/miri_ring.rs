@@ -3,7 +3,7 @@
 //! One writer thread publishes the pattern signal into a small heap-backed ring while two
 //! reader threads read it with the same code the port reader uses. Pass: no sample is ever
 //! corrupted and per reader delivered + lost = requested exactly. Under Miri
-//! (`cargo +nightly miri test -p bass-faults --test t12_miri_ring`, run by run.sh when
+//! (`cargo +nightly miri test -p bass-faults --test miri_ring`, run by run.sh when
 //! the toolchain has Miri) this also checks the protocol for undefined behaviour, data
 //! races and out-of-bounds accesses, with Miri's weak-memory emulation exploring stale
 //! loads. Also runs as a plain test (more chunks) in `cargo test`.

@@ -4,7 +4,7 @@
 //! uid outside the group cannot open the port, one in the group can read but not write;
 //! and no reader can open a port before it is fully initialised (ports are built under a
 //! temporary name and renamed into place, version written last).
-//! The control socket's 0660 mode is checked in t07_control_abuse.rs (broker).
+//! The control socket's 0660 mode is checked in control_abuse.rs (broker).
 
 use std::os::unix::fs::MetadataExt;
 use std::os::unix::process::ExitStatusExt;
