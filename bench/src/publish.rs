@@ -186,32 +186,57 @@ fn orig_cell(
     (times, walls, reads)
 }
 
+/// How the cells of each design are paced: the ring's and the original's.
+struct Paces {
+    ring: Pace,
+    orig: Pace,
+}
+
 /// Runs part 2.
 pub fn run(reps: usize, quick: bool) -> PublishResults {
     let dir = bassport::paths::runtime_dir();
     let period = Duration::from_millis(4);
-    let ring_pace = Pace {
-        period,
-        max_chunks: if quick { 50 } else { 150 },
-        min_chunks: 10,
-        budget: Duration::from_secs(2),
-    };
-    let orig_pace = Pace {
-        period,
-        max_chunks: if quick { 50 } else { 150 },
-        min_chunks: 8,
-        budget: Duration::from_millis(if quick { 800 } else { 2000 }),
+    let paces = Paces {
+        ring: Pace {
+            period,
+            max_chunks: if quick { 50 } else { 150 },
+            min_chunks: 10,
+            budget: Duration::from_secs(2),
+        },
+        orig: Pace {
+            period,
+            max_chunks: if quick { 50 } else { 150 },
+            min_chunks: 8,
+            budget: Duration::from_millis(if quick { 800 } else { 2000 }),
+        },
     };
     let mut res = PublishResults {
-        cells: vec![],
+        cells: empty_cells(),
         period_ms: period.as_secs_f64() * 1e3,
         breakdown: breakdown(reps.max(3)),
         sweep: vec![],
     };
+    for rep in 0..reps {
+        for &(window_s, ncop) in WINDOWS {
+            for &readers in READERS {
+                for design in [Design::Ring, Design::Original] {
+                    measure_cell(&mut res, rep, design, (window_s, ncop), readers, &dir, &paces);
+                }
+            }
+        }
+    }
+    res.sweep = sweep(reps, &dir, &paces);
+    print_summary(&res);
+    res
+}
+
+/// One cell per window, reader count and design, no repetition yet.
+fn empty_cells() -> Vec<PubCell> {
+    let mut cells = Vec::new();
     for &(window_s, _) in WINDOWS {
         for &readers in READERS {
             for design in [Design::Ring, Design::Original] {
-                res.cells.push(PubCell {
+                cells.push(PubCell {
                     design,
                     window_s,
                     readers,
@@ -224,48 +249,58 @@ pub fn run(reps: usize, quick: bool) -> PublishResults {
             }
         }
     }
-    for rep in 0..reps {
-        for &(window_s, ncop) in WINDOWS {
-            for &readers in READERS {
-                for design in [Design::Ring, Design::Original] {
-                    let (times, walls, reads) = match design {
-                        Design::Ring => ring_cell(NFPC, ncop, readers, &ring_pace),
-                        Design::Original => orig_cell(&dir, NFPC, ncop, readers, &orig_pace),
-                    };
-                    let cell = res
-                        .cells
-                        .iter_mut()
-                        .find(|c| c.design == design && c.window_s == window_s && c.readers == readers)
-                        .expect("cell");
-                    cell.publish_ns.push(median(&times));
-                    cell.publish_p90_ns.push(quantile(&times, 0.9));
-                    cell.wall_ns.push(median(&walls));
-                    cell.read_ns.push(median(&reads));
-                    cell.chunks.push(times.len());
-                    println!(
-                        "  rep {} {:?} window {:>5} s readers {:>2}: publish CPU median {} p90 {}, wall {} ({} chunks), read {}",
-                        rep + 1,
-                        design,
-                        window_s,
-                        readers,
-                        fmt_ns(median(&times)),
-                        fmt_ns(quantile(&times, 0.9)),
-                        fmt_ns(median(&walls)),
-                        times.len(),
-                        fmt_ns(median(&reads))
-                    );
-                }
-            }
-        }
-    }
-    // Chunk-size sweep at a 10 s window, one reader: the original's cost is O(window) per
-    // chunk, the ring's O(chunk), so their ratio grows with nCOP.
+    cells
+}
+
+/// Repetition `rep` of one cell (`design`, a window of `window_s` seconds in `ncop` chunks,
+/// `readers` readers): measured, added to its cell in `res` and printed.
+fn measure_cell(
+    res: &mut PublishResults,
+    rep: usize,
+    design: Design,
+    (window_s, ncop): (f64, u32),
+    readers: usize,
+    dir: &std::path::Path,
+    paces: &Paces,
+) {
+    let (times, walls, reads) = match design {
+        Design::Ring => ring_cell(NFPC, ncop, readers, &paces.ring),
+        Design::Original => orig_cell(dir, NFPC, ncop, readers, &paces.orig),
+    };
+    let cell = res
+        .cells
+        .iter_mut()
+        .find(|c| c.design == design && c.window_s == window_s && c.readers == readers)
+        .expect("cell");
+    cell.publish_ns.push(median(&times));
+    cell.publish_p90_ns.push(quantile(&times, 0.9));
+    cell.wall_ns.push(median(&walls));
+    cell.read_ns.push(median(&reads));
+    cell.chunks.push(times.len());
+    println!(
+        "  rep {} {:?} window {:>5} s readers {:>2}: publish CPU median {} p90 {}, wall {} ({} chunks), read {}",
+        rep + 1,
+        design,
+        window_s,
+        readers,
+        fmt_ns(median(&times)),
+        fmt_ns(quantile(&times, 0.9)),
+        fmt_ns(median(&walls)),
+        times.len(),
+        fmt_ns(median(&reads))
+    );
+}
+
+/// The chunk-size sweep at a 10 s window, one reader: the original's cost is O(window) per
+/// chunk, the ring's O(chunk), so their ratio grows with nCOP.
+fn sweep(reps: usize, dir: &std::path::Path, paces: &Paces) -> Vec<SweepRow> {
+    let mut rows = Vec::new();
     for &nfpc in SWEEP_CHUNKS {
         let ncop = 441_000u32.div_ceil(nfpc);
         let mut row = SweepRow { frames_per_chunk: nfpc, ring_ns: vec![], orig_ns: vec![] };
         for _ in 0..reps {
-            let (r, _, _) = ring_cell(nfpc, ncop, 1, &ring_pace);
-            let (o, _, _) = orig_cell(&dir, nfpc, ncop, 1, &orig_pace);
+            let (r, _, _) = ring_cell(nfpc, ncop, 1, &paces.ring);
+            let (o, _, _) = orig_cell(dir, nfpc, ncop, 1, &paces.orig);
             row.ring_ns.push(median(&r));
             row.orig_ns.push(median(&o));
         }
@@ -275,8 +310,13 @@ pub fn run(reps: usize, quick: bool) -> PublishResults {
             spread(&row.orig_ns, fmt_ns),
             fmt_ratio(median(&row.orig_ns) / median(&row.ring_ns))
         );
-        res.sweep.push(row);
+        rows.push(row);
     }
+    rows
+}
+
+/// Prints, per window and reader count, both designs' publish cost and their ratio.
+fn print_summary(res: &PublishResults) {
     for &(window_s, _) in WINDOWS {
         for &readers in READERS {
             let r = res.cell(Design::Ring, window_s, readers).expect("cell");
@@ -292,7 +332,6 @@ pub fn run(reps: usize, quick: bool) -> PublishResults {
             );
         }
     }
-    res
 }
 
 /// Child: a bass reader blocked in `wait` that reads every chunk. Prints `read_ns=` (median

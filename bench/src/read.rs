@@ -138,28 +138,60 @@ pub fn copy_loops(reps: usize) -> CopyLoops {
     out
 }
 
+/// The port of part 1: filled and wrapped, open both through the C ABI and in Rust, idle while
+/// measured.
+struct Filled {
+    w: Writer,
+    port: Port,
+    handle: *mut bassclient::bass_port,
+    /// Each channel's ring of `nfop` samples in the mapping.
+    rings: Vec<*const i32>,
+    /// The newest frame on the port.
+    lfi: u64,
+    /// Frames on the port.
+    nfop: u64,
+}
+
+impl Filled {
+    /// Creates the port (441-frame chunks, 1001 of them), fills the window and goes once more
+    /// around so that the ring wraps, and opens it twice.
+    fn create() -> Filled {
+        let nfpc = 441u32;
+        let ncop = 1001u32;
+        let geometry =
+            Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: nfpc, chunks_on_port: ncop };
+        let params = PortParams { geometry, device: "bench:read".into(), group: None };
+        let mut w = Writer::create("bench-read", &params).expect("create port");
+        let chunk: Vec<i32> = (0..nfpc as i32 * 2).map(|i| i.wrapping_mul(7919)).collect();
+        // Fill the window, and go once more around so that the ring wraps.
+        for _ in 0..ncop + ncop / 3 {
+            w.publish(Source::Interleaved(&chunk), ChunkMeta::default()).expect("publish");
+        }
+        let lfi = w.last_frame_index();
+        let nfop = u64::from(nfpc * ncop);
+        let port = Port::open("bench-read").expect("open port");
+        let cname = std::ffi::CString::new("bench-read").expect("name");
+        let mut handle: *mut bassclient::bass_port = std::ptr::null_mut();
+        // SAFETY: a valid C string and a valid out-pointer.
+        let rc = unsafe { bassclient::bass_port_open(cname.as_ptr(), &mut handle) };
+        assert_eq!(rc as i32, 0, "bass_port_open");
+        let rings: Vec<*const i32> =
+            (0..2).map(|c| port.channel_ring(c).expect("channel").as_ptr()).collect();
+        Filled { w, port, handle, rings, lfi, nfop }
+    }
+
+    /// Closes both handles and removes the port.
+    fn close(self) {
+        // SAFETY: `handle` came from bass_port_open and is closed once.
+        unsafe { bassclient::bass_port_close(self.handle) };
+        drop(self.port);
+        let _ = self.w.remove();
+    }
+}
+
 /// Runs part 1 with `reps` repetitions.
 pub fn run(reps: usize) -> Vec<ReadRow> {
-    let nfpc = 441u32;
-    let ncop = 1001u32;
-    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: nfpc, chunks_on_port: ncop };
-    let params = PortParams { geometry, device: "bench:read".into(), group: None };
-    let mut w = Writer::create("bench-read", &params).expect("create port");
-    let chunk: Vec<i32> = (0..nfpc as i32 * 2).map(|i| i.wrapping_mul(7919)).collect();
-    // Fill the window, and go once more around so that the ring wraps.
-    for _ in 0..ncop + ncop / 3 {
-        w.publish(Source::Interleaved(&chunk), ChunkMeta::default()).expect("publish");
-    }
-    let lfi = w.last_frame_index();
-    let nfop = u64::from(nfpc * ncop);
-    let port = Port::open("bench-read").expect("open port");
-    let cname = std::ffi::CString::new("bench-read").expect("name");
-    let mut handle: *mut bassclient::bass_port = std::ptr::null_mut();
-    // SAFETY: a valid C string and a valid out-pointer.
-    let rc = unsafe { bassclient::bass_port_open(cname.as_ptr(), &mut handle) };
-    assert_eq!(rc as i32, 0, "bass_port_open");
-    let rings: Vec<*const i32> = (0..2).map(|c| port.channel_ring(c).expect("channel").as_ptr()).collect();
-
+    let filled = Filled::create();
     let max = BLOCKS.iter().map(|b| b.0).max().unwrap_or(1);
     let mut left = vec![0i32; max];
     let mut right = vec![0i32; max];
@@ -181,81 +213,93 @@ pub fn run(reps: usize) -> Vec<ReadRow> {
         .collect();
     for _ in 0..reps {
         for row in rows.iter_mut() {
-            let n = row.frames;
-            // ~32 MB copied per timing sample, at least 5 calls.
-            let iters = (32_000_000 / row.bytes).clamp(5, 200_000);
-            // Hot: always the newest n frames. Streaming: successive blocks through the
-            // newest 10 s, as a reader consuming a stream (source mostly not in L1/L2).
-            let oldest = lfi - 441_000 + 1;
-            let span = 441_000 - n as u64 + 1;
-            let starts: Vec<u64> = (0..iters as u64).map(|k| oldest + (k * n as u64) % span).collect();
-            let hot: Vec<u64> = vec![lfi - n as u64 + 1; iters];
-            for (stream, firsts) in [(false, &hot), (true, &starts)] {
-                let segs: Vec<[(usize, usize); 2]> = firsts.iter().map(|&f| segments(f, n, nfop)).collect();
-                let mut ffi = |k: usize| {
-                    let mut nfr = firsts[k];
-                    let (mut got, mut loss) = (0usize, 0u64);
-                    // SAFETY: `handle` is open; both buffers hold `max >= n` samples; the
-                    // out-pointers are valid locals.
-                    let rc = unsafe {
-                        bassclient::bass_get_audio_data(
-                            handle,
-                            n,
-                            &mut nfr,
-                            left.as_mut_ptr(),
-                            right.as_mut_ptr(),
-                            &mut got,
-                            &mut loss,
-                        )
-                    };
-                    assert!(rc as i32 == 0 && got == n && loss == 0);
-                };
-                ffi(0);
-                let ffi_ns = time_per_iter(iters, &mut ffi);
-                let mut memcpy = |k: usize| {
-                    for (c, dst) in [left.as_mut_ptr(), right.as_mut_ptr()].into_iter().enumerate() {
-                        let mut done = 0;
-                        for &(s, len) in &segs[k] {
-                            // SAFETY: the segments lie inside channel c's ring of nFOP samples;
-                            // `dst` holds `max >= n` samples and does not overlap the mapping. No
-                            // process writes the port during this measurement (its only writer is
-                            // `w`, idle in this thread), so this plain copy races with nothing.
-                            unsafe { std::ptr::copy_nonoverlapping(rings[c].add(s), dst.add(done), len) };
-                            done += len;
-                        }
-                    }
-                    std::hint::black_box(&left);
-                };
-                memcpy(0);
-                let memcpy_ns = time_per_iter(iters, &mut memcpy);
-                let gbs = |ns: f64| row.bytes as f64 / ns;
-                if stream {
-                    row.stream_ffi_gbs.push(gbs(ffi_ns));
-                    row.stream_memcpy_gbs.push(gbs(memcpy_ns));
-                    row.stream_ratio.push(memcpy_ns / ffi_ns);
-                    continue;
-                }
-                let mut rust = |k: usize| {
-                    let mut nfr = firsts[k];
-                    let mut out = [&mut left[..n], &mut right[..n]];
-                    let r = port.get_audio_data(n, &mut nfr, &mut out).expect("read");
-                    assert_eq!(r.frames, n);
-                };
-                rust(0);
-                let rust_ns = time_per_iter(iters, &mut rust);
-                row.ffi_gbs.push(gbs(ffi_ns));
-                row.rust_gbs.push(gbs(rust_ns));
-                row.memcpy_gbs.push(gbs(memcpy_ns));
-                row.ratio.push(memcpy_ns / ffi_ns);
-                row.ffi_call_ns.push(ffi_ns);
-            }
+            measure(&filled, row, &mut left, &mut right);
         }
     }
-    // SAFETY: `handle` came from bass_port_open and is closed once.
-    unsafe { bassclient::bass_port_close(handle) };
-    drop(port);
-    let _ = w.remove();
-    for r in &rows {
+    filled.close();
+    print_rows(&rows);
+    rows
+}
+
+/// One repetition for `row`'s block size: hot (always the newest block) then streaming
+/// (successive blocks through the newest 10 s), the C ABI against memcpy of the same
+/// segments, and hot also the Rust call. `left` and `right` hold at least `row.frames` samples.
+fn measure(filled: &Filled, row: &mut ReadRow, left: &mut [i32], right: &mut [i32]) {
+    let Filled { port, handle, rings, lfi, nfop, .. } = filled;
+    let (handle, lfi, nfop) = (*handle, *lfi, *nfop);
+    let n = row.frames;
+    // ~32 MB copied per timing sample, at least 5 calls.
+    let iters = (32_000_000 / row.bytes).clamp(5, 200_000);
+    // Hot: always the newest n frames. Streaming: successive blocks through the
+    // newest 10 s, as a reader consuming a stream (source mostly not in L1/L2).
+    let oldest = lfi - 441_000 + 1;
+    let span = 441_000 - n as u64 + 1;
+    let starts: Vec<u64> = (0..iters as u64).map(|k| oldest + (k * n as u64) % span).collect();
+    let hot: Vec<u64> = vec![lfi - n as u64 + 1; iters];
+    for (stream, firsts) in [(false, &hot), (true, &starts)] {
+        let segs: Vec<[(usize, usize); 2]> = firsts.iter().map(|&f| segments(f, n, nfop)).collect();
+        let mut ffi = |k: usize| {
+            let mut nfr = firsts[k];
+            let (mut got, mut loss) = (0usize, 0u64);
+            // SAFETY: `handle` is open; both buffers hold at least `n` samples; the
+            // out-pointers are valid locals.
+            let rc = unsafe {
+                bassclient::bass_get_audio_data(
+                    handle,
+                    n,
+                    &mut nfr,
+                    left.as_mut_ptr(),
+                    right.as_mut_ptr(),
+                    &mut got,
+                    &mut loss,
+                )
+            };
+            assert!(rc as i32 == 0 && got == n && loss == 0);
+        };
+        ffi(0);
+        let ffi_ns = time_per_iter(iters, &mut ffi);
+        let mut memcpy = |k: usize| {
+            for (c, dst) in [left.as_mut_ptr(), right.as_mut_ptr()].into_iter().enumerate() {
+                let mut done = 0;
+                for &(s, len) in &segs[k] {
+                    // SAFETY: the segments lie inside channel c's ring of nFOP samples;
+                    // `dst` holds at least `n` samples and does not overlap the mapping. No
+                    // process writes the port during this measurement (its only writer is
+                    // `filled.w`, idle in this thread), so this plain copy races with nothing.
+                    unsafe { std::ptr::copy_nonoverlapping(rings[c].add(s), dst.add(done), len) };
+                    done += len;
+                }
+            }
+            std::hint::black_box(&left);
+        };
+        memcpy(0);
+        let memcpy_ns = time_per_iter(iters, &mut memcpy);
+        let gbs = |ns: f64| row.bytes as f64 / ns;
+        if stream {
+            row.stream_ffi_gbs.push(gbs(ffi_ns));
+            row.stream_memcpy_gbs.push(gbs(memcpy_ns));
+            row.stream_ratio.push(memcpy_ns / ffi_ns);
+            continue;
+        }
+        let mut rust = |k: usize| {
+            let mut nfr = firsts[k];
+            let mut out = [&mut left[..n], &mut right[..n]];
+            let r = port.get_audio_data(n, &mut nfr, &mut out).expect("read");
+            assert_eq!(r.frames, n);
+        };
+        rust(0);
+        let rust_ns = time_per_iter(iters, &mut rust);
+        row.ffi_gbs.push(gbs(ffi_ns));
+        row.rust_gbs.push(gbs(rust_ns));
+        row.memcpy_gbs.push(gbs(memcpy_ns));
+        row.ratio.push(memcpy_ns / ffi_ns);
+        row.ffi_call_ns.push(ffi_ns);
+    }
+}
+
+/// Prints each block size's results, their spread over the repetitions.
+fn print_rows(rows: &[ReadRow]) {
+    for r in rows {
         println!(
             "  read {:>16} {:>8} B: hot: bass_get_audio_data {} GB/s, Port::get_audio_data {} GB/s, memcpy {} GB/s, ratio {}; streaming: {} vs {} GB/s, ratio {}",
             r.label,
@@ -269,7 +313,6 @@ pub fn run(reps: usize) -> Vec<ReadRow> {
             spread(&r.stream_ratio, |v| format!("{v:.2}")),
         );
     }
-    rows
 }
 
 /// The per-call cost of `bass_port_get_info` (which answers whether the writer lives, from a

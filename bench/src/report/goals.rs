@@ -7,8 +7,28 @@ use super::goal::Goal;
 use super::Results;
 
 pub(super) fn goals(r: &Results) -> Vec<Goal> {
+    let mut g = read_goals(&r.read);
+    if let Some(p) = &r.publish {
+        g.extend(publish_goals(p));
+    }
+    if let Some(w) = &r.wake {
+        g.extend(wake_goals(w));
+    }
+    if let Some(e) = &r.e2e {
+        g.push(e2e_goal(e));
+        g.extend(cpu_goals(e));
+    }
+    if let Some(m) = &r.memory {
+        g.push(memory_goal(m));
+    }
+    g.extend(super::pipewire::goals(r));
+    g
+}
+
+/// Part 1: the read against memcpy, for blocks of at least 64 KiB (none if no such block ran).
+fn read_goals(read: &[crate::read::ReadRow]) -> Vec<Goal> {
     let mut g = Vec::new();
-    let big: Vec<&crate::read::ReadRow> = r.read.iter().filter(|x| x.bytes >= 65536).collect();
+    let big: Vec<&crate::read::ReadRow> = read.iter().filter(|x| x.bytes >= 65536).collect();
     if !big.is_empty() {
         let worst = big.iter().map(|x| x.ratio_median()).fold(f64::INFINITY, f64::min);
         let worst_stream = big.iter().map(|x| x.stream_ratio_median()).fold(f64::INFINITY, f64::min);
@@ -24,138 +44,150 @@ pub(super) fn goals(r: &Results) -> Vec<Goal> {
             met: Some(worst >= 0.8 && worst_stream >= 0.8),
         });
     }
-    if let Some(p) = &r.publish {
-        let ring = |w: f64, k: usize| p.publish_median(Design::Ring, w, k);
-        let flat_w = ring(60.0, 1) / ring(0.1, 1);
-        g.push(Goal {
-            part: "2 publish",
-            goal: "flat in window size (60 s vs 0.1 s, 1 reader)".into(),
-            measured: format!(
-                "{} ({} vs {} CPU per chunk)",
-                fmt_ratio(flat_w),
-                fmt_ns(ring(60.0, 1)),
-                fmt_ns(ring(0.1, 1))
-            ),
-            borderline: false,
-            met: Some(flat_w <= 1.1),
-        });
-        let flat_r = ring(10.0, 64) / ring(10.0, 1);
-        g.push(Goal {
-            part: "2 publish",
-            goal: "capture-thread publish cost flat in readers: 64 readers ≤ 1.5× one reader (10 s window)"
-                .into(),
-            measured: format!(
-                "{} ({} vs {})",
-                fmt_ratio(flat_r),
-                fmt_ns(ring(10.0, 64)),
-                fmt_ns(ring(10.0, 1))
-            ),
-            borderline: false,
-            met: Some(flat_r <= 1.5),
-        });
-        let vs = |k: usize| p.publish_median(Design::Original, 10.0, k) / ring(10.0, k);
-        g.push(Goal {
-            part: "2 publish",
-            goal: "≥ 100× cheaper than the original design at a 10 s window (2205-frame chunks)".into(),
-            measured: format!(
-                "{} with 1 reader, {} with none, {} with 64 (writer CPU per chunk); {} at 60 s, 1 reader{}",
-                fmt_ratio(vs(1)),
-                fmt_ratio(vs(0)),
-                fmt_ratio(vs(64)),
-                fmt_ratio(p.publish_median(Design::Original, 60.0, 1) / ring(60.0, 1)),
-                p.sweep
-                    .iter()
-                    .map(|x| format!(
-                        "; {} at 10 s with {}-frame chunks",
-                        fmt_ratio(median(&x.orig_ns) / median(&x.ring_ns)),
-                        x.frames_per_chunk
-                    ))
-                    .collect::<String>()
-            ),
-            borderline: false,
-            met: Some(vs(1) >= 100.0),
-        });
-    }
-    if let Some(w) = &r.wake {
-        let ratio = median(&w.ratio_1);
+    g
+}
+
+/// Part 2: the capture thread's publish cost against the window size, the reader count and the
+/// original design.
+fn publish_goals(p: &crate::publish::PublishResults) -> Vec<Goal> {
+    let mut g = Vec::new();
+    let ring = |w: f64, k: usize| p.publish_median(Design::Ring, w, k);
+    let flat_w = ring(60.0, 1) / ring(0.1, 1);
+    g.push(Goal {
+        part: "2 publish",
+        goal: "flat in window size (60 s vs 0.1 s, 1 reader)".into(),
+        measured: format!(
+            "{} ({} vs {} CPU per chunk)",
+            fmt_ratio(flat_w),
+            fmt_ns(ring(60.0, 1)),
+            fmt_ns(ring(0.1, 1))
+        ),
+        borderline: false,
+        met: Some(flat_w <= 1.1),
+    });
+    let flat_r = ring(10.0, 64) / ring(10.0, 1);
+    g.push(Goal {
+        part: "2 publish",
+        goal: "capture-thread publish cost flat in readers: 64 readers ≤ 1.5× one reader (10 s window)"
+            .into(),
+        measured: format!("{} ({} vs {})", fmt_ratio(flat_r), fmt_ns(ring(10.0, 64)), fmt_ns(ring(10.0, 1))),
+        borderline: false,
+        met: Some(flat_r <= 1.5),
+    });
+    let vs = |k: usize| p.publish_median(Design::Original, 10.0, k) / ring(10.0, k);
+    g.push(Goal {
+        part: "2 publish",
+        goal: "≥ 100× cheaper than the original design at a 10 s window (2205-frame chunks)".into(),
+        measured: format!(
+            "{} with 1 reader, {} with none, {} with 64 (writer CPU per chunk); {} at 60 s, 1 reader{}",
+            fmt_ratio(vs(1)),
+            fmt_ratio(vs(0)),
+            fmt_ratio(vs(64)),
+            fmt_ratio(p.publish_median(Design::Original, 60.0, 1) / ring(60.0, 1)),
+            p.sweep
+                .iter()
+                .map(|x| format!(
+                    "; {} at 10 s with {}-frame chunks",
+                    fmt_ratio(median(&x.orig_ns) / median(&x.ring_ns)),
+                    x.frames_per_chunk
+                ))
+                .collect::<String>()
+        ),
+        borderline: false,
+        met: Some(vs(1) >= 100.0),
+    });
+    g
+}
+
+/// Part 3: wake latency against a raw futex, on a file and a sealed memfd port, for callback
+/// streams and for many readers.
+fn wake_goals(w: &crate::wake::WakeResults) -> Vec<Goal> {
+    let mut g = Vec::new();
+    let ratio = median(&w.ratio_1);
+    g.push(Goal {
+        part: "3 wake",
+        goal: "median wake latency (1 reader) ≤ 1.2× a raw futex".into(),
+        measured: format!(
+            "{} (median of per-repetition ratios {}; {} vs {})",
+            fmt_ratio(ratio),
+            spread(&w.ratio_1, fmt_ratio),
+            fmt_ns(w.bass.get(&1).map(|d| d.median()).unwrap_or(f64::NAN)),
+            fmt_ns(w.raw.median())
+        ),
+        met: Some(ratio <= 1.2),
+        borderline: {
+            let (lo, hi) = min_max(&w.ratio_1);
+            lo <= 1.2 && hi > 1.2
+        },
+    });
+    if !w.ratio_memfd.is_empty() {
+        let ratio = median(&w.ratio_memfd);
         g.push(Goal {
             part: "3 wake",
-            goal: "median wake latency (1 reader) ≤ 1.2× a raw futex".into(),
+            goal: "the same on a sealed memfd port (`bassd --port-backing memfd`)".into(),
             measured: format!(
                 "{} (median of per-repetition ratios {}; {} vs {})",
                 fmt_ratio(ratio),
-                spread(&w.ratio_1, fmt_ratio),
-                fmt_ns(w.bass.get(&1).map(|d| d.median()).unwrap_or(f64::NAN)),
+                spread(&w.ratio_memfd, fmt_ratio),
+                fmt_ns(w.bass_memfd.median()),
                 fmt_ns(w.raw.median())
             ),
             met: Some(ratio <= 1.2),
             borderline: {
-                let (lo, hi) = min_max(&w.ratio_1);
+                let (lo, hi) = min_max(&w.ratio_memfd);
                 lo <= 1.2 && hi > 1.2
             },
         });
-        if !w.ratio_memfd.is_empty() {
-            let ratio = median(&w.ratio_memfd);
-            g.push(Goal {
-                part: "3 wake",
-                goal: "the same on a sealed memfd port (`bassd --port-backing memfd`)".into(),
-                measured: format!(
-                    "{} (median of per-repetition ratios {}; {} vs {})",
-                    fmt_ratio(ratio),
-                    spread(&w.ratio_memfd, fmt_ratio),
-                    fmt_ns(w.bass_memfd.median()),
-                    fmt_ns(w.raw.median())
-                ),
-                met: Some(ratio <= 1.2),
-                borderline: {
-                    let (lo, hi) = min_max(&w.ratio_memfd);
-                    lo <= 1.2 && hi > 1.2
-                },
-            });
-        }
-        for (ratios, limit, against) in [
-            (&w.ratio_stream_blocking, 1.05, "the blocking wait path (`Port::wait` readers)"),
-            (&w.ratio_stream_raw, 1.2, "a raw futex"),
-        ] {
-            if !ratios.is_empty() {
-                g.push(stream_goal(ratios, limit, against));
-            }
-        }
-        for (ratios, lasts, port) in [
-            (&w.ratio_n, &w.ratio_n_last, ""),
-            (&w.ratio_n_memfd, &w.ratio_n_memfd_last, ", sealed memfd port"),
-        ] {
-            for (k, each) in ratios {
-                let last = lasts.get(k).cloned().unwrap_or_default();
-                g.push(many_readers_goal(*k, port, each, &last));
-            }
+    }
+    for (ratios, limit, against) in [
+        (&w.ratio_stream_blocking, 1.05, "the blocking wait path (`Port::wait` readers)"),
+        (&w.ratio_stream_raw, 1.2, "a raw futex"),
+    ] {
+        if !ratios.is_empty() {
+            g.push(stream_goal(ratios, limit, against));
         }
     }
-    match r.e2e.as_ref() {
-        Some(e) if e.e2e.iter().any(|x| !x.bass.is_empty()) => {
-            let parts: Vec<String> = e
-                .e2e
-                .iter()
-                .filter(|x| !x.bass.is_empty())
-                .map(|x| {
-                    format!(
-                        "period {}: {} vs {} = {}",
-                        x.period,
-                        fmt_ns(median(&x.bass)),
-                        fmt_ns(median(&x.jack)),
-                        fmt_ratio(median(&x.bass) / median(&x.jack))
-                    )
-                })
-                .collect();
-            g.push(Goal {
-                part: "4 end to end",
-                goal: "jackd (dummy) → ALSA jack PCM → bassd → reader, vs a direct JACK client (no numeric goal)".into(),
-                measured: format!("median delay from the JACK cycle start, bass reader vs JACK client: {}", parts.join("; ")),
-                borderline: false,
-            met: None,
-            });
+    for (ratios, lasts, port) in
+        [(&w.ratio_n, &w.ratio_n_last, ""), (&w.ratio_n_memfd, &w.ratio_n_memfd_last, ", sealed memfd port")]
+    {
+        for (k, each) in ratios {
+            let last = lasts.get(k).cloned().unwrap_or_default();
+            g.push(many_readers_goal(*k, port, each, &last));
         }
-        Some(e) => g.push(Goal {
+    }
+    g
+}
+
+/// Part 4: the end-to-end delay against a direct JACK client, or why it was not measured.
+fn e2e_goal(e: &crate::e2e::E2eResults) -> Goal {
+    if e.e2e.iter().any(|x| !x.bass.is_empty()) {
+        let parts: Vec<String> = e
+            .e2e
+            .iter()
+            .filter(|x| !x.bass.is_empty())
+            .map(|x| {
+                format!(
+                    "period {}: {} vs {} = {}",
+                    x.period,
+                    fmt_ns(median(&x.bass)),
+                    fmt_ns(median(&x.jack)),
+                    fmt_ratio(median(&x.bass) / median(&x.jack))
+                )
+            })
+            .collect();
+        Goal {
+            part: "4 end to end",
+            goal: "jackd (dummy) → ALSA jack PCM → bassd → reader, vs a direct JACK client (no numeric goal)"
+                .into(),
+            measured: format!(
+                "median delay from the JACK cycle start, bass reader vs JACK client: {}",
+                parts.join("; ")
+            ),
+            borderline: false,
+            met: None,
+        }
+    } else {
+        Goal {
             part: "4 end to end",
             goal: "jackd → ALSA jack PCM → bassd → reader, vs a direct JACK client".into(),
             measured: format!(
@@ -167,22 +199,27 @@ pub(super) fn goals(r: &Results) -> Vec<Goal> {
             ),
             borderline: false,
             met: None,
-        }),
-        None => {}
+        }
     }
-    if let Some(e) = r.e2e.as_ref().filter(|e| !e.cpu.is_empty()) {
-        let cpu: Vec<String> =
-            e.cpu.iter().map(|c| format!("{}: {:.2} %", c.chunk, c.bassd * 100.0)).collect();
-        let worst_wait = e.cpu.iter().map(|c| c.waiter).fold(0.0, f64::max);
-        g.push(Goal {
+}
+
+/// Part 5: bassd's CPU share and a waiting reader's (none if the CPU part did not run).
+fn cpu_goals(e: &crate::e2e::E2eResults) -> Vec<Goal> {
+    if e.cpu.is_empty() {
+        return Vec::new();
+    }
+    let cpu: Vec<String> = e.cpu.iter().map(|c| format!("{}: {:.2} %", c.chunk, c.bassd * 100.0)).collect();
+    let worst_wait = e.cpu.iter().map(|c| c.waiter).fold(0.0, f64::max);
+    vec![
+        Goal {
             part: "5 CPU",
             goal: "bassd's share of one core at 48 kHz stereo (sim device), 32/64/256/2205-frame chunks"
                 .into(),
             measured: format!("{} of one core (no numeric goal)", cpu.join(", ")),
             borderline: false,
             met: None,
-        });
-        g.push(Goal {
+        },
+        Goal {
             part: "5 CPU",
             goal: "a reader blocked in a wait uses ~0 CPU".into(),
             measured: format!(
@@ -193,27 +230,27 @@ pub(super) fn goals(r: &Results) -> Vec<Goal> {
             ),
             borderline: false,
             met: Some(worst_wait < 0.001),
-        });
+        },
+    ]
+}
+
+/// Part 6: the shared memory is the header, the chunk table and the window, exactly.
+fn memory_goal(m: &[crate::memory::MemRow]) -> Goal {
+    let exact = m.iter().all(|x| {
+        x.file_bytes == x.window_bytes + x.overhead_bytes
+            && x.overhead_bytes <= 4096 + (x.window_s as u64 * 20 * 32).div_ceil(4096) * 4096
+    });
+    let worst = m.iter().map(|x| x.overhead_bytes).max().unwrap_or(0);
+    Goal {
+        part: "6 memory",
+        goal: "shared memory = header + window exactly".into(),
+        measured: format!(
+            "file = window + 4 KiB header + chunk table (32 B per chunk, page-rounded): at most {} over the window",
+            fmt_bytes(worst as f64)
+        ),
+        borderline: false,
+        met: Some(exact),
     }
-    if let Some(m) = &r.memory {
-        let exact = m.iter().all(|x| {
-            x.file_bytes == x.window_bytes + x.overhead_bytes
-                && x.overhead_bytes <= 4096 + (x.window_s as u64 * 20 * 32).div_ceil(4096) * 4096
-        });
-        let worst = m.iter().map(|x| x.overhead_bytes).max().unwrap_or(0);
-        g.push(Goal {
-            part: "6 memory",
-            goal: "shared memory = header + window exactly".into(),
-            measured: format!(
-                "file = window + 4 KiB header + chunk table (32 B per chunk, page-rounded): at most {} over the window",
-                fmt_bytes(worst as f64)
-            ),
-            borderline: false,
-            met: Some(exact),
-        });
-    }
-    g.extend(super::pipewire::goals(r));
-    g
 }
 
 /// The goal row for `k` readers: each reader's and the last reader's median wake against a

@@ -363,90 +363,9 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
     let n = if quick { 80 } else { 250 };
     let mut res = WakeResults { publishes: n, ..WakeResults::default() };
     for rep in 0..reps {
-        let OneReader { raw, bass, bare, memfd, stream } = one_reader_side_by_side(n);
-        res.add_stream(rep, 1, stream, (&bass.each, &bass.data), &raw);
-        let mfd = memfd.each;
-        println!(
-            "  rep {} bass 1 reader, sealed memfd port: median {} p99 {} (CPU/chunk {}) | memfd / raw {}",
-            rep + 1,
-            fmt_ns(median(&mfd)),
-            fmt_ns(quantile(&mfd, 0.99)),
-            fmt_ns(memfd.cpu),
-            fmt_ratio(median(&mfd) / median(&raw))
-        );
-        res.ratio_memfd.push(median(&mfd) / median(&raw));
-        res.bass_memfd.add_rep(mfd);
-        let (one, data, cpu_one) = (bass.each, bass.data, bass.cpu);
-        let (cpu_bare, bare) = (bare.cpu, bare.each);
-        res.reader_cpu.entry(1).or_default().push(cpu_one);
-        res.bare_reader_cpu.push(cpu_bare);
-        let (raw_med, one_med) = (median(&raw), median(&one));
-        println!(
-            "  rep {} raw futex: median {} p99 {} | bass 1 reader: median {} p99 {} (data in hand {}, CPU/chunk {}) | bass writer + bare FUTEX_WAIT reader: median {} (CPU/chunk {}) | ratio {}",
-            rep + 1,
-            fmt_ns(raw_med),
-            fmt_ns(quantile(&raw, 0.99)),
-            fmt_ns(one_med),
-            fmt_ns(quantile(&one, 0.99)),
-            fmt_ns(median(&data)),
-            fmt_ns(cpu_one),
-            fmt_ns(median(&bare)),
-            fmt_ns(cpu_bare),
-            fmt_ratio(one_med / raw_med)
-        );
-        res.ratio_1.push(one_med / raw_med);
-        res.raw.add_rep(raw);
-        res.bass_raw_waiter.add_rep(bare);
-        res.bass.entry(1).or_default().add_rep(one.clone());
-        res.bass_last.entry(1).or_default().add_rep(one);
-        res.bass_data.entry(1).or_default().add_rep(data);
+        one_reader_rep(&mut res, rep, n);
         for &k in READERS.iter().filter(|&&k| k > 1) {
-            let (bass_k, m, stream_k, raw_k) = many_side_by_side(k, n);
-            res.add_stream(rep, k, stream_k, (&bass_k.each, &bass_k.data), &raw_k.each);
-            let Samples { each, last, data, cpu } = bass_k;
-            res.reader_cpu.entry(k).or_default().push(cpu);
-            println!(
-                "  rep {} bass {k:>2} readers: median {} p99 {} max {}; last reader median {}; data in hand median {}; reader CPU/chunk {}",
-                rep + 1,
-                fmt_ns(median(&each)),
-                fmt_ns(quantile(&each, 0.99)),
-                fmt_ns(each.iter().cloned().fold(0.0, f64::max)),
-                fmt_ns(median(&last)),
-                fmt_ns(median(&data)),
-                fmt_ns(cpu)
-            );
-            println!(
-                "  rep {} raw futex, {k:>2} waiters copying the block: median {} p99 {}; last waiter median {}; waiter CPU/wake {} | bass / raw: each {}, last {}",
-                rep + 1,
-                fmt_ns(median(&raw_k.each)),
-                fmt_ns(quantile(&raw_k.each, 0.99)),
-                fmt_ns(median(&raw_k.last)),
-                fmt_ns(raw_k.cpu),
-                fmt_ratio(median(&each) / median(&raw_k.each)),
-                fmt_ratio(median(&last) / median(&raw_k.last))
-            );
-            res.ratio_n.entry(k).or_default().push(median(&each) / median(&raw_k.each));
-            res.ratio_n_last.entry(k).or_default().push(median(&last) / median(&raw_k.last));
-            println!(
-                "  rep {} bass {k:>2} readers, sealed memfd port: median {}; last reader median {}; reader CPU/chunk {} | memfd / raw: each {}, last {}",
-                rep + 1,
-                fmt_ns(median(&m.each)),
-                fmt_ns(median(&m.last)),
-                fmt_ns(m.cpu),
-                fmt_ratio(median(&m.each) / median(&raw_k.each)),
-                fmt_ratio(median(&m.last) / median(&raw_k.last))
-            );
-            res.reader_cpu_memfd.entry(k).or_default().push(m.cpu);
-            res.raw_waiter_cpu.entry(k).or_default().push(raw_k.cpu);
-            res.ratio_n_memfd.entry(k).or_default().push(median(&m.each) / median(&raw_k.each));
-            res.ratio_n_memfd_last.entry(k).or_default().push(median(&m.last) / median(&raw_k.last));
-            res.bass_memfd_n.entry(k).or_default().add_rep(m.each);
-            res.bass_memfd_n_last.entry(k).or_default().add_rep(m.last);
-            res.raw_n.entry(k).or_default().add_rep(raw_k.each);
-            res.raw_n_last.entry(k).or_default().add_rep(raw_k.last);
-            res.bass.entry(k).or_default().add_rep(each);
-            res.bass_last.entry(k).or_default().add_rep(last);
-            res.bass_data.entry(k).or_default().add_rep(data);
+            many_readers_rep(&mut res, rep, k, n);
         }
     }
     let poll = polling(4, Duration::from_secs(if quick { 2 } else { 6 }));
@@ -462,4 +381,99 @@ pub fn run(reps: usize, quick: bool) -> WakeResults {
         spread(&res.ratio_memfd, fmt_ratio)
     );
     res
+}
+
+/// Repetition `rep` with one reader, `n` publishes: the raw futex, bass on a file and a sealed
+/// memfd port, a bare FUTEX_WAIT reader and a callback stream, side by side; added to `res`
+/// and printed.
+fn one_reader_rep(res: &mut WakeResults, rep: usize, n: usize) {
+    let OneReader { raw, bass, bare, memfd, stream } = one_reader_side_by_side(n);
+    res.add_stream(rep, 1, stream, (&bass.each, &bass.data), &raw);
+    let mfd = memfd.each;
+    println!(
+        "  rep {} bass 1 reader, sealed memfd port: median {} p99 {} (CPU/chunk {}) | memfd / raw {}",
+        rep + 1,
+        fmt_ns(median(&mfd)),
+        fmt_ns(quantile(&mfd, 0.99)),
+        fmt_ns(memfd.cpu),
+        fmt_ratio(median(&mfd) / median(&raw))
+    );
+    res.ratio_memfd.push(median(&mfd) / median(&raw));
+    res.bass_memfd.add_rep(mfd);
+    let (one, data, cpu_one) = (bass.each, bass.data, bass.cpu);
+    let (cpu_bare, bare) = (bare.cpu, bare.each);
+    res.reader_cpu.entry(1).or_default().push(cpu_one);
+    res.bare_reader_cpu.push(cpu_bare);
+    let (raw_med, one_med) = (median(&raw), median(&one));
+    println!(
+        "  rep {} raw futex: median {} p99 {} | bass 1 reader: median {} p99 {} (data in hand {}, CPU/chunk {}) | bass writer + bare FUTEX_WAIT reader: median {} (CPU/chunk {}) | ratio {}",
+        rep + 1,
+        fmt_ns(raw_med),
+        fmt_ns(quantile(&raw, 0.99)),
+        fmt_ns(one_med),
+        fmt_ns(quantile(&one, 0.99)),
+        fmt_ns(median(&data)),
+        fmt_ns(cpu_one),
+        fmt_ns(median(&bare)),
+        fmt_ns(cpu_bare),
+        fmt_ratio(one_med / raw_med)
+    );
+    res.ratio_1.push(one_med / raw_med);
+    res.raw.add_rep(raw);
+    res.bass_raw_waiter.add_rep(bare);
+    res.bass.entry(1).or_default().add_rep(one.clone());
+    res.bass_last.entry(1).or_default().add_rep(one);
+    res.bass_data.entry(1).or_default().add_rep(data);
+}
+
+/// Repetition `rep` with `k` readers, `n` publishes: bass on a file and a sealed memfd port, a
+/// callback stream and a raw futex waking `k` waiters, side by side; added to `res` and
+/// printed.
+fn many_readers_rep(res: &mut WakeResults, rep: usize, k: usize, n: usize) {
+    let (bass_k, m, stream_k, raw_k) = many_side_by_side(k, n);
+    res.add_stream(rep, k, stream_k, (&bass_k.each, &bass_k.data), &raw_k.each);
+    let Samples { each, last, data, cpu } = bass_k;
+    res.reader_cpu.entry(k).or_default().push(cpu);
+    println!(
+        "  rep {} bass {k:>2} readers: median {} p99 {} max {}; last reader median {}; data in hand median {}; reader CPU/chunk {}",
+        rep + 1,
+        fmt_ns(median(&each)),
+        fmt_ns(quantile(&each, 0.99)),
+        fmt_ns(each.iter().cloned().fold(0.0, f64::max)),
+        fmt_ns(median(&last)),
+        fmt_ns(median(&data)),
+        fmt_ns(cpu)
+    );
+    println!(
+        "  rep {} raw futex, {k:>2} waiters copying the block: median {} p99 {}; last waiter median {}; waiter CPU/wake {} | bass / raw: each {}, last {}",
+        rep + 1,
+        fmt_ns(median(&raw_k.each)),
+        fmt_ns(quantile(&raw_k.each, 0.99)),
+        fmt_ns(median(&raw_k.last)),
+        fmt_ns(raw_k.cpu),
+        fmt_ratio(median(&each) / median(&raw_k.each)),
+        fmt_ratio(median(&last) / median(&raw_k.last))
+    );
+    res.ratio_n.entry(k).or_default().push(median(&each) / median(&raw_k.each));
+    res.ratio_n_last.entry(k).or_default().push(median(&last) / median(&raw_k.last));
+    println!(
+        "  rep {} bass {k:>2} readers, sealed memfd port: median {}; last reader median {}; reader CPU/chunk {} | memfd / raw: each {}, last {}",
+        rep + 1,
+        fmt_ns(median(&m.each)),
+        fmt_ns(median(&m.last)),
+        fmt_ns(m.cpu),
+        fmt_ratio(median(&m.each) / median(&raw_k.each)),
+        fmt_ratio(median(&m.last) / median(&raw_k.last))
+    );
+    res.reader_cpu_memfd.entry(k).or_default().push(m.cpu);
+    res.raw_waiter_cpu.entry(k).or_default().push(raw_k.cpu);
+    res.ratio_n_memfd.entry(k).or_default().push(median(&m.each) / median(&raw_k.each));
+    res.ratio_n_memfd_last.entry(k).or_default().push(median(&m.last) / median(&raw_k.last));
+    res.bass_memfd_n.entry(k).or_default().add_rep(m.each);
+    res.bass_memfd_n_last.entry(k).or_default().add_rep(m.last);
+    res.raw_n.entry(k).or_default().add_rep(raw_k.each);
+    res.raw_n_last.entry(k).or_default().add_rep(raw_k.last);
+    res.bass.entry(k).or_default().add_rep(each);
+    res.bass_last.entry(k).or_default().add_rep(last);
+    res.bass_data.entry(k).or_default().add_rep(data);
 }
