@@ -451,18 +451,101 @@ impl Replay {
     }
 }
 
-fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
-    if p.rt_priority > 0 {
-        if let Err(e) = crate::os::set_realtime(p.rt_priority) {
+/// Asks for SCHED_FIFO at `priority` (0: none); a refusal is said once per process.
+fn try_realtime(priority: i32) {
+    if priority > 0 {
+        if let Err(e) = crate::os::set_realtime(priority) {
             if !RT_WARNED.swap(true, Ordering::Relaxed) {
                 tracing::warn!(
-                    "real-time scheduling (SCHED_FIFO {}) not permitted: {e}; capturing at normal priority \
-                     (grant CAP_SYS_NICE or an rtprio limit to enable it)",
-                    p.rt_priority
+                    "real-time scheduling (SCHED_FIFO {priority}) not permitted: {e}; capturing at normal \
+                     priority (grant CAP_SYS_NICE or an rtprio limit to enable it)"
                 );
             }
         }
     }
+}
+
+impl<'a> Assembler<'a> {
+    fn new(shared: &'a Shared, p: &CaptureParams) -> Self {
+        let g = &p.geometry;
+        let (channels, nfpc) = (g.channels as usize, g.frames_per_chunk as usize);
+        Assembler {
+            shared,
+            channels,
+            nfpc,
+            rate: u64::from(g.sample_rate),
+            chunk: vec![0; nfpc * channels],
+            filled: 0,
+            zeros: 0,
+            first: None,
+            observed: None,
+            discontinuity: false,
+            late: false,
+            dll: RateDll::new(f64::from(g.sample_rate), g.frames_per_chunk),
+            published: 0,
+            requested_ns: p.requested_ns,
+        }
+    }
+}
+
+/// Where the device's stream should be: the time of the frame after the last one read, for
+/// finding the frames an overrun (reported, or seen as a jump of the timestamps) lost. A
+/// resumed port's timeline goes on from its last frame, the restart counted like an overrun.
+struct Timeline {
+    expected_ns: Option<u64>,
+    after_xrun: bool,
+    /// Timestamps further ahead than this of where the stream should be mean lost frames.
+    unreported_gap_ns: u64,
+    resumed: bool,
+}
+
+impl Timeline {
+    fn new(p: &CaptureParams, asm: &Assembler) -> Self {
+        Timeline {
+            expected_ns: p.resume_from_ns,
+            after_xrun: p.resume_from_ns.is_some(),
+            unreported_gap_ns: (4 * asm.frames_ns(asm.nfpc as u64)).max(100_000_000),
+            resumed: p.resume_from_ns.is_some(),
+        }
+    }
+
+    /// Before `frames` frames stamped `first_mono_ns` are assembled: zero-fills what was lost
+    /// since the last ones (after a reported overrun, or when the timestamps jump ahead by more
+    /// than the device's timing noise: a device path that drops frames without reporting it,
+    /// such as ALSA's jack plugin when the broker froze).
+    fn before_frames(&mut self, asm: &mut Assembler, first_mono_ns: u64, frames: usize) {
+        let jump = self.expected_ns.map_or(0, |exp| first_mono_ns.saturating_sub(exp));
+        if !self.after_xrun && jump > self.unreported_gap_ns {
+            asm.shared.writer().add_xruns(1);
+            tracing::warn!(
+                jump_ms = jump / 1_000_000,
+                "device timestamps jumped ahead: frames were lost unreported"
+            );
+            self.after_xrun = true;
+        }
+        if self.after_xrun {
+            self.after_xrun = false;
+            asm.discontinuity = true;
+            if let Some(exp) = self.expected_ns {
+                let gap = ((jump as f64) * asm.rate as f64 / 1e9).round() as u64;
+                if asm.published == 0 && self.resumed {
+                    tracing::info!(
+                        gap_frames = gap,
+                        gap_ms = jump / 1_000_000,
+                        "resumed after a restart; the frames missed meanwhile are published as GAP"
+                    );
+                } else {
+                    tracing::warn!(gap_frames = gap, "overrun recovered; zero-filling the lost frames");
+                }
+                asm.push_zeros(gap, exp);
+            }
+        }
+        self.expected_ns = Some(first_mono_ns + asm.frames_ns(frames as u64));
+    }
+}
+
+fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
+    try_realtime(p.rt_priority);
     // No timer slack on this thread: the device pacing's sleeps end when due.
     crate::device::precise_timers();
     if let Err(msg) = dev.start() {
@@ -470,84 +553,25 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
         return;
     }
     shared.progress_ns.store(monotonic_ns(), Ordering::Release);
-    let g = &p.geometry;
-    let channels = g.channels as usize;
-    let nfpc = g.frames_per_chunk as usize;
-    let mut asm = Assembler {
-        shared,
-        channels,
-        nfpc,
-        rate: u64::from(g.sample_rate),
-        chunk: vec![0; nfpc * channels],
-        filled: 0,
-        zeros: 0,
-        first: None,
-        observed: None,
-        discontinuity: false,
-        late: false,
-        dll: RateDll::new(f64::from(g.sample_rate), g.frames_per_chunk),
-        published: 0,
-        requested_ns: p.requested_ns,
-    };
+    let mut asm = Assembler::new(shared, p);
+    let (channels, nfpc) = (asm.channels, asm.nfpc);
     let mut scratch = vec![0i32; nfpc * channels];
-    let mut replay =
-        Replay { rate: f64::from(g.sample_rate), requested_ns: p.requested_ns, published: 0, in_gap: false };
-    // Time of the frame after the last one read, for estimating overrun gaps; a resumed
-    // port's timeline goes on from its last frame, the restart counted like an overrun.
-    let mut expected_ns: Option<u64> = p.resume_from_ns;
-    let mut after_xrun = p.resume_from_ns.is_some();
-    // Timestamps further ahead than this of where the stream should be mean lost frames.
-    let unreported_gap_ns = (4 * asm.frames_ns(nfpc as u64)).max(100_000_000);
+    let rate = f64::from(p.geometry.sample_rate);
+    let mut replay = Replay { rate, requested_ns: p.requested_ns, published: 0, in_gap: false };
+    let mut timeline = Timeline::new(p, &asm);
     while !shared.stop.is_set() {
         let want = nfpc - asm.filled;
         match dev.read(&mut scratch, want, &shared.stop) {
             ReadEvent::Frames { frames, first_mono_ns, time_estimated, observed_mono_ns, late } => {
                 shared.progress_ns.store(monotonic_ns(), Ordering::Release);
                 shared.got_data.store(true, Ordering::Release);
-                // Frames lost: after a reported overrun, or when the timestamps jump ahead
-                // by more than the device's timing noise (a device path that drops frames
-                // without reporting it, such as ALSA's jack plugin when the broker froze).
-                let jump = expected_ns.map_or(0, |exp| first_mono_ns.saturating_sub(exp));
-                if !after_xrun && jump > unreported_gap_ns {
-                    shared.writer().add_xruns(1);
-                    tracing::warn!(
-                        jump_ms = jump / 1_000_000,
-                        "device timestamps jumped ahead: frames were lost unreported"
-                    );
-                    after_xrun = true;
-                }
-                if after_xrun {
-                    after_xrun = false;
-                    asm.discontinuity = true;
-                    if let Some(exp) = expected_ns {
-                        let gap = ((jump as f64) * asm.rate as f64 / 1e9).round() as u64;
-                        if asm.published == 0 && p.resume_from_ns.is_some() {
-                            tracing::info!(
-                                gap_frames = gap,
-                                gap_ms = jump / 1_000_000,
-                                "resumed after a restart; the frames missed meanwhile are published as GAP"
-                            );
-                        } else {
-                            tracing::warn!(
-                                gap_frames = gap,
-                                "overrun recovered; zero-filling the lost frames"
-                            );
-                        }
-                        asm.push_zeros(gap, exp);
-                    }
-                }
-                expected_ns = Some(first_mono_ns + asm.frames_ns(frames as u64));
-                asm.push_frames(
-                    &scratch[..frames * channels],
-                    first_mono_ns,
-                    time_estimated,
-                    observed_mono_ns,
-                    late,
-                );
+                timeline.before_frames(&mut asm, first_mono_ns, frames);
+                let samples = &scratch[..frames * channels];
+                asm.push_frames(samples, first_mono_ns, time_estimated, observed_mono_ns, late);
             }
             ReadEvent::Xrun => {
                 shared.writer().add_xruns(1);
-                after_xrun = true;
+                timeline.after_xrun = true;
             }
             ReadEvent::Chunk(c) => {
                 shared.progress_ns.store(monotonic_ns(), Ordering::Release);

@@ -103,21 +103,37 @@ fn each_record(
 /// Reads and checks the MCAP recording `file` (opened by the caller, `path` for messages):
 /// its audio, the sidecar it amounts to, and its channel count.
 pub fn open(path: &Path, mut file: File) -> Result<(McapFrames, Sidecar), String> {
-    let mut schemas: HashMap<u16, String> = HashMap::new();
-    let mut kinds: HashMap<u16, &'static str> = HashMap::new();
-    let mut facts: Option<Sidecar> = None;
-    let mut infos: Vec<(u32, ChunkInfo)> = Vec::new();
-    let mut audio: Vec<(u32, usize, usize)> = Vec::new(); // sequence, bytes of data, index in infos
-    let mut pending: Option<(u32, ChunkInfo)> = None;
-    let mut audio_channel = None;
+    let mut pass = FirstPass::default();
     let mut reader = LinearReader::new_with_options(options());
-    each_record(&mut file, &mut reader, |rec| {
+    each_record(&mut file, &mut reader, |rec| pass.record(rec))
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    pass.finish(path)
+}
+
+/// What the first pass over a recording's records collects: its schemas and channels, the
+/// ChunkInfo and audio messages paired by sequence number, and the recording's facts.
+#[derive(Default)]
+struct FirstPass {
+    schemas: HashMap<u16, String>,
+    kinds: HashMap<u16, &'static str>,
+    facts: Option<Sidecar>,
+    infos: Vec<(u32, ChunkInfo)>,
+    /// Sequence, bytes of data, index in `infos`.
+    audio: Vec<(u32, usize, usize)>,
+    /// A ChunkInfo waiting for its audio message.
+    pending: Option<(u32, ChunkInfo)>,
+    audio_channel: Option<u16>,
+}
+
+impl FirstPass {
+    /// Takes one record; Ok(true) to go on.
+    fn record(&mut self, rec: Record<'_>) -> Result<bool, String> {
         match rec {
             Record::Schema { header, .. } => {
-                schemas.insert(header.id, header.name);
+                self.schemas.insert(header.id, header.name);
             }
             Record::Channel(c) => {
-                let ty = schemas.get(&c.schema_id).map(String::as_str).unwrap_or("");
+                let ty = self.schemas.get(&c.schema_id).map(String::as_str).unwrap_or("");
                 let kind = match ty {
                     ros2::AUDIO_DATA_STAMPED => ros2::AUDIO_DATA_STAMPED,
                     ros2::CHUNK_INFO => ros2::CHUNK_INFO,
@@ -129,32 +145,32 @@ pub fn open(path: &Path, mut file: File) -> Result<(McapFrames, Sidecar), String
                         c.topic, c.message_encoding
                     ));
                 }
-                if kinds.values().any(|&k| k == kind) && !kinds.contains_key(&c.id) {
+                if self.kinds.values().any(|&k| k == kind) && !self.kinds.contains_key(&c.id) {
                     return Err(format!(
                         "two {kind} channels (the second {}): which one to replay?",
                         c.topic
                     ));
                 }
                 if kind == ros2::AUDIO_DATA_STAMPED {
-                    audio_channel = Some(c.id);
+                    self.audio_channel = Some(c.id);
                 }
-                kinds.insert(c.id, kind);
+                self.kinds.insert(c.id, kind);
             }
-            Record::Message { header, data } => match kinds.get(&header.channel_id) {
+            Record::Message { header, data } => match self.kinds.get(&header.channel_id) {
                 Some(&ros2::CHUNK_INFO) => {
                     let m = ChunkInfo::decode(&data)
                         .map_err(|e| format!("ChunkInfo message {}: {e}", header.sequence))?;
-                    if let Some((s, _)) = pending.replace((header.sequence, m)) {
+                    if let Some((s, _)) = self.pending.replace((header.sequence, m)) {
                         return Err(format!("ChunkInfo message {s} has no audio message after it"));
                     }
                 }
                 Some(_) => {
                     let m = AudioDataStamped::decode(&data)
                         .map_err(|e| format!("audio message {}: {e}", header.sequence))?;
-                    match pending.take() {
+                    match self.pending.take() {
                         Some((s, info)) if s == header.sequence => {
-                            audio.push((s, m.data.len(), infos.len()));
-                            infos.push((s, info));
+                            self.audio.push((s, m.data.len(), self.infos.len()));
+                            self.infos.push((s, info));
                         }
                         _ => {
                             return Err(format!(
@@ -172,49 +188,53 @@ pub fn open(path: &Path, mut file: File) -> Result<(McapFrames, Sidecar), String
                 })?;
                 let s: Sidecar = serde_json::from_str(json)
                     .map_err(|e| format!("its {METADATA_NAME:?} metadata record: {e}"))?;
-                facts = Some(s);
+                self.facts = Some(s);
             }
             _ => {}
         }
         Ok(true)
-    })
-    .map_err(|e| format!("{}: {e}", path.display()))?;
-    let named = |e: String| format!("{}: {e}", path.display());
-    let mut side = facts.ok_or_else(|| {
-        named(format!(
-            "no {METADATA_NAME:?} metadata record: not a bass recording, or its recorder was killed before the end \
-             (`mcap recover` keeps the messages, not the facts the replay needs)"
-        ))
-    })?;
-    if let Some((s, _)) = pending {
-        return Err(named(format!("ChunkInfo message {s} has no audio message after it")));
     }
-    let audio_channel =
-        audio_channel.ok_or_else(|| named(format!("no {} channel", ros2::AUDIO_DATA_STAMPED)))?;
-    let (runs, rows, losses) = check_messages(&side, &infos, &audio).map_err(named)?;
-    // The rows are the messages'; the losses must be the ones the facts say.
-    if losses != side.losses {
-        return Err(named(format!(
-            "the messages' lost_before make the losses {losses:?}; its metadata says {:?}",
-            side.losses
-        )));
+
+    /// The frames to replay and the sidecar, once every record was read: refused when the
+    /// facts are missing or the messages do not agree with them.
+    fn finish(self, path: &Path) -> Result<(McapFrames, Sidecar), String> {
+        let named = |e: String| format!("{}: {e}", path.display());
+        let mut side = self.facts.ok_or_else(|| {
+            named(format!(
+                "no {METADATA_NAME:?} metadata record: not a bass recording, or its recorder was killed before the end \
+                 (`mcap recover` keeps the messages, not the facts the replay needs)"
+            ))
+        })?;
+        if let Some((s, _)) = self.pending {
+            return Err(named(format!("ChunkInfo message {s} has no audio message after it")));
+        }
+        let audio_channel =
+            self.audio_channel.ok_or_else(|| named(format!("no {} channel", ros2::AUDIO_DATA_STAMPED)))?;
+        let (runs, rows, losses) = check_messages(&side, &self.infos, &self.audio).map_err(named)?;
+        // The rows are the messages'; the losses must be the ones the facts say.
+        if losses != side.losses {
+            return Err(named(format!(
+                "the messages' lost_before make the losses {losses:?}; its metadata says {:?}",
+                side.losses
+            )));
+        }
+        side.chunks = rows;
+        if let Some(p) = side.problems().first() {
+            return Err(named(format!("its recording does not agree with itself: {p}")));
+        }
+        let first_frame = side.recording.first_frame;
+        let frames = McapFrames {
+            path: path.to_owned(),
+            channels: side.recording.channels.len(),
+            audio_channel,
+            runs,
+            reader: None,
+            next_run: 0,
+            current: None,
+            first_frame,
+        };
+        Ok((frames, side))
     }
-    side.chunks = rows;
-    if let Some(p) = side.problems().first() {
-        return Err(named(format!("its recording does not agree with itself: {p}")));
-    }
-    let first_frame = side.recording.first_frame;
-    let frames = McapFrames {
-        path: path.to_owned(),
-        channels: side.recording.channels.len(),
-        audio_channel,
-        runs,
-        reader: None,
-        next_run: 0,
-        current: None,
-        first_frame,
-    };
-    Ok((frames, side))
 }
 
 /// The audio runs, chunk rows and losses the messages describe.

@@ -12,12 +12,12 @@ use bassport::control::{AcquireRequest, Acquired, ErrorKind, Reply};
 use bassport::format::{error_code, State};
 use bassport::portfile::mib;
 use bassport::sys::monotonic_ns;
-use bassport::PortParams;
+use bassport::{PortParams, Writer};
 
 use super::opening::{answer, NextPort, OpenJob, Opened, Opening, Parked, Poll, MAX_STUCK_OPENS};
 use super::{Broker, STOP_TIMEOUT};
 use crate::capture::{Acquisition, CaptureParams};
-use crate::device::{self, alsa, sim::SimDevice, Capture};
+use crate::device::{self, alsa, alsa::OpenError, sim::SimDevice, Capture};
 use crate::pins::PIN_BUDGET_FACTOR;
 use crate::request::{self, Checked, DeviceKind};
 
@@ -194,68 +194,94 @@ impl Broker {
 
     /// Acquire, second half: the device open returned. Returns who gets which reply, or None
     /// when the open was started again (a busy device, after stopping the running capture).
-    fn finish_acquire(&mut self, mut op: Opening, opened: Opened) -> Option<(Option<Parked>, Reply)> {
-        let r = &op.req;
+    fn finish_acquire(&mut self, op: Opening, opened: Opened) -> Option<(Option<Parked>, Reply)> {
         if !op.freed
             && opened.as_ref().is_err_and(|e| e.busy)
             && self.current.as_ref().is_some_and(Acquisition::running)
         {
-            if let Some(old) = self.current.as_mut() {
-                tracing::info!(device = %r.device, "device busy: stopping the running acquisition to retry");
-                old.stop(STOP_TIMEOUT);
-            }
-            op.freed = true;
-            match self.spawn_open(&op.checked) {
-                Ok(j) => {
-                    op.job = j;
-                    self.opening = Some(op);
-                    return None;
-                }
-                Err(e) => {
-                    let msg = format!("cannot start the device open thread: {e}; {}", self.unchanged());
-                    return Some((op.reply_to, Reply::error(ErrorKind::Internal, &msg)));
-                }
-            }
+            return self.retry_busy(op);
         }
         let dev = match opened {
             Ok(d) => d,
-            Err(e) => {
-                let kept = self.unchanged();
-                let msg = if op.freed {
-                    format!(
-                        "{} (after stopping the running acquisition, which may have held the device); \
-                         its port keeps its window: {kept}",
-                        e.message
-                    )
-                } else {
-                    format!("{}; {kept}", e.message)
-                };
-                tracing::error!("Acquire failed: {msg}");
-                if let NextPort::Resumed { writer, .. } = &op.pending {
-                    // The resumed acquisition cannot go on: its readers are told why.
-                    writer.set_state(State::Error, e.code, &msg);
-                    self.sup.forget();
-                }
-                return Some((op.reply_to, Reply::error(ErrorKind::Device, &msg)));
-            }
+            Err(e) => return Some(self.open_failed(op, e)),
         };
-        let g = op.checked.geometry.clone();
-        // The switch: the old capture stops (its port goes from capturing straight to
-        // superseded: its readers see no Stopped), then the new port takes the name.
+        let (reply_to, r, checked, requested_ns) = (op.reply_to, op.req, op.checked, op.requested_ns);
+        let (writer, resume_from_ns) = match self.switch_port(op.pending) {
+            Ok(w) => w,
+            Err(msg) => return Some((reply_to, Reply::error(ErrorKind::Internal, &msg))),
+        };
+        let cp = CaptureParams {
+            geometry: checked.geometry,
+            rt_priority: self.cfg.rt_priority,
+            requested_ns,
+            stall_ms: self.cfg.stall_ms,
+            resume_from_ns,
+        };
+        Some((reply_to, self.start_capture(writer, dev, &r, cp)))
+    }
+
+    /// The device is busy, most likely held by the running capture: stops it and opens the
+    /// device again (None: the open runs again), or says why it cannot.
+    fn retry_busy(&mut self, mut op: Opening) -> Option<(Option<Parked>, Reply)> {
+        if let Some(old) = self.current.as_mut() {
+            tracing::info!(device = %op.req.device, "device busy: stopping the running acquisition to retry");
+            old.stop(STOP_TIMEOUT);
+        }
+        op.freed = true;
+        match self.spawn_open(&op.checked) {
+            Ok(j) => {
+                op.job = j;
+                self.opening = Some(op);
+                None
+            }
+            Err(e) => {
+                let msg = format!("cannot start the device open thread: {e}; {}", self.unchanged());
+                Some((op.reply_to, Reply::error(ErrorKind::Internal, &msg)))
+            }
+        }
+    }
+
+    /// The device did not open: the reply says why and what was kept; a resumed acquisition
+    /// that cannot go on tells its readers.
+    fn open_failed(&mut self, op: Opening, e: OpenError) -> (Option<Parked>, Reply) {
+        let kept = self.unchanged();
+        let msg = if op.freed {
+            format!(
+                "{} (after stopping the running acquisition, which may have held the device); \
+                 its port keeps its window: {kept}",
+                e.message
+            )
+        } else {
+            format!("{}; {kept}", e.message)
+        };
+        tracing::error!("Acquire failed: {msg}");
+        if let NextPort::Resumed { writer, .. } = &op.pending {
+            // The resumed acquisition cannot go on: its readers are told why.
+            writer.set_state(State::Error, e.code, &msg);
+            self.sup.forget();
+        }
+        (op.reply_to, Reply::error(ErrorKind::Device, &msg))
+    }
+
+    /// The switch: the old capture stops (its port goes from capturing straight to superseded:
+    /// its readers see no Stopped), then the new port takes the name. Returns the new port's
+    /// writer and, for a port taken back, where its timeline goes on; Err when the new port
+    /// cannot be put in place (the old acquisition then stays current, stopped, its window
+    /// kept).
+    fn switch_port(&mut self, pending: NextPort) -> Result<(Writer, Option<u64>), String> {
         if let Some(old) = self.current.as_mut() {
             old.halt(STOP_TIMEOUT);
         }
-        let (writer, resume_from_ns) = match op.pending {
+        let (writer, resume_from_ns) = match pending {
             NextPort::New(p) => match p.commit() {
                 Ok(w) => (w, None),
                 Err(e) => {
-                    // The rename failed: the old acquisition stays current (stopped, its window kept).
                     if let Some(old) = self.current.as_mut() {
                         old.stop(STOP_TIMEOUT);
                     }
                     let msg = format!("cannot put the new port in place: {e}; {}", self.unchanged());
                     tracing::error!("{msg}");
-                    return Some((op.reply_to, Reply::error(ErrorKind::Internal, &msg)));
+                    return Err(msg);
                 }
             },
             NextPort::Resumed { writer, due_ns } => (writer, Some(due_ns)),
@@ -266,20 +292,27 @@ impl Broker {
                 self.pins.add(f, old.port.size());
             }
         }
+        Ok((writer, resume_from_ns))
+    }
+
+    /// Starts the capture thread on the new port: the acquisition becomes current, its port
+    /// goes to the service manager's store (or its readers are told no successor can take it
+    /// back).
+    fn start_capture(
+        &mut self,
+        writer: Writer,
+        dev: Box<dyn Capture>,
+        r: &AcquireRequest,
+        cp: CaptureParams,
+    ) -> Reply {
+        let g = cp.geometry.clone();
         let epoch = writer.epoch();
         let port_path = writer.path().display().to_string();
         let format = dev.format_name();
         writer.set_restart_grace_ms(self.sup.restart_grace_ms());
         let store_fd =
             writer.writable_fd().map_err(|e| tracing::warn!("no descriptor for the fd store: {e}")).ok();
-        let cp = CaptureParams {
-            geometry: g.clone(),
-            rt_priority: self.cfg.rt_priority,
-            requested_ns: op.requested_ns,
-            stall_ms: self.cfg.stall_ms,
-            resume_from_ns,
-        };
-        let reply = match Acquisition::start(writer, dev, &r.device, cp) {
+        match Acquisition::start(writer, dev, &r.device, cp) {
             Ok(a) => {
                 let stored = store_fd.is_some_and(|fd| self.store_port(fd, r, epoch));
                 if !stored {
@@ -301,8 +334,7 @@ impl Broker {
                 Reply::Acquired(Acquired { epoch, port: port_path.into(), format: format.into() })
             }
             Err(e) => Reply::error(ErrorKind::Internal, &format!("cannot start the capture thread: {e}")),
-        };
-        Some((op.reply_to, reply))
+        }
     }
 
     /// The bound on shared memory other users can make the broker's ports pin: for an
