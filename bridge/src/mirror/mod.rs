@@ -16,13 +16,14 @@ mod replica;
 pub mod status;
 
 use std::sync::atomic::Ordering;
-use std::sync::mpsc::{channel, RecvTimeoutError};
+use std::sync::mpsc::{channel, Receiver, RecvTimeoutError, Sender};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
 use anyhow::{anyhow, Result};
 use basskit::instance::{Instance, InstanceError};
 use bassport::sys::monotonic_ns;
+use zenoh::pubsub::Subscriber;
 use zenoh::sample::SampleKind;
 use zenoh::Wait;
 
@@ -172,9 +173,48 @@ fn run_named(
     let mut new_core = Core::new(instance.port_path(), o.bounds.clone(), st, monotonic_ns());
     new_core.group = o.group;
     let core = Arc::new(Mutex::new(new_core));
+    let chunks = subscribe_chunks(&session, o, &core, &clock, source_id.clone())?;
+    let (tx, rx) = channel::<Event>();
+    let _state = subscribe_state(&session, o, source_id.clone(), tx.clone())?;
+    let _alive = subscribe_alive(&session, o, tx)?;
+
+    let signer = match (&cred, &source_id) {
+        (Some(c), Some(id)) => {
+            Some(Arc::new(crate::control::Signer { credentials: c.clone(), source: id.name.clone() }))
+        }
+        _ => None,
+    };
+    let status_core = core.clone();
+    let forwarder = crate::control::spawn_forwarder(
+        &session,
+        o.net.key(&o.source, "control"),
+        signer,
+        instance,
+        term.clone(),
+        Arc::new(move || lock(&status_core).control_status(monotonic_ns())),
+    )?;
+    tracing::info!(replica = %name, source = %o.source, "mirroring");
+    follow(o, &core, &clock, &rx, &term, source_id.is_some());
+    drop(chunks);
+    lock(&core).remove();
+    forwarder.stop();
+    tracing::info!("mirror: terminated");
+    Ok(())
+}
+
+/// The chunk subscriber: each chunk (with `source_id`, only one it signed) goes to the core
+/// in the subscriber's callback, stamped with the clock offset, and its timestamps to the
+/// clock estimator.
+fn subscribe_chunks(
+    session: &zenoh::Session,
+    o: &MirrorOpts,
+    core: &Arc<Mutex<Core>>,
+    clock: &Arc<ClockEstimator>,
+    source_id: Option<Arc<crate::credentials::Identity>>,
+) -> Result<Subscriber<()>> {
     let (chunk_core, chunk_clock) = (core.clone(), clock.clone());
-    let (chunk_key, chunk_id) = (o.net.key(&o.source, "chunks"), source_id.clone());
-    let chunks = session
+    let (chunk_key, chunk_id) = (o.net.key(&o.source, "chunks"), source_id);
+    session
         .declare_subscriber(chunk_key.clone())
         .callback(move |s| {
             let (offset, _) = chunk_clock.estimate();
@@ -193,11 +233,19 @@ fn run_named(
             }
         })
         .wait()
-        .map_err(|e| anyhow!("subscribe to chunks: {e}"))?;
-    let (tx, rx) = channel::<Event>();
-    let state_tx = tx.clone();
-    let (state_key, state_id) = (o.net.key(&o.source, "state"), source_id.clone());
-    let _state = session
+        .map_err(|e| anyhow!("subscribe to chunks: {e}"))
+}
+
+/// The state subscriber: each state message to the main loop, as [`Event::Forged`] if
+/// `source_id` did not sign it.
+fn subscribe_state(
+    session: &zenoh::Session,
+    o: &MirrorOpts,
+    source_id: Option<Arc<crate::credentials::Identity>>,
+    state_tx: Sender<Event>,
+) -> Result<Subscriber<()>> {
+    let (state_key, state_id) = (o.net.key(&o.source, "state"), source_id);
+    session
         .declare_subscriber(state_key.clone())
         .callback(move |s| {
             let bytes = s.payload().to_bytes().into_owned();
@@ -207,10 +255,14 @@ fn run_named(
             let _ = state_tx.send(if signed { Event::State(bytes) } else { Event::Forged });
         })
         .wait()
-        .map_err(|e| anyhow!("subscribe to state: {e}"))?;
+        .map_err(|e| anyhow!("subscribe to state: {e}"))
+}
+
+/// The liveliness subscriber: the source's tokens appearing and going, to the main loop.
+fn subscribe_alive(session: &zenoh::Session, o: &MirrorOpts, tx: Sender<Event>) -> Result<Subscriber<()>> {
     // serve's token is `NS/<broker>/alive/<instance>` (an older serve's: `NS/<broker>/alive`).
     let alive_key = o.net.key(&o.source, "alive");
-    let _alive = session
+    session
         .liveliness()
         .declare_subscriber(format!("{alive_key}/**"))
         .history(true)
@@ -220,40 +272,39 @@ fn run_named(
             let _ = tx.send(Event::Alive(instance, s.kind() == SampleKind::Put));
         })
         .wait()
-        .map_err(|e| anyhow!("liveliness subscriber: {e}"))?;
+        .map_err(|e| anyhow!("liveliness subscriber: {e}"))
+}
 
-    let signer = match (&cred, &source_id) {
-        (Some(c), Some(id)) => {
-            Some(Arc::new(crate::control::Signer { credentials: c.clone(), source: id.name.clone() }))
-        }
-        _ => None,
-    };
-    let status_core = core.clone();
-    let forwarder = crate::control::spawn_forwarder(
-        &session,
-        o.net.key(&o.source, "control"),
-        signer,
-        instance,
-        term.clone(),
-        Arc::new(move || lock(&status_core).control_status(monotonic_ns())),
-    )?;
-    let signed = source_id.is_some();
-    let timeout_ns = (o.timeout * 1e9) as u64;
-    let endpoints = match (&o.net.connect[..], &o.net.listen[..], &o.net.zenoh_config) {
+/// Where this mirror looks for the source, for the warnings.
+fn endpoints(net: &NetOpts) -> String {
+    match (&net.connect[..], &net.listen[..], &net.zenoh_config) {
         ([], [], Some(p)) => format!("endpoints of {}", p.display()),
         ([], [], None) => "Zenoh's default endpoints and scouting".to_owned(),
         ([], listen, _) => format!("listening on {}", listen.join(", ")),
         (connect, _, _) => format!("connecting to {}", connect.join(", ")),
-    };
-    let mut alive = false;
+    }
+}
+
+/// The main loop until `term`: the events to the core, its tick (the source's timeout) every
+/// 100 ms at most, the status once a second. `signed`: with credentials.
+fn follow(
+    o: &MirrorOpts,
+    core: &Mutex<Core>,
+    clock: &ClockEstimator,
+    rx: &Receiver<Event>,
+    term: &std::sync::atomic::AtomicBool,
+    signed: bool,
+) {
+    let timeout_ns = (o.timeout * 1e9) as u64;
+    let endpoints = endpoints(&o.net);
+    // The source's live tokens: the source is alive while there is one.
     let mut tokens = std::collections::BTreeSet::new();
     let mut last_status = 0u64;
     let mut status_log = LogLimit::default();
-    tracing::info!(replica = %name, source = %o.source, "mirroring");
     while !term.load(Ordering::Relaxed) {
         let ev = rx.recv_timeout(Duration::from_millis(100));
         let now = monotonic_ns();
-        let mut c = lock(&core);
+        let mut c = lock(core);
         match ev {
             Ok(Event::State(bytes)) => c.on_state(&bytes, now),
             Ok(Event::Forged) => c.on_forged("state", now),
@@ -264,58 +315,75 @@ fn run_named(
             {
                 tracing::debug!(instance, "liveliness token of an instance not (yet) heard signed: ignored");
             }
-            Ok(Event::Alive(instance, a)) => {
-                // Bounded: a peer declaring many tokens cannot grow it past the cap.
-                let id = instance.unwrap_or(0);
-                if a && tokens.len() < 64 {
-                    tokens.insert(id);
-                } else if !a {
-                    tokens.remove(&id);
-                }
-                if a {
-                    c.last_heard_ns = now;
-                }
-                if let Some(i) = instance {
-                    c.on_token(i, a);
-                }
-                alive = !tokens.is_empty();
-                let instance = instance.map(|i| format!("{i:016x}")).unwrap_or_default();
-                tracing::info!(alive = a, source = %o.source, instance, "source liveliness");
-            }
+            Ok(Event::Alive(instance, a)) => on_alive(&mut c, &mut tokens, instance, a, now, &o.source),
             Err(RecvTimeoutError::Timeout) => {}
             Err(RecvTimeoutError::Disconnected) => break,
         }
-        if let Some(why) = c.tick(now, timeout_ns, alive) {
+        if let Some(why) = c.tick(now, timeout_ns, !tokens.is_empty()) {
             tracing::warn!("source {:?} ({endpoints}): {why}", o.source);
         }
         if now.saturating_sub(last_status) >= 1_000_000_000 {
             last_status = now;
-            let (off, unc) = clock.estimate();
-            c.st.clock_offset_ns = off;
-            c.st.clock_uncertainty_ns = unc;
-            c.st.clock_drift_ppm = clock.drift_ppm();
-            c.st.clock_replies_refused = clock.refused();
-            c.refresh();
-            let st = c.st.clone();
-            drop(c);
-            // Written without the lock: the chunk subscriber never waits for the disk.
-            if let Some(p) = &o.status_file {
-                if let Err(e) = write_status(p, &st) {
-                    lock(&core).st.status_write_failures += 1;
-                    if let Some(n) = status_log.allow(now) {
-                        let more =
-                            if n > 0 { format!(" ({n} more failures not logged)") } else { String::new() };
-                        tracing::warn!("status file {}: {e:#}{more}", p.display());
-                    }
-                }
+            report_status(o, core, clock, c, now, &mut status_log);
+        }
+    }
+}
+
+/// A token of the source's `instance` appeared (`a`) or went: kept in `tokens`, told to the
+/// core, logged.
+fn on_alive(
+    c: &mut Core,
+    tokens: &mut std::collections::BTreeSet<u64>,
+    instance: Option<u64>,
+    a: bool,
+    now: u64,
+    source: &str,
+) {
+    // Bounded: a peer declaring many tokens cannot grow it past the cap.
+    let id = instance.unwrap_or(0);
+    if a && tokens.len() < 64 {
+        tokens.insert(id);
+    } else if !a {
+        tokens.remove(&id);
+    }
+    if a {
+        c.last_heard_ns = now;
+    }
+    if let Some(i) = instance {
+        c.on_token(i, a);
+    }
+    let instance = instance.map(|i| format!("{i:016x}")).unwrap_or_default();
+    tracing::info!(alive = a, source = %source, instance, "source liveliness");
+}
+
+/// The clock estimate into the status, and the status to `--status-file`: `c` (the core's
+/// lock) is released before the file is written.
+fn report_status(
+    o: &MirrorOpts,
+    core: &Mutex<Core>,
+    clock: &ClockEstimator,
+    mut c: MutexGuard<'_, Core>,
+    now: u64,
+    status_log: &mut LogLimit,
+) {
+    let (off, unc) = clock.estimate();
+    c.st.clock_offset_ns = off;
+    c.st.clock_uncertainty_ns = unc;
+    c.st.clock_drift_ppm = clock.drift_ppm();
+    c.st.clock_replies_refused = clock.refused();
+    c.refresh();
+    let st = c.st.clone();
+    drop(c);
+    // Written without the lock: the chunk subscriber never waits for the disk.
+    if let Some(p) = &o.status_file {
+        if let Err(e) = write_status(p, &st) {
+            lock(core).st.status_write_failures += 1;
+            if let Some(n) = status_log.allow(now) {
+                let more = if n > 0 { format!(" ({n} more failures not logged)") } else { String::new() };
+                tracing::warn!("status file {}: {e:#}{more}", p.display());
             }
         }
     }
-    drop(chunks);
-    lock(&core).remove();
-    forwarder.stop();
-    tracing::info!("mirror: terminated");
-    Ok(())
 }
 
 fn write_status(p: &std::path::Path, st: &MirrorStatus) -> Result<()> {
