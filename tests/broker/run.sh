@@ -6,39 +6,12 @@
 # The Rust integration tests (broker/tests/: sim devices, ALSA file and jack plugins,
 # lifecycle) run with `cargo test --release --workspace`; pass --with-cargo to run them here too.
 set -euo pipefail
-top=$(cd "$(dirname "$0")/../.." && pwd)
-bin="${CARGO_TARGET_DIR:-$top/target}/release"
-for f in bassd bass libbassclient.so; do
-  [[ -e "$bin/$f" ]] || { echo "tests/broker: $bin/$f missing; run cargo build --release --workspace" >&2; exit 1; }
-done
+SUITE=tests/broker
+source "$(dirname "$0")/../lib.sh"
+top=$TOP bin=$BIN
+need_built bassd bass libbassclient.so
 work=$(mktemp -d -t bass-broker-tests.XXXXXX)
-pids=()
-cleanup() {
-  for p in "${pids[@]}"; do kill -TERM "$p" 2>/dev/null || true; done
-  for p in "${pids[@]}"; do wait "$p" 2>/dev/null || true; done
-  rm -rf "$work"
-}
-trap cleanup EXIT
-passed=0
-failed=0
-ok() { passed=$((passed + 1)); echo "ok   $*"; }
-bad() { failed=$((failed + 1)); echo "FAIL $*"; }
-
-# Starts bassd NAME in runtime dir $1 (more bassd options after NAME) and waits for its
-# socket (bounded).
-start_bassd() {
-  local dir=$1 name=$2
-  shift 2
-  BASS_RUNTIME_DIR="$dir" BASS_LOG=warn "$bin/bassd" --name "$name" --rt-priority 0 "$@" 2>>"$dir/bassd-$name.log" &
-  pids+=($!)
-  for _ in $(seq 400); do
-    [[ -S "$dir/bass-$name.sock" ]] && return 0
-    sleep 0.025
-  done
-  echo "bassd $name did not start:"; cat "$dir/bassd-$name.log"; return 1
-}
-
-# 1. C ABI
+trap 'stop_all; rm -rf "$work"' EXIT
 cc=${CC:-cc}
 flags=(-std=c11 -Wall -Wextra -Wpedantic -Werror -I "$top/include")
 link=(-L "$bin" -lbassclient -Wl,-rpath,"$bin" -lpthread)
@@ -89,5 +62,4 @@ if [[ "${1:-}" == "--with-cargo" ]]; then
   if (cd "$top" && cargo test --release -p bass-broker); then ok "cargo test -p bass-broker"; else bad "cargo test -p bass-broker"; fi
 fi
 
-echo "tests/broker: $passed passed, $failed failed"
-[[ $failed == 0 ]]
+summary

@@ -19,24 +19,12 @@
 #   mcap-refused   a replay with another chunk size is refused, naming the recording's
 # Assertions are on indices, samples, losses and flags; the stops only create the conditions.
 set -euo pipefail
-top=$(cd "$(dirname "$0")/../.." && pwd)
-bin="${CARGO_TARGET_DIR:-$top/target}/release"
-for f in bassd bass libbassclient.so; do
-  [[ -e "$bin/$f" ]] || { echo "tests/replay: $bin/$f missing; run cargo build --release --workspace" >&2; exit 1; }
-done
+SUITE=tests/replay
+source "$(dirname "$0")/../lib.sh"
+top=$TOP bin=$BIN
+need_built bassd bass libbassclient.so
 work=$(mktemp -d -t bass-replay-tests.XXXXXX)
-pids=()
-cleanup() {
-  for p in "${pids[@]}"; do kill -CONT "$p" 2>/dev/null || true; kill -TERM "$p" 2>/dev/null || true; done
-  for p in "${pids[@]}"; do wait "$p" 2>/dev/null || true; done
-  rm -rf "$work"
-}
-trap cleanup EXIT
-passed=0
-failed=0
-ok() { passed=$((passed + 1)); echo "ok   $*"; }
-bad() { failed=$((failed + 1)); echo "FAIL $*"; }
-
+trap 'stop_all; rm -rf "$work"' EXIT
 cc=${CC:-cc}
 "$cc" -std=c11 -Wall -Wextra -Wpedantic -Werror -O2 -I "$top/include" "$top/tests/replay/port_dump.c" \
   -o "$work/port_dump" -L "$bin" -lbassclient -Wl,-rpath,"$bin" -lpthread
@@ -46,7 +34,7 @@ mkdir -p "$BASS_RUNTIME_DIR" "$work/rec"
 BASS_LOG=warn "$bin/bassd" --rt-priority 0 --allow-device "sim:file:$work/rec/*" \
   --allow-device "sim:file-renumber:$work/rec/*" 2>>"$work/bassd.log" &
 bassd_pid=$!
-pids+=("$bassd_pid")
+PIDS+=("$bassd_pid")
 for _ in $(seq 400); do [[ -S "$BASS_RUNTIME_DIR/bass-default.sock" ]] && break; sleep 0.025; done
 bass() { "$bin/bass" "$@"; }
 
@@ -190,5 +178,4 @@ else
   bad "mcap-refused: refused, but not for the chunk size: $out"
 fi
 
-echo "tests/replay: $passed passed, $failed failed"
-[[ $failed == 0 ]]
+summary
