@@ -26,12 +26,14 @@ mod state;
 mod tests;
 
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::sync_channel;
+use std::sync::mpsc::{sync_channel, Receiver};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Result};
 use bassport::Port;
+use zenoh::pubsub::{Publisher, Subscriber};
+use zenoh::query::Queryable;
 use zenoh::sample::SampleKind;
 use zenoh::Wait;
 
@@ -90,14 +92,7 @@ pub struct Outgoing {
 
 /// Runs `serve` until SIGTERM/SIGINT.
 pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
-    if o.ros2.ros2 {
-        crate::ros2::check(&o.ros2, &o.name)?;
-    }
-    net::check_key_name("--name", &o.name)?;
-    net::check_namespace(&o.net.namespace)?;
-    if let Some(names) = &o.allow_control {
-        crate::control::check_allowed(names, o.net.credentials.is_some())?;
-    }
+    check(&o)?;
     let term = net::termination_flag()?;
     let guarded = if o.ros2.ros2 { crate::ros2::guarded_keys(&o.ros2, &o.name)? } else { Vec::new() };
     let opened = o.net.open(net::Role::Serve(guarded))?;
@@ -116,106 +111,17 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
         .map_err(|e| anyhow!("liveliness token: {e}"))?;
     // Other serve instances of this name: their tokens, and their states for their Zenoh ids.
     let conflicts = Arc::new(Mutex::new(Conflicts::new(&instance_hex, &zid)));
-    let (c_alive, c_state) = (conflicts.clone(), conflicts.clone());
-    let alive_sub = session
-        .liveliness()
-        .declare_subscriber(format!("{alive_key}/**"))
-        .history(true)
-        .callback(move |s| {
-            if let Some(other) = conflict::instance_of_key(s.key_expr().as_str(), &alive_key) {
-                let line = lock(&c_alive).on_token(other, s.kind() == SampleKind::Put, Instant::now());
-                if let Some(line) = line {
-                    tracing::error!("{line}");
-                }
-            }
-        })
-        .wait()
-        .map_err(|e| anyhow!("liveliness subscriber: {e}"))?;
-    let state_sub = session
-        .declare_subscriber(o.net.key(&o.name, "state"))
-        .callback(move |s| {
-            if let Ok(st) = serde_json::from_slice::<SourceState>(&s.payload().to_bytes()) {
-                if let Some(line) = lock(&c_state).on_state(&st.instance, &st.zid, Instant::now()) {
-                    tracing::error!("{line}");
-                }
-            }
-        })
-        .wait()
-        .map_err(|e| anyhow!("state subscriber: {e}"))?;
-    let publisher = session
-        .declare_publisher(o.net.key(&o.name, "chunks"))
-        .congestion_control(crate::net::CHUNK_CONGESTION)
-        .wait()
-        .map_err(|e| anyhow!("declare publisher: {e}"))?;
-    // Whether any subscriber (a mirror) takes the chunks: a new port's backlog waits for one.
-    let matched = Arc::new(AtomicBool::new(false));
-    let m = matched.clone();
-    publisher
-        .matching_listener()
-        .callback(move |s| m.store(s.matching(), Ordering::Relaxed))
-        .background()
-        .wait()
-        .map_err(|e| anyhow!("matching listener: {e}"))?;
+    let (alive_sub, state_sub) = watch_conflicts(&session, &o, alive_key, &conflicts)?;
+    let (publisher, matched) = chunk_publisher(&session, &o)?;
     let state_pub = session
         .declare_publisher(o.net.key(&o.name, "state"))
         .wait()
         .map_err(|e| anyhow!("declare state publisher: {e}"))?;
     let shared = Arc::new(Mutex::new(SourceState { ..Default::default() }));
-    let info_shared = shared.clone();
-    let (info_key, info_cred) = (o.net.key(&o.name, "info"), cred.clone());
-    let info = session
-        .declare_queryable(info_key.clone())
-        .callback(move |q| {
-            let s = serde_json::to_vec(&*info_shared.lock().unwrap_or_else(|e| e.into_inner()))
-                .unwrap_or_default();
-            let sig = info_cred.as_ref().map(|c| c.sign(&info_key, &s).to_vec());
-            if let Err(e) = q.reply(q.key_expr().clone(), s).attachment(sig).wait() {
-                tracing::debug!("info reply: {e}");
-            }
-        })
-        .wait()
-        .map_err(|e| anyhow!("declare info queryable: {e}"))?;
-    let (clock_key, clock_keys) =
-        (o.net.key(&o.name, "clock"), cred.as_deref().map(crate::clock::ReplyKeys::new));
-    let clock = session
-        .declare_queryable(clock_key.clone())
-        .callback(move |q| {
-            let now = bassport::sys::monotonic_ns().to_le_bytes();
-            // A keyed answer (HMAC, ~1 us, not a signature's ~20 us that would skew the probe).
-            let sig = clock_keys.as_ref().and_then(|k| {
-                k.answer(
-                    &clock_key,
-                    q.attachment().map(|a| a.to_bytes()).as_deref().unwrap_or_default(),
-                    &now,
-                )
-            });
-            if let Err(e) = q.reply(q.key_expr().clone(), now.to_vec()).attachment(sig).wait() {
-                tracing::debug!("clock reply: {e}");
-            }
-        })
-        .wait()
-        .map_err(|e| anyhow!("declare clock queryable: {e}"))?;
-
+    let info = declare_info(&session, &o, shared.clone(), cred.clone())?;
+    let clock = declare_clock(&session, &o, cred.as_deref())?;
     let control_stats = Arc::new(crate::control::Audit::default());
-    let control = match (&o.allow_control, &cred) {
-        (Some(allowed), Some(cred)) => {
-            let key = o.net.key(&o.name, "control");
-            let policy = crate::control::Policy {
-                allowed: allowed.clone(),
-                credentials: cred.clone(),
-                key: key.clone(),
-            };
-            Some(crate::control::declare_queryable(
-                &session,
-                &key,
-                &o.name,
-                faults.control_delay(),
-                policy,
-                control_stats.clone(),
-            )?)
-        }
-        _ => None,
-    };
+    let control = declare_control(&session, &o, cred.as_ref(), faults.control_delay(), &control_stats)?;
     #[cfg(feature = "iceoryx2")]
     let mut iox = if o.iceoryx2 { Some(crate::iox::Exporter::new(&o.name)?) } else { None };
     #[cfg(not(feature = "iceoryx2"))]
@@ -233,29 +139,9 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
         false => (None, None),
     };
     let (tx, rx) = sync_channel::<Outgoing>(o.queue as usize);
-    let (chunk_key, mut chunk_signer) = (o.net.key(&o.name, "chunks"), cred.as_ref().map(|c| c.signer()));
-    let sender = std::thread::Builder::new().name("bridge-send".into()).spawn(move || {
-        let mut faults = faults;
-        for out in rx {
-            for bytes in faults.apply(out.sequence, out.bytes) {
-                let sig = chunk_signer.as_mut().map(|s| s.sign(&chunk_key, &bytes).to_vec());
-                if let Err(e) = publisher.put(bytes).attachment(sig).wait() {
-                    tracing::warn!("put: {e}");
-                }
-            }
-        }
-    })?;
-
+    let sender = spawn_sender(publisher, rx, faults, o.net.key(&o.name, "chunks"), cred.as_deref())?;
     let (state_tx, state_rx) = sync_channel::<Vec<u8>>(1);
-    let (state_key, state_cred) = (o.net.key(&o.name, "state"), cred.clone());
-    let state_sender = std::thread::Builder::new().name("bridge-state".into()).spawn(move || {
-        for b in state_rx {
-            let sig = state_cred.as_ref().map(|c| c.sign(&state_key, &b).to_vec());
-            if let Err(e) = state_pub.put(b).attachment(sig).wait() {
-                tracing::debug!("state put: {e}");
-            }
-        }
-    })?;
+    let state_sender = spawn_state_sender(state_pub, state_rx, o.net.key(&o.name, "state"), cred.clone())?;
 
     tracing::info!(instance = %instance_hex, zid = %zid, name = %o.name, "serving");
     let mut reader = Reader::new(&o.name, &tx, &term, &matched, instance, o.chunks_per_message);
@@ -288,21 +174,221 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
     // blocked in a put on a dead link; it is given SENDER_PATIENCE, then left to the exit.
     drop(tx);
     drop(states);
-    if !ros2_done
-        || !wait_until_finished(&sender, SENDER_PATIENCE)
-        || !wait_until_finished(&state_sender, Duration::from_millis(50))
-    {
+    if !senders_finished(&sender, &state_sender, ros2_done) {
         // Closing the session would wait on the same dead link: the exit ends it all.
+        return Ok(());
+    }
+    // Undeclaring and closing the session may wait on a link that just died.
+    close((token, alive_sub, state_sub, info, clock, control, ros2_graph, session))?;
+    tracing::info!("serve: terminated");
+    Ok(())
+}
+
+/// The options checked before anything is opened.
+fn check(o: &ServeOpts) -> Result<()> {
+    if o.ros2.ros2 {
+        crate::ros2::check(&o.ros2, &o.name)?;
+    }
+    net::check_key_name("--name", &o.name)?;
+    net::check_namespace(&o.net.namespace)?;
+    if let Some(names) = &o.allow_control {
+        crate::control::check_allowed(names, o.net.credentials.is_some())?;
+    }
+    Ok(())
+}
+
+/// The subscribers that report other serve instances of this name ([`Conflicts`]): their
+/// liveliness tokens under `alive_key`, and their states (for their Zenoh ids).
+fn watch_conflicts(
+    session: &zenoh::Session,
+    o: &ServeOpts,
+    alive_key: String,
+    conflicts: &Arc<Mutex<Conflicts>>,
+) -> Result<(Subscriber<()>, Subscriber<()>)> {
+    let (c_alive, c_state) = (conflicts.clone(), conflicts.clone());
+    let alive_sub = session
+        .liveliness()
+        .declare_subscriber(format!("{alive_key}/**"))
+        .history(true)
+        .callback(move |s| {
+            if let Some(other) = conflict::instance_of_key(s.key_expr().as_str(), &alive_key) {
+                let line = lock(&c_alive).on_token(other, s.kind() == SampleKind::Put, Instant::now());
+                if let Some(line) = line {
+                    tracing::error!("{line}");
+                }
+            }
+        })
+        .wait()
+        .map_err(|e| anyhow!("liveliness subscriber: {e}"))?;
+    let state_sub = session
+        .declare_subscriber(o.net.key(&o.name, "state"))
+        .callback(move |s| {
+            if let Ok(st) = serde_json::from_slice::<SourceState>(&s.payload().to_bytes()) {
+                if let Some(line) = lock(&c_state).on_state(&st.instance, &st.zid, Instant::now()) {
+                    tracing::error!("{line}");
+                }
+            }
+        })
+        .wait()
+        .map_err(|e| anyhow!("state subscriber: {e}"))?;
+    Ok((alive_sub, state_sub))
+}
+
+/// The chunk publisher ([`net::CHUNK_CONGESTION`]), and whether any subscriber (a mirror)
+/// takes the chunks: a new port's backlog waits for one.
+fn chunk_publisher(session: &zenoh::Session, o: &ServeOpts) -> Result<(Publisher<'static>, Arc<AtomicBool>)> {
+    let publisher = session
+        .declare_publisher(o.net.key(&o.name, "chunks"))
+        .congestion_control(crate::net::CHUNK_CONGESTION)
+        .wait()
+        .map_err(|e| anyhow!("declare publisher: {e}"))?;
+    let matched = Arc::new(AtomicBool::new(false));
+    let m = matched.clone();
+    publisher
+        .matching_listener()
+        .callback(move |s| m.store(s.matching(), Ordering::Relaxed))
+        .background()
+        .wait()
+        .map_err(|e| anyhow!("matching listener: {e}"))?;
+    Ok((publisher, matched))
+}
+
+/// The `info` queryable: the source state in `info_shared`, signed with `info_cred`.
+fn declare_info(
+    session: &zenoh::Session,
+    o: &ServeOpts,
+    info_shared: Arc<Mutex<SourceState>>,
+    info_cred: Option<Arc<crate::credentials::Credentials>>,
+) -> Result<Queryable<()>> {
+    let info_key = o.net.key(&o.name, "info");
+    session
+        .declare_queryable(info_key.clone())
+        .callback(move |q| {
+            let s = serde_json::to_vec(&*info_shared.lock().unwrap_or_else(|e| e.into_inner()))
+                .unwrap_or_default();
+            let sig = info_cred.as_ref().map(|c| c.sign(&info_key, &s).to_vec());
+            if let Err(e) = q.reply(q.key_expr().clone(), s).attachment(sig).wait() {
+                tracing::debug!("info reply: {e}");
+            }
+        })
+        .wait()
+        .map_err(|e| anyhow!("declare info queryable: {e}"))
+}
+
+/// The `clock` queryable: this host's CLOCK_MONOTONIC, with `cred` a keyed answer.
+fn declare_clock(
+    session: &zenoh::Session,
+    o: &ServeOpts,
+    cred: Option<&crate::credentials::Credentials>,
+) -> Result<Queryable<()>> {
+    let (clock_key, clock_keys) = (o.net.key(&o.name, "clock"), cred.map(crate::clock::ReplyKeys::new));
+    session
+        .declare_queryable(clock_key.clone())
+        .callback(move |q| {
+            let now = bassport::sys::monotonic_ns().to_le_bytes();
+            // A keyed answer (HMAC, ~1 us, not a signature's ~20 us that would skew the probe).
+            let sig = clock_keys.as_ref().and_then(|k| {
+                k.answer(
+                    &clock_key,
+                    q.attachment().map(|a| a.to_bytes()).as_deref().unwrap_or_default(),
+                    &now,
+                )
+            });
+            if let Err(e) = q.reply(q.key_expr().clone(), now.to_vec()).attachment(sig).wait() {
+                tracing::debug!("clock reply: {e}");
+            }
+        })
+        .wait()
+        .map_err(|e| anyhow!("declare clock queryable: {e}"))
+}
+
+/// The `control` queryable, with `--allow-control` and credentials: the named identities'
+/// signed control requests to the local broker ([`crate::control`]), counted in `stats`.
+fn declare_control(
+    session: &zenoh::Session,
+    o: &ServeOpts,
+    cred: Option<&Arc<crate::credentials::Credentials>>,
+    delay: Duration,
+    stats: &Arc<crate::control::Audit>,
+) -> Result<Option<Queryable<()>>> {
+    Ok(match (&o.allow_control, cred) {
+        (Some(allowed), Some(cred)) => {
+            let key = o.net.key(&o.name, "control");
+            let policy = crate::control::Policy {
+                allowed: allowed.clone(),
+                credentials: cred.clone(),
+                key: key.clone(),
+            };
+            Some(crate::control::declare_queryable(session, &key, &o.name, delay, policy, stats.clone())?)
+        }
+        _ => None,
+    })
+}
+
+/// The sender thread: each message from the reader's bounded queue, through the test
+/// `faults`, signed with `cred`, put on `chunk_key`.
+fn spawn_sender(
+    publisher: Publisher<'static>,
+    rx: Receiver<Outgoing>,
+    faults: crate::fault::Faults,
+    chunk_key: String,
+    cred: Option<&crate::credentials::Credentials>,
+) -> Result<std::thread::JoinHandle<()>> {
+    let mut chunk_signer = cred.map(|c| c.signer());
+    Ok(std::thread::Builder::new().name("bridge-send".into()).spawn(move || {
+        let mut faults = faults;
+        for out in rx {
+            for bytes in faults.apply(out.sequence, out.bytes) {
+                let sig = chunk_signer.as_mut().map(|s| s.sign(&chunk_key, &bytes).to_vec());
+                if let Err(e) = publisher.put(bytes).attachment(sig).wait() {
+                    tracing::warn!("put: {e}");
+                }
+            }
+        }
+    })?)
+}
+
+/// The state thread: each state message, signed with `state_cred`, put on `state_key`.
+fn spawn_state_sender(
+    state_pub: Publisher<'static>,
+    state_rx: Receiver<Vec<u8>>,
+    state_key: String,
+    state_cred: Option<Arc<crate::credentials::Credentials>>,
+) -> Result<std::thread::JoinHandle<()>> {
+    Ok(std::thread::Builder::new().name("bridge-state".into()).spawn(move || {
+        for b in state_rx {
+            let sig = state_cred.as_ref().map(|c| c.sign(&state_key, &b).to_vec());
+            if let Err(e) = state_pub.put(b).attachment(sig).wait() {
+                tracing::debug!("state put: {e}");
+            }
+        }
+    })?)
+}
+
+/// Whether the sender threads finished within their patience (SENDER_PATIENCE) and the ROS 2
+/// export did (`ros2_done`); if not, a put is still blocked (a dead link?), said in the log.
+fn senders_finished(
+    sender: &std::thread::JoinHandle<()>,
+    state_sender: &std::thread::JoinHandle<()>,
+    ros2_done: bool,
+) -> bool {
+    if !ros2_done
+        || !wait_until_finished(sender, SENDER_PATIENCE)
+        || !wait_until_finished(state_sender, Duration::from_millis(50))
+    {
         tracing::warn!(
             "serve: a Zenoh put is still blocked after {} ms (a dead link?): terminated without \
              closing the session",
             SENDER_PATIENCE.as_millis()
         );
-        return Ok(());
+        return false;
     }
-    // Undeclaring and closing the session may wait on a link that just died: on a thread of
-    // its own, given CLOSE_PATIENCE.
-    let parts = (token, alive_sub, state_sub, info, clock, control, ros2_graph, session);
+    true
+}
+
+/// Undeclares and closes `parts` (in their order) on a thread of its own, given CLOSE_PATIENCE:
+/// it may wait on a link that just died.
+fn close(parts: impl Send + 'static) -> Result<()> {
     let closer = std::thread::Builder::new().name("bridge-close".into()).spawn(move || drop(parts))?;
     if !wait_until_finished(&closer, CLOSE_PATIENCE) {
         tracing::warn!(
@@ -310,7 +396,6 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
             CLOSE_PATIENCE.as_millis()
         );
     }
-    tracing::info!("serve: terminated");
     Ok(())
 }
 
