@@ -3,7 +3,7 @@
 //! and `bass_last_error` can be called from a thread-local destructor (thread teardown)
 //! without a panic reaching the C ABI.
 
-mod common;
+use bass_test_support::client as common;
 
 use std::cell::RefCell;
 use std::collections::BTreeMap;

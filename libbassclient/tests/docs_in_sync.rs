@@ -8,7 +8,7 @@
 //! docs/network.md's wire diagram must be the `Header` of bridge/src/wire.rs (read as text,
 //! with its own diagram and offset asserts) with the flags it defines.
 
-mod common;
+use bass_test_support::client as common;
 
 use std::collections::{BTreeMap, BTreeSet};
 

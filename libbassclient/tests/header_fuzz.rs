@@ -6,7 +6,7 @@
 //! literal: a header of another major is refused before any other field is read) reach the
 //! deeper checks; [`random_headers_reach_every_check_past_the_version`] counts which.
 
-mod common;
+use bass_test_support::client as common;
 
 use bassport::format::{self, HEADER_SIZE, VERSION_MAJOR, VERSION_MINOR};
 use bassport::{ChunkMeta, Error, Geometry, Port, PortParams, Source, Writer};

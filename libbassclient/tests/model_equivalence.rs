@@ -3,7 +3,7 @@
 //! integers. Random publish sequences and reads (random N; nfr in the past, present and
 //! future) must give identical n, nfr, loss and samples.
 
-mod common;
+use bass_test_support::client as common;
 
 use bassport::{ChunkMeta, Geometry, Port, Source};
 use common::{temp_port_path, SeedPort};

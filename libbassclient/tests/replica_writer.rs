@@ -2,7 +2,7 @@
 //! another port's frame indices and marks what was lost on the way, held against the
 //! literal seed model (a lost run = that many zero frames published in the model).
 
-mod common;
+use bass_test_support::client as common;
 
 use basskit::testsignal::{fill_pattern_interleaved, pattern_expected};
 use bassport::format::chunk_flags;

@@ -6,7 +6,7 @@
 //! `BASS_SIGBUS_CHILD` naming the case (the `child_*` tests are `#[ignore]`d and fail if run
 //! any other way).
 
-mod common;
+use bass_test_support::client as common;
 
 use std::fs::OpenOptions;
 use std::os::unix::process::ExitStatusExt;

@@ -3,7 +3,7 @@
 //! (frames the writer never had), a device gap, a restart (a new epoch at the same path) and
 //! the end of an acquisition, checked sample by sample against the pattern signal.
 
-mod common;
+use bass_test_support::client as common;
 
 use std::cell::RefCell;
 use std::rc::Rc;

@@ -4,7 +4,7 @@
 //! separately across a device error and its event. Its own test binary: the allocator is
 //! global. The counts are per thread: each test runs its stream on its own thread.
 
-mod common;
+use bass_test_support::client as common;
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;

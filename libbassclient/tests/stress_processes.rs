@@ -6,7 +6,7 @@
 //!
 //! The child processes are this test binary re-executed with `BASS_STRESS_ROLE` set.
 
-mod common;
+use bass_test_support::client as common;
 
 use std::io::{BufRead, BufReader, Write};
 use std::process::{Child, Stdio};

@@ -2,7 +2,7 @@
 //! end: a publish, a timeout, a stop, a device error, a new acquisition, a dead writer.
 //! Waits use generous timeouts only as a guard; the assertions are on the outcomes.
 
-mod common;
+use bass_test_support::client as common;
 
 use std::process::Stdio;
 use std::time::Duration;

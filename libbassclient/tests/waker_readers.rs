@@ -4,7 +4,7 @@
 //! Every reader still gets every frame with its exact samples and exact accounting; no reader
 //! is left sleeping (the waits have a 20 s guard, far above the run's length).
 
-mod common;
+use bass_test_support::client as common;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;

@@ -1,5 +1,6 @@
-//! The one test rig of bass's Rust suites (the broker's integration tests in `broker/tests`
-//! and the fault suite in `tests/faults`): private temporary directories, a real `bassd`
+//! The one test rig of bass's Rust suites (the client library's tests in `libbassclient/tests`
+//! through [`client`], the broker's integration tests in `broker/tests`, the fault suite in
+//! `tests/faults`, the CLI's and the bridge's): private temporary directories, a real `bassd`
 //! per test with its own runtime directory, a `jackd -d dummy` server behind ALSA's `jack`
 //! plugin, the `bass` command line bound to a broker, bounded waits, and the rule for tests
 //! that need root, `setpriv` or jackd ([`skip`]: in CI, with `BASS_TESTS_NO_SKIP=1`, a skip
@@ -14,6 +15,7 @@
 mod bassd;
 mod bins;
 mod cli;
+pub mod client;
 mod jackd;
 mod port;
 mod skip;

@@ -1,8 +1,6 @@
-//! Shared test helpers: temporary port paths, child-process entries, waiting for a thread to
-//! block, and the literal model of the seed's port. (The broker and fault suites share
-//! `tests/support`; this crate's own tests keep theirs here, as bassport cannot depend on
-//! a crate that depends on it outside its tests.)
-#![allow(dead_code)]
+//! What the client library's tests (libbassclient/tests) need without a broker: temporary
+//! port paths, child-process entries, waiting for a thread to block, and the literal model of
+//! the seed's port.
 
 use std::path::PathBuf;
 use std::process::Command;
@@ -20,7 +18,7 @@ pub fn temp_port_path(tag: &str) -> PathBuf {
 
 /// The text of `rel`, a path from the repository's top (e.g. `include/bass.h`).
 pub fn read_repo_file(rel: &str) -> String {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").join(rel);
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..").join(rel);
     std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
