@@ -202,11 +202,40 @@ fn read_acquisition(
 ) -> Result<Ended> {
     let g = port.geometry().clone();
     let block = a.block.unwrap_or(u64::from(g.frames_per_chunk)) as usize;
-    let ch = g.channels as usize;
+    let epoch = port.epoch();
+    print_port(name, port, a, block)?;
+    let first_unpublished = port.info()?.last_frame_index.saturating_add(1);
+    let mut nfr = if a.offset >= 0 {
+        first_unpublished.saturating_add(a.offset.unsigned_abs())
+    } else {
+        first_unpublished.saturating_sub(a.offset.unsigned_abs()).max(1)
+    };
+    let mut bufs = vec![vec![0i32; block]; g.channels as usize];
+    let mut outage = Outage::new(a.max_outage);
+    let reading = Reading { name, port, a, end, timeout };
+    loop {
+        if a.count.is_some_and(|c| *n_blocks >= c) || reading.past_end() {
+            return Ok(Ended::Limit);
+        }
+        let loss = match reading.collect(&mut bufs, &mut nfr, &mut outage)? {
+            Collected::Block { loss } => loss,
+            Collected::End(e) => return Ok(e),
+        };
+        *n_blocks += 1;
+        print_block(port, a, *n_blocks, epoch, nfr, loss, &bufs)?;
+        if port.info().map(|i| i.state == Some(State::Superseded)).unwrap_or(false) {
+            return Ok(Ended::Restarted);
+        }
+    }
+}
+
+/// The line (or JSON object) that opens the reading of a port: its geometry and the block size.
+fn print_port(name: &str, port: &Port, a: &BlocksArgs, block: usize) -> Result<()> {
+    let g = port.geometry();
     let epoch = port.epoch();
     let text = format!(
-        "port {name}: epoch {epoch}, {} Hz, {ch} ch, {} frames/chunk, {} chunks; blocks of {block} frames",
-        g.sample_rate, g.frames_per_chunk, g.chunks_on_port
+        "port {name}: epoch {epoch}, {} Hz, {} ch, {} frames/chunk, {} chunks; blocks of {block} frames",
+        g.sample_rate, g.channels, g.frames_per_chunk, g.chunks_on_port
     );
     let header = Line::Port {
         epoch,
@@ -216,42 +245,56 @@ fn read_acquisition(
         chunks_on_port: g.chunks_on_port,
         block_frames: block as u64,
     };
-    emit(a.json, header, &text)?;
-    let first_unpublished = port.info()?.last_frame_index.saturating_add(1);
-    let mut nfr = if a.offset >= 0 {
-        first_unpublished.saturating_add(a.offset.unsigned_abs())
-    } else {
-        first_unpublished.saturating_sub(a.offset.unsigned_abs()).max(1)
-    };
-    let mut bufs = vec![vec![0i32; block]; ch];
-    let past = |e: Option<Instant>| e.is_some_and(|e| Instant::now() >= e);
-    let mut outage = Outage::new(a.max_outage);
-    loop {
-        if a.count.is_some_and(|c| *n_blocks >= c) || past(end) {
-            return Ok(Ended::Limit);
-        }
-        // Collect one block (getAudioData may return fewer frames than asked).
+    emit(a.json, header, &text)
+}
+
+/// What collecting one block came to.
+enum Collected {
+    /// A whole block, with the frames the port overtook (lost) while it was collected.
+    Block { loss: u64 },
+    /// The reading ends (a limit, a Stop, a new acquisition).
+    End(Ended),
+}
+
+/// One port being read: what `collect` needs besides the block.
+struct Reading<'a> {
+    name: &'a str,
+    port: &'a Port,
+    a: &'a BlocksArgs,
+    end: Option<Instant>,
+    timeout: Duration,
+}
+
+impl Reading<'_> {
+    fn past_end(&self) -> bool {
+        self.end.is_some_and(|e| Instant::now() >= e)
+    }
+
+    /// Collects one block into `bufs` from `nfr` (getAudioData may return fewer frames than
+    /// asked); waits through an outage, saying so once and when it ends.
+    fn collect(&self, bufs: &mut [Vec<i32>], nfr: &mut u64, outage: &mut Outage) -> Result<Collected> {
+        let (name, port, a) = (self.name, self.port, self.a);
+        let block = bufs[0].len();
+        let nfpc = u64::from(port.geometry().frames_per_chunk);
         let (mut got, mut loss) = (0usize, 0u64);
         while got < block {
-            if past(end) {
-                return Ok(Ended::Limit);
+            if self.past_end() {
+                return Ok(Collected::End(Ended::Limit));
             }
             let want = nfr.saturating_add((block - got) as u64 - 1);
-            match port
-                .wait(want.min(nfr.saturating_add(u64::from(g.frames_per_chunk))), Duration::from_millis(200))
-            {
+            match port.wait(want.min(nfr.saturating_add(nfpc)), Duration::from_millis(200)) {
                 Ok(_) => {
                     if let Some(text) = outage.resumed() {
                         emit(a.json, Line::Resumed { message: text.clone() }, &text)?;
                     }
                 }
                 Err(Error::Timeout { .. }) | Err(Error::Interrupted) => {}
-                Err(Error::Restarted) => return Ok(Ended::Restarted),
+                Err(Error::Restarted) => return Ok(Collected::End(Ended::Restarted)),
                 Err(Error::Stopped { last }) => {
-                    return Ok(match after_stop(name, port, timeout)? {
+                    return Ok(Collected::End(match after_stop(name, port, self.timeout)? {
                         AfterStop::Restarted => Ended::Restarted,
                         AfterStop::Stopped => Ended::Stopped(last),
-                    })
+                    }))
                 }
                 Err(e @ (Error::Device { .. } | Error::WriterGone { .. })) => {
                     if let Some(text) = outage.pause(e, name)? {
@@ -262,7 +305,7 @@ fn read_acquisition(
                 Err(e) => return Err(e.into()),
             }
             let mut outs: Vec<&mut [i32]> = bufs.iter_mut().map(|b| &mut b[got..]).collect();
-            let r = port.get_audio_data(block - got, &mut nfr, &mut outs)?;
+            let r = port.get_audio_data(block - got, nfr, &mut outs)?;
             if r.loss > 0 {
                 // The port overtook us: the block restarts at the oldest frame on the port.
                 loss += r.loss;
@@ -275,37 +318,45 @@ fn read_acquisition(
             }
             got += r.frames;
         }
-        *n_blocks += 1;
-        let start = nfr - block as u64;
-        let (gap, disc) = gaps_in(port, start, nfr - 1, &bufs);
-        let lv = levels(&bufs);
-        if a.json {
-            let line = Line::Block {
-                block: *n_blocks,
-                epoch,
-                first_frame: start,
-                frames: block as u64,
-                loss,
-                gap_frames: gap,
-                discontinuities: disc,
-                rms_dbfs: lv.iter().map(|l| dbfs(l.0)).collect(),
-                peak_dbfs: lv.iter().map(|l| dbfs(l.1)).collect(),
-            };
-            emit(true, line, "")?;
-        } else {
-            let mut line = format!(
-                "block {:5}  frames {start:>10}..{:<10} ({block}) loss {loss:<6} gap {gap:<6}{}",
-                *n_blocks,
-                nfr - 1,
-                if disc > 0 { " xrun" } else { "" }
-            );
-            for (c, (rms, peak)) in lv.iter().enumerate() {
-                line.push_str(&format!(" | ch{c} rms {} peak {} dBFS", dbfs_text(*rms), dbfs_text(*peak)));
-            }
-            outln!("{line}")?;
-        }
-        if port.info().map(|i| i.state == Some(State::Superseded)).unwrap_or(false) {
-            return Ok(Ended::Restarted);
-        }
+        Ok(Collected::Block { loss })
     }
+}
+
+/// The line (or JSON object) of block `n`, which ends before `nfr`.
+fn print_block(
+    port: &Port,
+    a: &BlocksArgs,
+    n: u64,
+    epoch: u64,
+    nfr: u64,
+    loss: u64,
+    bufs: &[Vec<i32>],
+) -> Result<()> {
+    let block = bufs[0].len();
+    let start = nfr - block as u64;
+    let (gap, disc) = gaps_in(port, start, nfr - 1, bufs);
+    let lv = levels(bufs);
+    if a.json {
+        let line = Line::Block {
+            block: n,
+            epoch,
+            first_frame: start,
+            frames: block as u64,
+            loss,
+            gap_frames: gap,
+            discontinuities: disc,
+            rms_dbfs: lv.iter().map(|l| dbfs(l.0)).collect(),
+            peak_dbfs: lv.iter().map(|l| dbfs(l.1)).collect(),
+        };
+        return emit(true, line, "");
+    }
+    let mut line = format!(
+        "block {n:5}  frames {start:>10}..{:<10} ({block}) loss {loss:<6} gap {gap:<6}{}",
+        nfr - 1,
+        if disc > 0 { " xrun" } else { "" }
+    );
+    for (c, (rms, peak)) in lv.iter().enumerate() {
+        line.push_str(&format!(" | ch{c} rms {} peak {} dBFS", dbfs_text(*rms), dbfs_text(*peak)));
+    }
+    outln!("{line}")
 }

@@ -1,22 +1,17 @@
 //! Checkpoints of the header and the sidecar while recording (what a SIGKILL leaves).
 
-use std::fs::OpenOptions;
-use std::io::{self, Write};
-use std::os::unix::fs::OpenOptionsExt;
-use std::path::{Path, PathBuf};
+use std::io;
 use std::time::{Duration, Instant};
 
 use crate::wav;
-use basskit::sidecar::Sidecar;
 
 use super::recording::{Out, Recording};
+use super::staged::{stage, IN_PROGRESS};
 
 /// How often the header and the sidecar are brought up to date at least (see [`Checkpoints`]).
 const CHECKPOINT_EVERY: Duration = Duration::from_secs(1);
 /// A checkpoint may take at most this share of the time between two (1 %).
 const CHECKPOINT_SHARE: u32 = 100;
-/// `recording.end` of a checkpoint.
-pub(super) const IN_PROGRESS: &str = "in progress (a checkpoint; the recorder had not ended)";
 
 /// The checkpoints: every [`CHECKPOINT_EVERY`], or less often when the last one took more
 /// than 1 / [`CHECKPOINT_SHARE`] of that (a long sidecar). An MCAP recording writes its
@@ -74,27 +69,5 @@ impl Checkpoints {
         let took = h.join().map_err(|_| io::Error::other("the checkpoint thread panicked"))??;
         self.every = CHECKPOINT_EVERY.max(took * CHECKPOINT_SHARE);
         Ok(())
-    }
-}
-
-/// Writes `side` to a temporary file next to the sidecar `path`, to be renamed into place
-/// (a reader or a kill sees the old sidecar or the new one, never half of one).
-pub(super) fn stage(path: &Path, side: &Sidecar) -> io::Result<PathBuf> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(format!(".{}.tmp", std::process::id()));
-    let tmp = PathBuf::from(tmp);
-    let _ = std::fs::remove_file(&tmp);
-    let r = OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .custom_flags(libc::O_NOFOLLOW)
-        .open(&tmp)
-        .and_then(|mut f| f.write_all(&serde_json::to_vec_pretty(side)?));
-    match r {
-        Ok(()) => Ok(tmp),
-        Err(e) => {
-            let _ = std::fs::remove_file(&tmp);
-            Err(e)
-        }
     }
 }

@@ -36,6 +36,7 @@ mod files;
 pub mod mcap_out;
 mod progress;
 mod recording;
+mod staged;
 
 pub use check::check;
 pub use check_mcap::check_mcap;

@@ -13,9 +13,9 @@ use crate::blocks::levels;
 use crate::wav;
 use basskit::sidecar::{self, ChunkRow, Lost, Sidecar};
 
-use super::checkpoint::{stage, IN_PROGRESS};
 use super::convert;
 use super::mcap_out::McapOut;
+use super::staged::{stage, IN_PROGRESS};
 
 /// Why the loop ended in failure.
 pub(super) enum Ended {
@@ -124,18 +124,7 @@ impl Recording {
         // The chunk rows, read before the frames: a chunk whose frames the read then returns
         // intact had not been overwritten when its row was read, so its row is right.
         let before = self.next;
-        let c0 = (before - 1) / nfpc;
-        let pre: Vec<Option<ChunkRow>> = (c0..=(end - 1) / nfpc)
-            .map(|c| {
-                port.chunk_info((c * nfpc + 1).max(before)).ok().map(|ci| ChunkRow {
-                    first_frame: ci.first_frame,
-                    frames: ci.frames,
-                    mono_ns: ci.mono_ns,
-                    realtime_ns: ci.realtime_ns,
-                    flags: ci.flags,
-                })
-            })
-            .collect();
+        let pre = rows_of(port, before, end, nfpc);
         let want = (end - before + 1) as usize;
         let used = *self.channels.iter().max().expect("channels") as usize + 1;
         let mut bufs = vec![vec![0i32; want]; used];
@@ -155,68 +144,84 @@ impl Recording {
             if let Out::Mcap(m) = &mut self.out {
                 m.begin(got);
             }
-        } else if r.loss > 0 {
-            let room = limit.map_or(u64::MAX, |l| l - self.out.frames());
-            let lost = r.loss.min(room);
-            match self.losses.last_mut() {
-                Some(l) if l.first_frame + l.frames == before => l.frames += lost,
-                _ => self.losses.push(Lost { first_frame: before, frames: lost }),
-            }
-            match &mut self.out {
-                Out::Wav(w) => {
-                    for _ in 0..lost * self.channels.len() as u64 {
-                        w.sample(0).map_err(Step::Disk)?;
-                    }
-                }
-                Out::Mcap(m) => m.lose(lost, &self.rows).map_err(Step::Disk)?,
-            }
-            if lost < r.loss {
-                return Ok(()); // the limit
-            }
+        } else if r.loss > 0 && !self.lose(before, r.loss, limit)? {
+            return Ok(()); // the limit
         }
+        self.write(&bufs, kept as usize, peaks)?;
+        if kept > 0 {
+            self.take_rows(&pre, (before - 1) / nfpc, got, kept);
+        }
+        if let Out::Mcap(m) = &mut self.out {
+            m.emit(&self.rows, false).map_err(Step::Disk)?;
+        }
+        Ok(())
+    }
+
+    /// Records `loss` frames lost from `before` (zeros in a WAV, a loss in an MCAP file), at
+    /// most up to the limit; whether the whole loss fitted.
+    fn lose(&mut self, before: u64, loss: u64, limit: Option<u64>) -> Result<bool, Step> {
+        let room = limit.map_or(u64::MAX, |l| l - self.out.frames());
+        let lost = loss.min(room);
+        match self.losses.last_mut() {
+            Some(l) if l.first_frame + l.frames == before => l.frames += lost,
+            _ => self.losses.push(Lost { first_frame: before, frames: lost }),
+        }
+        match &mut self.out {
+            Out::Wav(w) => {
+                for _ in 0..lost * self.channels.len() as u64 {
+                    w.sample(0).map_err(Step::Disk)?;
+                }
+            }
+            Out::Mcap(m) => m.lose(lost, &self.rows).map_err(Step::Disk)?,
+        }
+        Ok(lost == loss)
+    }
+
+    /// Writes the first `kept` frames of the selected channels of `bufs`, and raises `peaks`.
+    fn write(&mut self, bufs: &[Vec<i32>], kept: usize, peaks: &mut [f64]) -> Result<(), Step> {
         #[allow(clippy::needless_range_loop)] // interleaving: frame i of every selected channel
         match &mut self.out {
             Out::Wav(w) => {
                 let bits = w.spec().bits;
-                for i in 0..kept as usize {
+                for i in 0..kept {
                     for &c in &self.channels {
                         w.sample(convert(bufs[c as usize][i], bits)).map_err(Step::Disk)?;
                     }
                 }
             }
             Out::Mcap(m) => {
-                for i in 0..kept as usize {
+                for i in 0..kept {
                     for &c in &self.channels {
                         m.push(bufs[c as usize][i]);
                     }
                 }
             }
         }
-        let lv = levels(
-            &self.channels.iter().map(|&c| bufs[c as usize][..kept as usize].to_vec()).collect::<Vec<_>>(),
-        );
+        let lv =
+            levels(&self.channels.iter().map(|&c| bufs[c as usize][..kept].to_vec()).collect::<Vec<_>>());
         for (p, l) in peaks.iter_mut().zip(lv) {
             *p = p.max(l.1);
         }
-        if kept > 0 {
-            for c in (got - 1) / nfpc..=(got + kept - 2) / nfpc {
-                if let Some(row) = pre[(c - c0) as usize] {
-                    if row.first_frame == c * nfpc + 1
-                        && self.rows.last().map_or(true, |p| p.first_frame < row.first_frame)
-                    {
-                        if row.flags & chunk_flags::GAP != 0 {
-                            let from = row.first_frame.max(got);
-                            self.gap_count += (row.first_frame + nfpc).min(got + kept) - from;
-                        }
-                        self.rows.push(row);
+        Ok(())
+    }
+
+    /// Keeps the rows (read before the frames, `pre[0]` the row of chunk `c0`) of the chunks
+    /// whose frames `got .. got + kept` were delivered, each once, and counts their GAP frames.
+    fn take_rows(&mut self, pre: &[Option<ChunkRow>], c0: u64, got: u64, kept: u64) {
+        let nfpc = self.nfpc();
+        for c in (got - 1) / nfpc..=(got + kept - 2) / nfpc {
+            if let Some(row) = pre[(c - c0) as usize] {
+                if row.first_frame == c * nfpc + 1
+                    && self.rows.last().map_or(true, |p| p.first_frame < row.first_frame)
+                {
+                    if row.flags & chunk_flags::GAP != 0 {
+                        let from = row.first_frame.max(got);
+                        self.gap_count += (row.first_frame + nfpc).min(got + kept) - from;
                     }
+                    self.rows.push(row);
                 }
             }
         }
-        if let Out::Mcap(m) = &mut self.out {
-            m.emit(&self.rows, false).map_err(Step::Disk)?;
-        }
-        Ok(())
     }
 
     /// The sidecar of the first `frames` frames of the file.
@@ -334,4 +339,20 @@ impl Recording {
             }
         }
     }
+}
+
+/// The rows of the chunks holding frames `before ..= end` (None where the port no longer has
+/// one), read before the frames.
+fn rows_of(port: &Port, before: u64, end: u64, nfpc: u64) -> Vec<Option<ChunkRow>> {
+    ((before - 1) / nfpc..=(end - 1) / nfpc)
+        .map(|c| {
+            port.chunk_info((c * nfpc + 1).max(before)).ok().map(|ci| ChunkRow {
+                first_frame: ci.first_frame,
+                frames: ci.frames,
+                mono_ns: ci.mono_ns,
+                realtime_ns: ci.realtime_ns,
+                flags: ci.flags,
+            })
+        })
+        .collect()
 }
