@@ -242,6 +242,30 @@ fn a_file_port_rides_through_a_restart_with_the_gap_counted() {
     check_ridden(&seen, &b, 1, &downtimes);
 }
 
+/// A routine restart (SIGTERM, the successor takes the port back from the store) is logged
+/// as what it is, at INFO: no WARN about a port "left capturing by a broker that is gone"
+/// (issue 33 item 10: every `systemctl restart` logged one).
+#[test]
+fn a_routine_restart_logs_no_warning_about_the_port_it_takes_back() {
+    let dir = TempDir::new("bass-supervised");
+    let mut mgr = FakeManager::new(dir.path());
+    let mut b = start(dir.path(), "routine", &mgr, &ACQUIRE, Vec::new());
+    ready(&mut mgr);
+    stored(&mut mgr);
+    b.signal(libc::SIGTERM);
+    b.wait_exit();
+    let b2 = start(dir.path(), "routine", &mgr, &ACQUIRE, mgr.handed());
+    ready(&mut mgr);
+    acquired(&b2);
+    let log = b2.log_text();
+    assert!(
+        log.lines()
+            .any(|l| l.contains("left capturing by the previous broker") && l.contains("takes it back")),
+        "{log}"
+    );
+    assert!(!log.lines().any(|l| l.contains("WARN") && l.contains("left capturing")), "{log}");
+}
+
 #[test]
 fn a_restart_with_another_command_line_is_a_new_epoch_readers_are_told() {
     let dir = TempDir::new("bass-supervised");
