@@ -56,17 +56,6 @@ pub fn pollin(fd: RawFd) -> libc::pollfd {
     libc::pollfd { fd, events: libc::POLLIN, revents: 0 }
 }
 
-/// Sleeps until CLOCK_MONOTONIC reaches `deadline_ns` (absolute, `TIMER_ABSTIME`).
-pub fn sleep_until_mono(deadline_ns: u64) {
-    let ts = rustix::time::Timespec {
-        tv_sec: (deadline_ns / 1_000_000_000) as i64,
-        tv_nsec: (deadline_ns % 1_000_000_000) as _,
-    };
-    while let Err(Errno::INTR) =
-        rustix::thread::clock_nanosleep_absolute(rustix::thread::ClockId::Monotonic, &ts)
-    {}
-}
-
 /// SIGTERM, SIGINT and SIGHUP, caught: a pollable descriptor that becomes readable when
 /// one arrives, and the number of the last one.
 pub struct TermSignals {

@@ -3,6 +3,7 @@
 //!
 //! - [`args`]: the command-line vocabulary (durations, the Acquire options and their bounds);
 //! - [`limits`]: the operator's bounds on an acquisition, for bassd and the mirror;
+//! - [`pacing`]: waits for a deadline within microseconds, and their stop;
 //! - [`instance`]: the instance lock, one process per name in a runtime directory;
 //! - [`sidecar`]: the sidecar of a recording (`FILE.wav.json`), for `bass record` and the replay;
 //! - [`ros2`]: the ROS 2 messages of bass (type names, definitions, CDR) for MCAP and topics;
@@ -15,6 +16,7 @@
 pub mod args;
 pub mod instance;
 pub mod limits;
+pub mod pacing;
 pub mod ros2;
 pub mod sidecar;
 pub mod testsignal;

@@ -22,7 +22,7 @@
 //!   (/proc/PID/task/*/schedstat) over the measurement window, as a share of one core.
 //! - the split: a *timer probe* thread in this process, running while each system is measured,
 //!   sleeps a random 3–6 ms at a time with that system's timer (PipeWire: an absolute timerfd waited for in `poll`, as the
-//!   Dummy-Driver's loop does; bass: bassd's own `device::sleep_until` on a thread with the
+//!   Dummy-Driver's loop does; bass: bassd's own pacing (`basskit::pacing::sleep_until`) on a thread with the
 //!   capture thread's timer slack) and records its wake-up − target: the *timer part*. The
 //!   *dispatch part* (daemon awake → client awake) is the client delay's median minus it.
 //!

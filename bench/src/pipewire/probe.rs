@@ -45,12 +45,12 @@ pub(super) fn probe_timerfd(stop: &AtomicBool) -> Vec<f64> {
 
 /// Timer probe, bassd's way: its capture thread's `device::sleep_until`, without timer slack.
 pub(super) fn probe_bass_pacing(stop: &AtomicBool) -> Vec<f64> {
-    bassd::device::precise_timers();
-    let Ok(never) = bassd::device::StopSignal::new() else { return Vec::new() };
+    let _ = basskit::pacing::precise_timers();
+    let Ok(never) = basskit::pacing::StopSignal::new() else { return Vec::new() };
     let mut out = Vec::new();
     let mut due = monotonic_ns() + probe_gap();
     while !stop.load(Ordering::Acquire) {
-        bassd::device::sleep_until(due, &never);
+        basskit::pacing::sleep_until(due, &never);
         out.push(monotonic_ns().saturating_sub(due) as f64);
         due = monotonic_ns() + probe_gap();
     }

@@ -145,7 +145,7 @@ pub(super) fn section(r: &Results, md: &mut String) {
          (its pacing woke more than a chunk late and published what it owed at once). **CPU**: \
          daemon (pipewire / bassd) + all clients, on-CPU time from /proc over the window, share of one core. \
          **Timer part**: a probe thread sleeping a random 3–6 ms at a time with each system's timer while that system is measured (PipeWire: \
-         an absolute timerfd in `poll`; bass: bassd's `device::sleep_until` on a thread with the capture thread's \
+         an absolute timerfd in `poll`; bass: bassd's pacing (`basskit::pacing::sleep_until`) on a thread with the capture thread's \
          timer slack), its wake-up − target, median; **dispatch** = delay median − timer part (daemon awake → client \
          awake). PipeWire then bass at 1, 8, 64 clients, {} rounds of {:.0} s each, interleaved in one run; first \
          with no realtime scheduling on either side (PipeWire without its realtime module, `bassd --rt-priority 0`), \

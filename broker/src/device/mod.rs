@@ -8,87 +8,14 @@ pub mod mcap_file;
 mod regular;
 pub mod sim;
 
-use std::sync::atomic::{AtomicBool, Ordering};
-
 use bassport::control::DeviceInfo;
 
-use crate::os::EventFd;
+pub use basskit::pacing::{sleep_until, StopSignal, CAPTURE_TIMER_SLACK_NS};
 
-/// Asks a capture thread to stop: a flag for loops that sleep, an eventfd for loops that poll.
-pub struct StopSignal {
-    flag: AtomicBool,
-    efd: EventFd,
-}
-
-impl StopSignal {
-    /// A fresh, unsignalled stop signal.
-    pub fn new() -> std::io::Result<StopSignal> {
-        Ok(StopSignal { flag: AtomicBool::new(false), efd: EventFd::new()? })
-    }
-
-    /// Signals the stop (idempotent).
-    pub fn signal(&self) {
-        self.flag.store(true, Ordering::Release);
-        self.efd.signal();
-    }
-
-    /// Whether the stop was signalled.
-    pub fn is_set(&self) -> bool {
-        self.flag.load(Ordering::Acquire)
-    }
-
-    /// The eventfd, readable once the stop is signalled.
-    pub fn fd(&self) -> std::os::fd::RawFd {
-        self.efd.raw()
-    }
-}
-
-/// Timer slack of the capture thread, in ns: the kernel may delay a timed wake-up of the
-/// thread by up to this much, to batch it with other timers. The default (50 µs, inherited
-/// from the parent thread) was the largest part of a simulated device's delay; 1 ns (the
-/// smallest a thread can ask for; 0 means "the default") removes it.
-pub const CAPTURE_TIMER_SLACK_NS: u64 = 1;
-
-/// Sets the calling thread's timer slack to [`CAPTURE_TIMER_SLACK_NS`]
-/// (`prctl(PR_SET_TIMERSLACK)`), so that its timed waits — [`sleep_until`]'s sleeps and polls,
-/// an ALSA `poll`'s timeout — end when they are due. Called once by the capture thread. A
-/// SCHED_FIFO thread has no slack anyway; this is for the capture thread that runs without.
-///
-/// Measured on the bench machine (2-core VM), the two-stage pacing below with 50 µs slack:
-/// wake-up p50 65–74 µs after the deadline; with 1 ns: 13–21 µs, at the same CPU per wake.
-/// An absolute `timerfd` polled with the stop's eventfd (no slack by construction, one wake-up
-/// instead of two) used 5–6 µs less CPU per wait but woke 38–60 µs late: the vCPU sleeps
-/// through the whole period and wakes from a deeper idle state, while the last 1 ms stretch of
-/// [`sleep_until`] finds it lightly idle. So the pacing keeps its two stages, without slack.
+/// [`basskit::pacing::precise_timers`] for the capture thread; a refusal is logged (debug).
 pub fn precise_timers() {
-    let slack = std::num::NonZeroU64::new(CAPTURE_TIMER_SLACK_NS);
-    if let Err(e) = rustix::thread::set_current_timer_slack(slack) {
+    if let Err(e) = basskit::pacing::precise_timers() {
         tracing::debug!("PR_SET_TIMERSLACK {CAPTURE_TIMER_SLACK_NS} ns refused: {e}");
-    }
-}
-
-/// Sleeps until CLOCK_MONOTONIC `deadline` (ns) — in `poll` on the stop's eventfd while more
-/// than 2 ms remain, then with an absolute-deadline sleep for the last stretch — and returns
-/// false as soon as the stop fires. The pacing of the simulated and replayed devices; called
-/// on the capture thread, whose timer slack [`precise_timers`] has set to 1 ns, so the last
-/// stretch ends within µs of the deadline.
-pub fn sleep_until(deadline: u64, stop: &StopSignal) -> bool {
-    const MS: u64 = 1_000_000;
-    loop {
-        if stop.is_set() {
-            return false;
-        }
-        let now = bassport::sys::monotonic_ns();
-        if now >= deadline {
-            return true;
-        }
-        let remaining = deadline - now;
-        if remaining > 2 * MS {
-            let mut fds = [crate::os::pollin(stop.fd())];
-            let _ = crate::os::poll(&mut fds, Some(std::time::Duration::from_nanos(remaining - MS)));
-        } else {
-            crate::os::sleep_until_mono(deadline);
-        }
     }
 }
 
