@@ -82,6 +82,9 @@
 // Wait forever (for `bass_port_wait`).
 #define BASS_WAIT_FOREVER UINT32_MAX
 
+// Bytes of `bass_replica_status.source_state` (with the NUL).
+#define BASS_SOURCE_STATE_LEN 32
+
 // Start at the oldest frame in the window.
 #define BASS_START_OLDEST 0
 
@@ -177,6 +180,35 @@ typedef struct bass_stream bass_stream;
 
 // Opaque handle of a port writer.
 typedef struct bass_writer bass_writer;
+
+// What a mirror (`bass-bridge mirror`) says of its replica and of the source it follows, as
+// returned by `bass_replica_status()`: the link, the source's last known state, what never
+// arrived.
+typedef struct {
+  // 1 when the source was heard within the mirror's timeout, else 0.
+  uint32_t link_up;
+  // Reserved (0).
+  uint32_t reserved;
+  // Seconds since the link went up or down (since the mirror started if it never changed).
+  double link_since_s;
+  // The source's epoch the replica follows.
+  uint64_t source_epoch;
+  // The newest source frame the mirror heard of.
+  uint64_t source_last_frame_index;
+  // Frames the replica published as GAP for chunks that never arrived.
+  uint64_t gap_frames_lost;
+  // Of those, frames the source reported as not sent.
+  uint64_t gap_frames_source;
+  // Times the replica went into the error state (link silent, or the source failed).
+  uint64_t outages;
+  // Messages dropped for lacking the source's signature.
+  uint64_t forged_messages;
+  // The source broker's name, NUL terminated.
+  char source[BASS_DEVICE_LEN];
+  // The source's last known state (`capturing`, `stopped`, `error`, `gone`, ...), NUL
+  // terminated.
+  char source_state[BASS_SOURCE_STATE_LEN];
+} bass_replica_status;
 
 // The state of a broker and of its current port, as returned by `bass_status()`.
 // (Named `bass_broker_status` because C cannot have a type and a function both named
@@ -393,6 +425,15 @@ const char *bass_state_str(uint32_t state);
 // The detailed message of the last failed call on this thread (never NULL; empty if none).
 // Valid until the next failing bass call on the same thread.
 const char *bass_last_error(void);
+
+// The replica's side of broker `broker` (NULL = "default") when it is a mirror's replica
+// (`bass-bridge mirror --name NAME`): the link to the source, the source's last known state
+// and what never arrived; `bass_status()` on the same name gives the replica port itself.
+// A broker that is not a mirror (a bassd) gives `BASS_ERR_NOT_FOUND`, nothing written.
+//
+// # Safety
+// `broker` must be NULL or NUL-terminated; `out_replica` valid for a write.
+bass_result bass_replica_status(const char *broker, bass_replica_status *out_replica);
 
 // Starts an acquisition on broker `broker` (NULL = "default"), interrupting a running one.
 // `channels` 0 means 2. `*out_epoch` (if not NULL) receives the new acquisition's epoch.

@@ -14,7 +14,7 @@ use std::ffi::c_char;
 use super::{
     bass_result, boundary, c_str, copy_text, nonnull_mut, Failure, BASS_DEVICE_LEN, BASS_MESSAGE_LEN,
 };
-use bassport::control::{AcquireRequest, Client, Status, DEFAULT_CHANNELS};
+use bassport::control::{AcquireRequest, Client, ReplicaStatus, Status, DEFAULT_CHANNELS};
 use bassport::paths::DEFAULT_NAME;
 
 /// The state of a broker and of its current port, as returned by `bass_status()`.
@@ -48,6 +48,87 @@ pub struct bass_broker_status {
     pub device: [c_char; BASS_DEVICE_LEN],
     /// Error message, NUL terminated.
     pub message: [c_char; BASS_MESSAGE_LEN],
+}
+
+/// What a mirror (`bass-bridge mirror`) says of its replica and of the source it follows, as
+/// returned by `bass_replica_status()`: the link, the source's last known state, what never
+/// arrived.
+#[repr(C)]
+pub struct bass_replica_status {
+    /// 1 when the source was heard within the mirror's timeout, else 0.
+    pub link_up: u32,
+    /// Reserved (0).
+    pub reserved: u32,
+    /// Seconds since the link went up or down (since the mirror started if it never changed).
+    pub link_since_s: f64,
+    /// The source's epoch the replica follows.
+    pub source_epoch: u64,
+    /// The newest source frame the mirror heard of.
+    pub source_last_frame_index: u64,
+    /// Frames the replica published as GAP for chunks that never arrived.
+    pub gap_frames_lost: u64,
+    /// Of those, frames the source reported as not sent.
+    pub gap_frames_source: u64,
+    /// Times the replica went into the error state (link silent, or the source failed).
+    pub outages: u64,
+    /// Messages dropped for lacking the source's signature.
+    pub forged_messages: u64,
+    /// The source broker's name, NUL terminated.
+    pub source: [c_char; BASS_DEVICE_LEN],
+    /// The source's last known state (`capturing`, `stopped`, `error`, `gone`, ...), NUL
+    /// terminated.
+    pub source_state: [c_char; BASS_SOURCE_STATE_LEN],
+}
+
+/// Bytes of `bass_replica_status.source_state` (with the NUL).
+pub const BASS_SOURCE_STATE_LEN: usize = 32;
+
+fn replica_to_c(r: &ReplicaStatus) -> bass_replica_status {
+    let mut out = bass_replica_status {
+        link_up: u32::from(r.link_up),
+        reserved: 0,
+        link_since_s: r.link_since_s,
+        source_epoch: r.source_epoch,
+        source_last_frame_index: r.source_last_frame_index,
+        gap_frames_lost: r.gap_frames_lost,
+        gap_frames_source: r.gap_frames_source,
+        outages: r.outages,
+        forged_messages: r.forged_messages,
+        source: [0; BASS_DEVICE_LEN],
+        source_state: [0; BASS_SOURCE_STATE_LEN],
+    };
+    copy_text(&mut out.source, &r.source);
+    copy_text(&mut out.source_state, &r.source_state);
+    out
+}
+
+/// The replica's side of broker `broker` (NULL = "default") when it is a mirror's replica
+/// (`bass-bridge mirror --name NAME`): the link to the source, the source's last known state
+/// and what never arrived; `bass_status()` on the same name gives the replica port itself.
+/// A broker that is not a mirror (a bassd) gives `BASS_ERR_NOT_FOUND`, nothing written.
+///
+/// # Safety
+/// `broker` must be NULL or NUL-terminated; `out_replica` valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn bass_replica_status(
+    broker: *const c_char,
+    out_replica: *mut bass_replica_status,
+) -> bass_result {
+    boundary("bass_replica_status", || {
+        let out = nonnull_mut(out_replica, "out_replica")?;
+        // SAFETY: forwarded caller guarantee.
+        let mut client = unsafe { connect(broker) }?;
+        let status = client.status()?;
+        let Some(r) = status.replica.as_deref() else {
+            return Err(Failure::NotFound(
+                "this broker is not a replica: it answers Status for its own port (bass_status)".into(),
+            ));
+        };
+        let r = replica_to_c(r);
+        // SAFETY: checked non-null; the caller guarantees validity.
+        unsafe { out.write(r) };
+        Ok(())
+    })
 }
 
 /// # Safety
@@ -202,3 +283,6 @@ pub unsafe extern "C" fn bass_list_devices(
 
 const _: () =
     assert!(std::mem::size_of::<bass_broker_status>() == 24 + 40 + BASS_DEVICE_LEN + BASS_MESSAGE_LEN);
+const _: () = assert!(
+    std::mem::size_of::<bass_replica_status>() == 8 + 8 + 6 * 8 + BASS_DEVICE_LEN + BASS_SOURCE_STATE_LEN
+);

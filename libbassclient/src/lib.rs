@@ -171,6 +171,8 @@ pub(crate) enum Failure {
     Handle,
     #[allow(dead_code)] // used by the control client
     Small(String),
+    /// What was asked for is not there (`BASS_ERR_NOT_FOUND`), said by the message.
+    NotFound(String),
     Lib(Error),
 }
 
@@ -186,6 +188,7 @@ impl Failure {
             Failure::Null(_) | Failure::NullAt(..) => BASS_ERR_NULL_ARGUMENT,
             Failure::Handle => BASS_ERR_INVALID_HANDLE,
             Failure::Small(_) => BASS_ERR_BUFFER_TOO_SMALL,
+            Failure::NotFound(_) => BASS_ERR_NOT_FOUND,
             Failure::Lib(e) => match e {
                 Error::InvalidArgument(_) => BASS_ERR_INVALID_ARGUMENT,
                 Error::NotFound { .. } => BASS_ERR_NOT_FOUND,
@@ -216,7 +219,7 @@ impl Failure {
             Failure::Null(arg) => format!("argument {arg} is NULL"),
             Failure::NullAt(arg, i) => format!("argument {arg}[{i}] is NULL"),
             Failure::Handle => "invalid handle (closed, or not returned by this library)".into(),
-            Failure::Small(m) => m.clone(),
+            Failure::Small(m) | Failure::NotFound(m) => m.clone(),
             Failure::Lib(e) => e.to_string(),
         }
     }

@@ -28,7 +28,7 @@ from . import _lib
 from ._lib import BASS_WAIT_FOREVER, lib
 
 __all__ = [
-    "BassError", "Port", "Writer", "AudioData", "Block", "ChunkInfo", "acquire", "stop", "status",
+    "BassError", "Port", "Writer", "AudioData", "Block", "ChunkInfo", "acquire", "stop", "status", "replica_status",
     "list_devices", "version", "pattern_expected", "RESULT_NAMES", "STATE_NAMES", "CHUNK_FLAGS",
 ]
 
@@ -438,6 +438,23 @@ def status(broker=None):
     d["device"] = s.device.decode(errors="replace")
     d["message"] = s.message.decode(errors="replace")
     d["state_name"] = STATE_NAMES.get(s.state, str(s.state))
+    return d
+
+
+def replica_status(broker=None):
+    """What a mirror says of its replica (`bass-bridge mirror --name NAME`) as a dict: the link
+    (`link_up`, `link_since_s`), the source (`source`, `source_state`, `source_epoch`,
+    `source_last_frame_index`), what never arrived (`gap_frames_lost`, `gap_frames_source`),
+    `outages`, `forged_messages`. None when the broker is not a replica (a bassd)."""
+    r = _lib.ReplicaStatus()
+    code = _control("bass_replica_status")(_bytes(broker, "broker"), ctypes.byref(r))
+    if code == globals()["BASS_ERR_NOT_FOUND"]:
+        return None
+    _check("bass_replica_status", code)
+    d = {name: getattr(r, name) for name, _ in _lib.ReplicaStatus._fields_ if name != "reserved"}
+    d["link_up"] = bool(r.link_up)
+    d["source"] = r.source.decode(errors="replace")
+    d["source_state"] = r.source_state.decode(errors="replace")
     return d
 
 

@@ -20,6 +20,7 @@ from ctypes import POINTER, c_char, c_char_p, c_double, c_int, c_size_t, c_uint3
 
 BASS_DEVICE_LEN = 128
 BASS_MESSAGE_LEN = 256
+BASS_SOURCE_STATE_LEN = 32
 BASS_WAIT_FOREVER = 0xFFFFFFFF
 
 # The BASS_CHUNK_* flags of include/bass.h, by name without the prefix, in the header's order
@@ -138,6 +139,24 @@ class Status(ctypes.Structure):
     ]
 
 
+class ReplicaStatus(ctypes.Structure):
+    """bass_replica_status (a mirror's answer about its replica and the source it follows)."""
+
+    _fields_ = [
+        ("link_up", c_uint32),
+        ("reserved", c_uint32),
+        ("link_since_s", c_double),
+        ("source_epoch", c_uint64),
+        ("source_last_frame_index", c_uint64),
+        ("gap_frames_lost", c_uint64),
+        ("gap_frames_source", c_uint64),
+        ("outages", c_uint64),
+        ("forged_messages", c_uint64),
+        ("source", c_char * BASS_DEVICE_LEN),
+        ("source_state", c_char * BASS_SOURCE_STATE_LEN),
+    ]
+
+
 class StreamConfig(ctypes.Structure):
     """bass_stream_config (python/bass/stream.py)."""
 
@@ -227,6 +246,7 @@ _SIGNATURES = {
     "bass_acquire": (c_int, [c_char_p, c_char_p, c_uint32, c_uint32, c_uint32, c_uint32, POINTER(c_uint64)]),
     "bass_stop": (c_int, [c_char_p]),
     "bass_status": (c_int, [c_char_p, POINTER(Status)]),
+    "bass_replica_status": (c_int, [c_char_p, POINTER(ReplicaStatus)]),
     "bass_list_devices": (c_int, [c_char_p, POINTER(c_char), c_size_t, POINTER(c_size_t)]),
     # Callback streams (python/bass/stream.py).
     "bass_stream_create": (c_int, [_P, POINTER(StreamConfig), BLOCK_FN, EVENT_FN, c_void_p, POINTER(_P)]),

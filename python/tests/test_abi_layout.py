@@ -22,7 +22,7 @@ INCLUDE = os.path.normpath(os.path.join(HERE, "..", "..", "include"))
 HEADER = open(os.path.join(INCLUDE, "bass.h")).read()
 
 # Constants _lib.py copies from the header.
-MIRRORED_CONSTANTS = ["BASS_DEVICE_LEN", "BASS_MESSAGE_LEN", "BASS_WAIT_FOREVER"]
+MIRRORED_CONSTANTS = ["BASS_DEVICE_LEN", "BASS_MESSAGE_LEN", "BASS_SOURCE_STATE_LEN", "BASS_WAIT_FOREVER"]
 
 
 def mirrored_structs():

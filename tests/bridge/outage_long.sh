@@ -36,7 +36,8 @@ sleep "$OUTAGE"
 # refused with "remote control is not enabled", exit 2).
 ST_DOWN=$(inB timeout 10 "$BIN/bass" --name rep status --json 2>&1) || ST_DOWN="exit $?: $ST_DOWN"
 PY_DOWN=$(inB env PYTHONPATH="$ROOT/python" BASS_LIB="$BIN/libbassclient.so" timeout 10 python3 -c '
-import bass; s = bass.status("rep"); print(s["state_name"], "|", s["message"])' 2>&1) || PY_DOWN="exit $?: $PY_DOWN"
+import bass; s = bass.status("rep"); r = bass.replica_status("rep")
+print(s["state_name"], "|", s["message"], "|", r["source"], r["link_up"], r["source_state"], r["outages"])' 2>&1) || PY_DOWN="exit $?: $PY_DOWN"
 # The link comes back inside scripts/bench-net-recovery.py (the bench's own measurement), which
 # then polls both ports: seconds until the replica moved again and until it held the
 # source's newest frame at link-up.
@@ -83,7 +84,10 @@ assert up["state_name"] == "capturing" and up["last_frame_index"] > down["last_f
 PY
 then ok "$OUTAGE s outage: bass status of the replica answered by the mirror, link down then up"
 else bad "$OUTAGE s outage: bass status of the replica: down: $ST_DOWN; up: $ST_UP"; fi
-[[ $PY_DOWN == error\ \|*link\ down* ]] && ok "$OUTAGE s outage: Python status() of the replica: $PY_DOWN" \
-  || bad "$OUTAGE s outage: Python status() of the replica: $PY_DOWN"
+# Python (through the C ABI's bass_status and bass_replica_status): the replica in error, the
+# link down, the outage counted.
+[[ $PY_DOWN =~ ^error\ \|.*link\ down.*\|\ src\ False\ [a-z]+\ [1-9][0-9]*$ ]] \
+  && ok "$OUTAGE s outage: Python status() and replica_status() of the replica: $PY_DOWN" \
+  || bad "$OUTAGE s outage: Python status() and replica_status() of the replica: $PY_DOWN"
 (( $(status outages) >= 1 )) && ok "$OUTAGE s outage: the mirror counted it ($(status outages) outage(s))" || bad "outage not counted"
 rig_done

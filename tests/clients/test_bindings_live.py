@@ -27,6 +27,8 @@ def test_python_acquire_status_blocks_and_stop_through_the_broker(broker):
         assert (s["state_name"], s["sample_rate"], s["frames_per_chunk"], s["chunks_on_port"], s["epoch"]) == \
             ("capturing", 48000, 480, 10, epoch)
         assert s["device"].startswith("sim:pattern") and s["last_frame_index"] >= 5000
+        # A bassd is no mirror's replica (tests/bridge/outage_long.sh reads a real replica).
+        assert bass.replica_status(broker=broker) is None
         bass.stop(broker=broker)
         with pytest.raises(bass.BassError) as e:
             port.wait(2**40, timeout=5)

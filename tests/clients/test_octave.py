@@ -132,6 +132,7 @@ def test_octave_control_plane_and_pattern_reads_through_a_broker(mexdir, clients
     assert(isequal(l, int32(f * 64)) && isequal(r, int32(f * 64 + 1)));
     s = b.Status();
     assert(strcmp(s.state, 'capturing') && s.sampleRate == 48000 && s.epoch == epoch);
+    assert(isempty(s.replica));  % a bassd is no mirror's replica
     b.Stop();
     try
       b.Wait(uint64(2)^40, 5);

@@ -131,7 +131,12 @@ pub(super) fn try_open(a: &PortArg) {
     let port_path = a.path();
     let read = match Port::open_path(port_path) {
         Ok(p) => format!("ok lfi={}", p.info().map(|i| i.last_frame_index).unwrap_or(0)),
-        Err(Error::Io { source, .. }) => format!("io:{}", source.raw_os_error().unwrap_or(0)),
+        // The errno, or the kind of an error the library explained (a refusal of access
+        // carries its advice, not the errno).
+        Err(Error::Io { source, .. }) => match source.raw_os_error() {
+            Some(n) => format!("io:{n}"),
+            None => format!("io:{:?}", source.kind()),
+        },
         Err(e) => format!("error:{e}").replace(' ', "_"),
     };
     let write = match std::fs::OpenOptions::new().write(true).open(port_path) {
