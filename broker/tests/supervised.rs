@@ -330,6 +330,9 @@ fn the_watchdog_is_fed_while_capturing_and_not_once_the_device_stalled() {
         .envs(&env)
         .start();
     ready(&mut mgr);
+    // READY comes when the socket serves; the start-up acquisition's device may still be
+    // opening (no port to hand out yet).
+    acquired(&b);
     let port = open(&b);
     // sim:stall delivers half a second, then nothing: the broker's stall watchdog ends the
     // acquisition (DEVICE_STALLED) and the service manager's watchdog is no longer fed.
