@@ -82,7 +82,7 @@
 // Wait forever (for `bass_port_wait`).
 #define BASS_WAIT_FOREVER UINT32_MAX
 
-// Bytes of `bass_replica_status.source_state` (with the NUL).
+// Bytes of `bass_replica_info.source_state` (with the NUL).
 #define BASS_SOURCE_STATE_LEN 32
 
 // Start at the oldest frame in the window.
@@ -208,7 +208,7 @@ typedef struct {
   // The source's last known state (`capturing`, `stopped`, `error`, `gone`, ...), NUL
   // terminated.
   char source_state[BASS_SOURCE_STATE_LEN];
-} bass_replica_status;
+} bass_replica_info;
 
 // The state of a broker and of its current port, as returned by `bass_status()`.
 // (Named `bass_broker_status` because C cannot have a type and a function both named
@@ -433,7 +433,7 @@ const char *bass_last_error(void);
 //
 // # Safety
 // `broker` must be NULL or NUL-terminated; `out_replica` valid for a write.
-bass_result bass_replica_status(const char *broker, bass_replica_status *out_replica);
+bass_result bass_replica_status(const char *broker, bass_replica_info *out_replica);
 
 // Starts an acquisition on broker `broker` (NULL = "default"), interrupting a running one.
 // `channels` 0 means 2. `*out_epoch` (if not NULL) receives the new acquisition's epoch.

@@ -323,7 +323,7 @@ static mxArray *chunk_struct(const bass_chunk_info *c) {
 
 /* The broker's status; `replica` is the mirror's account of its replica (a struct of
  * REPLICA_FIELDS), or [] for a broker that is not a replica. */
-static mxArray *status_struct(const bass_broker_status *st, const bass_replica_status *replica) {
+static mxArray *status_struct(const bass_broker_status *st, const bass_replica_info *replica) {
     static const char *const extra[] = {"replica"};
     mxArray *s = mapped_struct(st, STATUS_FIELDS, COUNT(STATUS_FIELDS), extra, 1);
     mxArray *r = replica ? mapped_struct(replica, REPLICA_FIELDS, COUNT(REPLICA_FIELDS), NULL, 0)
@@ -498,7 +498,7 @@ void mexFunction(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
     } else if (!strcmp(cmd, "Status")) {
         char *broker = opt_string(nrhs, prhs, 1);
         bass_broker_status st;
-        bass_replica_status rep;
+        bass_replica_info rep;
         bass_result r = bass_status(broker, &st);
         bass_result rr = r == BASS_OK ? bass_replica_status(broker, &rep) : BASS_ERR_NOT_FOUND;
         if (broker) mxFree(broker);

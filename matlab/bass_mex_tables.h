@@ -75,19 +75,19 @@ static const struct field_map STATUS_FIELDS[] = {
     FIELD(bass_broker_status, "message", message, AS_TEXT),
 };
 
-/* Every member of bass_replica_status but `reserved`, in the header's order (checked like
+/* Every member of bass_replica_info but `reserved`, in the header's order (checked like
  * INFO_FIELDS): Status's `replica` field for a mirror's replica. */
 static const struct field_map REPLICA_FIELDS[] = {
-    FIELD(bass_replica_status, "linkUp", link_up, AS_LOGICAL),
-    FIELD(bass_replica_status, "linkSinceS", link_since_s, AS_DOUBLE),
-    FIELD(bass_replica_status, "sourceEpoch", source_epoch, AS_UINT64),
-    FIELD(bass_replica_status, "sourceLastFrameIndex", source_last_frame_index, AS_UINT64),
-    FIELD(bass_replica_status, "gapFramesLost", gap_frames_lost, AS_UINT64),
-    FIELD(bass_replica_status, "gapFramesSource", gap_frames_source, AS_UINT64),
-    FIELD(bass_replica_status, "outages", outages, AS_UINT64),
-    FIELD(bass_replica_status, "forgedMessages", forged_messages, AS_UINT64),
-    FIELD(bass_replica_status, "source", source, AS_TEXT),
-    FIELD(bass_replica_status, "sourceState", source_state, AS_TEXT),
+    FIELD(bass_replica_info, "linkUp", link_up, AS_LOGICAL),
+    FIELD(bass_replica_info, "linkSinceS", link_since_s, AS_DOUBLE),
+    FIELD(bass_replica_info, "sourceEpoch", source_epoch, AS_UINT64),
+    FIELD(bass_replica_info, "sourceLastFrameIndex", source_last_frame_index, AS_UINT64),
+    FIELD(bass_replica_info, "gapFramesLost", gap_frames_lost, AS_UINT64),
+    FIELD(bass_replica_info, "gapFramesSource", gap_frames_source, AS_UINT64),
+    FIELD(bass_replica_info, "outages", outages, AS_UINT64),
+    FIELD(bass_replica_info, "forgedMessages", forged_messages, AS_UINT64),
+    FIELD(bass_replica_info, "source", source, AS_TEXT),
+    FIELD(bass_replica_info, "sourceState", source_state, AS_TEXT),
 };
 
 /* Every member of bass_chunk_info, in the header's order (checked like INFO_FIELDS). */

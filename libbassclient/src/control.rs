@@ -54,7 +54,7 @@ pub struct bass_broker_status {
 /// returned by `bass_replica_status()`: the link, the source's last known state, what never
 /// arrived.
 #[repr(C)]
-pub struct bass_replica_status {
+pub struct bass_replica_info {
     /// 1 when the source was heard within the mirror's timeout, else 0.
     pub link_up: u32,
     /// Reserved (0).
@@ -80,11 +80,11 @@ pub struct bass_replica_status {
     pub source_state: [c_char; BASS_SOURCE_STATE_LEN],
 }
 
-/// Bytes of `bass_replica_status.source_state` (with the NUL).
+/// Bytes of `bass_replica_info.source_state` (with the NUL).
 pub const BASS_SOURCE_STATE_LEN: usize = 32;
 
-fn replica_to_c(r: &ReplicaStatus) -> bass_replica_status {
-    let mut out = bass_replica_status {
+fn replica_to_c(r: &ReplicaStatus) -> bass_replica_info {
+    let mut out = bass_replica_info {
         link_up: u32::from(r.link_up),
         reserved: 0,
         link_since_s: r.link_since_s,
@@ -112,7 +112,7 @@ fn replica_to_c(r: &ReplicaStatus) -> bass_replica_status {
 #[no_mangle]
 pub unsafe extern "C" fn bass_replica_status(
     broker: *const c_char,
-    out_replica: *mut bass_replica_status,
+    out_replica: *mut bass_replica_info,
 ) -> bass_result {
     boundary("bass_replica_status", || {
         let out = nonnull_mut(out_replica, "out_replica")?;
@@ -284,5 +284,5 @@ pub unsafe extern "C" fn bass_list_devices(
 const _: () =
     assert!(std::mem::size_of::<bass_broker_status>() == 24 + 40 + BASS_DEVICE_LEN + BASS_MESSAGE_LEN);
 const _: () = assert!(
-    std::mem::size_of::<bass_replica_status>() == 8 + 8 + 6 * 8 + BASS_DEVICE_LEN + BASS_SOURCE_STATE_LEN
+    std::mem::size_of::<bass_replica_info>() == 8 + 8 + 6 * 8 + BASS_DEVICE_LEN + BASS_SOURCE_STATE_LEN
 );

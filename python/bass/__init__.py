@@ -446,12 +446,12 @@ def replica_status(broker=None):
     (`link_up`, `link_since_s`), the source (`source`, `source_state`, `source_epoch`,
     `source_last_frame_index`), what never arrived (`gap_frames_lost`, `gap_frames_source`),
     `outages`, `forged_messages`. None when the broker is not a replica (a bassd)."""
-    r = _lib.ReplicaStatus()
+    r = _lib.ReplicaInfo()
     code = _control("bass_replica_status")(_bytes(broker, "broker"), ctypes.byref(r))
     if code == globals()["BASS_ERR_NOT_FOUND"]:
         return None
     _check("bass_replica_status", code)
-    d = {name: getattr(r, name) for name, _ in _lib.ReplicaStatus._fields_ if name != "reserved"}
+    d = {name: getattr(r, name) for name, _ in _lib.ReplicaInfo._fields_ if name != "reserved"}
     d["link_up"] = bool(r.link_up)
     d["source"] = r.source.decode(errors="replace")
     d["source_state"] = r.source_state.decode(errors="replace")

@@ -139,8 +139,8 @@ class Status(ctypes.Structure):
     ]
 
 
-class ReplicaStatus(ctypes.Structure):
-    """bass_replica_status (a mirror's answer about its replica and the source it follows)."""
+class ReplicaInfo(ctypes.Structure):
+    """bass_replica_info (a mirror's answer about its replica and the source it follows)."""
 
     _fields_ = [
         ("link_up", c_uint32),
@@ -246,7 +246,7 @@ _SIGNATURES = {
     "bass_acquire": (c_int, [c_char_p, c_char_p, c_uint32, c_uint32, c_uint32, c_uint32, POINTER(c_uint64)]),
     "bass_stop": (c_int, [c_char_p]),
     "bass_status": (c_int, [c_char_p, POINTER(Status)]),
-    "bass_replica_status": (c_int, [c_char_p, POINTER(ReplicaStatus)]),
+    "bass_replica_status": (c_int, [c_char_p, POINTER(ReplicaInfo)]),
     "bass_list_devices": (c_int, [c_char_p, POINTER(c_char), c_size_t, POINTER(c_size_t)]),
     # Callback streams (python/bass/stream.py).
     "bass_stream_create": (c_int, [_P, POINTER(StreamConfig), BLOCK_FN, EVENT_FN, c_void_p, POINTER(_P)]),

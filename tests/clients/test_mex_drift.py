@@ -68,10 +68,10 @@ def test_info_has_every_member_of_bass_port_info_in_order():
         assert matlab == LEGACY_NAMES.get(member, camel(member)), (member, matlab)
 
 
-def test_status_replica_has_every_member_of_bass_replica_status_in_order():
-    want = [m for m in header_struct_fields("bass_replica_status") if m != "reserved"]
-    got = mex_fields("REPLICA_FIELDS", "bass_replica_status")
-    assert [member for _, member in got] == want, "REPLICA_FIELDS must map every member of bass_replica_status"
+def test_status_replica_has_every_member_of_bass_replica_info_in_order():
+    want = [m for m in header_struct_fields("bass_replica_info") if m != "reserved"]
+    got = mex_fields("REPLICA_FIELDS", "bass_replica_info")
+    assert [member for _, member in got] == want, "REPLICA_FIELDS must map every member of bass_replica_info"
 
 
 def test_status_has_every_member_of_bass_broker_status_in_order():
