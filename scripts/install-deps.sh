@@ -63,6 +63,11 @@ fi
 if ! python3 -c 'import importlib.metadata as m, mcap, mcap_ros2, rosbags; assert (m.version("mcap"), m.version("mcap-ros2-support"), m.version("rosbags")) == ("1.6.0", "0.6.0", "0.11.9")' 2>/dev/null; then
   python3 -m pip install -q mcap==1.6.0 mcap-ros2-support==0.6.0 rosbags==0.11.9 2>/dev/null || python3 -m pip install -q --break-system-packages mcap==1.6.0 mcap-ros2-support==0.6.0 rosbags==0.11.9
 fi
+# The Lab Streaming Layer inlet of the client suite (tests/clients/test_lsl.py) and the liblsl
+# its wheel ships, which `bass lsl` loads at run time.
+if ! python3 -c 'import importlib.metadata as m, pylsl; assert m.version("pylsl") == "1.18.6"' 2>/dev/null; then
+  python3 -m pip install -q pylsl==1.18.6 2>/dev/null || python3 -m pip install -q --break-system-packages pylsl==1.18.6
+fi
 # ROS's own parser of package.xml, for the bass_msgs package (tests/bridge/cases/ros2.sh).
 if ! python3 -c 'import importlib.metadata as m, catkin_pkg; assert m.version("catkin_pkg") == "1.0.0"' 2>/dev/null; then
   python3 -m pip install -q catkin_pkg==1.0.0 2>/dev/null || python3 -m pip install -q --break-system-packages catkin_pkg==1.0.0

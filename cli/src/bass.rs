@@ -66,6 +66,9 @@ pub enum Command {
     Plot(PlotArgs),
     /// Record the port to a WAV file with a timestamp sidecar (FILE.json)
     Record(RecordArgs),
+    /// Publish the port as a Lab Streaming Layer stream (liblsl loaded at run time), with a
+    /// marker stream of every loss and GAP
+    Lsl(crate::lsl::LslArgs),
     /// Print a shell completion script (bash, zsh, fish, elvish, powershell)
     Completions {
         /// The shell
@@ -187,6 +190,7 @@ pub fn run(cli: &Cli) -> Result<()> {
         Command::Blocks(b) => blocks::run(name, b, timeout)?,
         Command::Record(r) => record::run(name, r, timeout)?,
         Command::Meter(m) => meter::run(name, m, timeout)?,
+        Command::Lsl(l) => crate::lsl::run(name, l, timeout)?,
         Command::Plot(p) => plot::run(name, p, timeout)?,
         Command::Completions { shell } => {
             let mut script = Vec::new();

@@ -11,6 +11,7 @@
 //! - [`plot`]: `bass plot`, PNG pictures of a recording or of the port;
 //! - [`record`]: `bass record FILE.wav` with its timestamp sidecar, and `--check`;
 //! - [`wav`]: the WAV writer, header parser and repair of `bass record`;
+//! - [`lsl`]: `bass lsl`, the port as a Lab Streaming Layer stream with loss markers;
 //! - [`exit`]: the documented exit codes and how errors map onto them;
 //! - [`out`]: stdout and stderr as Unix tools use them (a closed pipe ends a command quietly).
 #![forbid(unsafe_code)]
@@ -19,6 +20,7 @@ pub mod bass;
 pub mod blocks;
 pub mod exit;
 pub mod follow;
+pub mod lsl;
 pub mod meter;
 pub mod out;
 pub mod plot;
