@@ -174,9 +174,15 @@ fn a_sigkilled_mcap_recorder_leaves_its_last_checkpoint_readable_and_replayable(
         .stdout(Stdio::null())
         .spawn()
         .unwrap();
-    // More than a second of frames (8 bytes each) on the disk: at least one checkpoint.
-    eventually("the MCAP file to grow", || {
-        (std::fs::metadata(&rec).map(|m| m.len()).unwrap_or(0) > 100_000).then_some(())
+    // More than a second of frames (8 bytes each) on the disk: at least one checkpoint; and
+    // the kill between two checkpoints (the size unchanged for 200 ms: records reach the disk
+    // only at checkpoints, once a second), not during one's write, which docs/broker.md says
+    // can tear the new ending (the test's first version killed as the size grew: mid-write).
+    let size = || std::fs::metadata(&rec).map(|m| m.len()).unwrap_or(0);
+    eventually("the MCAP file to grow and rest between checkpoints", || {
+        let before = size();
+        std::thread::sleep(std::time::Duration::from_millis(200));
+        (before > 100_000 && size() == before).then_some(())
     });
     send_signal(child.id(), libc::SIGKILL);
     child.wait().unwrap();
