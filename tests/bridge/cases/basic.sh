@@ -108,12 +108,22 @@ C=$WORK/cred; mkdir -p "$C"
 kill $SERVE $MIRROR 2>/dev/null || true; wait $SERVE $MIRROR 2>/dev/null || true
 INSECURE=()
 start_serve --credentials "$C/robot.cred"; start_mirror --credentials "$C/ws1.cred"; sleep 1.5
-if OUT=$(inB timeout 20 "$BIN/bass" --name rep status 2>&1); then bad "status without --allow-control succeeded: $OUT"
+# Requests the mirror forwards (Stop, Acquire, ListDevices) are refused by a serve without
+# --allow-control; Status is the mirror's own answer (issue 33), without the source's live one.
+if OUT=$(inB timeout 20 "$BIN/bass" --name rep devices 2>&1); then bad "devices without --allow-control succeeded: $OUT"
 elif grep -q "allow-control" <<<"$OUT"; then ok "remote control refused by default ($(tail -1 <<<"$OUT"))"
 else bad "unexpected refusal: $OUT"; fi
+OUT=$(inB timeout 20 "$BIN/bass" --name rep status --json 2>&1) || OUT="exit $?: $OUT"
+python3 -c 'import json, sys; j = json.loads(sys.argv[1]); r = j["replica"]
+assert r["source"] == "src" and r["link_up"] and r["source_status"] is None, r' "$OUT" 2>/dev/null \
+  && ok "Status without --allow-control: the mirror's own answer, no live source status" || bad "status without --allow-control: $OUT"
 kill $SERVE 2>/dev/null || true; wait $SERVE 2>/dev/null || true; start_serve --credentials "$C/robot.cred" --allow-control ws1; sleep 1.5
-OUT=$(inB timeout 20 "$BIN/bass" --name rep status 2>&1) && grep -q "capturing" <<<"$OUT" \
-  && ok "Status forwarded to the source's bassd" || bad "status through the bridge: $OUT"
+# With it the source's live Status is added (asked for 0.5 s at most: polled until the
+# restarted serve's control answers).
+live() { inB timeout 20 "$BIN/bass" --name rep status --json 2>/dev/null | python3 -c 'import json, sys
+r = json.load(sys.stdin)["replica"]; s = r["source_status"]; assert s and s["state"] == 1, r'; }  # 1: capturing
+wait_for 10 live && ok "Status with --allow-control adds the source's live Status (capturing)" \
+  || bad "no live source status through the bridge: $(inB timeout 20 "$BIN/bass" --name rep status 2>&1 | tail -3)"
 inB timeout 20 "$BIN/bass" --name rep acquire sim:pattern --rate $RATE --frames 960 --chunks 20 --channels 2 >/dev/null 2>&1 || true
 OUT=$(inA timeout 10 "$BIN/bass" --name src status 2>&1)
 grep -q "960 frames x 20 chunks" <<<"$OUT" && ok "Acquire from the workstation reached the robot's bassd" || bad "remote acquire: $OUT"
@@ -127,11 +137,12 @@ kill $SERVE 2>/dev/null || true; wait $SERVE 2>/dev/null || true
 SERVE_BIN=("$BIN/bass-bridge-faults" --fault control-delay=2000)
 start_serve --credentials "$C/robot.cred" --allow-control ws1; SERVE_BIN=(); sleep 1.5
 FLOOD=()
+# ListDevices is forwarded (a Status is the mirror's own answer, which waits 0.5 s at most).
 for k in $(seq 12); do
-  inB timeout 20 "$BIN/bass" --name rep status >"$WORK/flood.$k" 2>&1 & FLOOD+=($!)
+  inB timeout 20 "$BIN/bass" --name rep devices >"$WORK/flood.$k" 2>&1 & FLOOD+=($!)
 done
 for p in "${FLOOD[@]}"; do wait "$p" || true; done
-ANSWERED=$(grep -l "capturing" "$WORK"/flood.* | wc -l); BUSY=$(grep -l "busy (8 control requests in progress)" "$WORK"/flood.* | wc -l)
+ANSWERED=$(grep -l "sim:pattern" "$WORK"/flood.* | wc -l || true); BUSY=$(grep -l "busy (8 control requests in progress)" "$WORK"/flood.* | wc -l || true)
 if [[ $ANSWERED == 8 && $BUSY == 4 ]]; then ok "12 requests at once: 8 answered, 4 refused as busy"
 else bad "12 requests at once: $ANSWERED answered, $BUSY busy (want 8 and 4): $(cat "$WORK"/flood.* | tr '\n' ' ' | cut -c1-600)"; fi
 OUT=$(inB timeout 20 "$BIN/bass" --name rep status 2>&1) && grep -q "capturing" <<<"$OUT" \

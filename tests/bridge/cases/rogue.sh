@@ -22,12 +22,18 @@ reader $((RATE * 12)) 30 >"$WORK/r.json" & R=$!
 sleep 1
 inB timeout 60 python3 tests/bridge/rogue_peer.py "$ROGUE_EP,$EP" bass src 8 >"$WORK/rogue.json" 2>"$WORK/rogue.log" & RP=$!
 sleep 4
-# serve has no --allow-control: only the rogue answers the forwarded request.
+# serve has no --allow-control: only the rogue answers a forwarded request (ListDevices; a
+# Status is the mirror's own answer, which takes only a Status as the source's live one).
+OUT=$(inB timeout 20 "$BIN/bass" --name rep devices 2>&1) || true
+printf '%s' "$OUT" >"$WORK/bass-devices.txt"
+if grep -q $'\x1b' "$WORK/bass-devices.txt"; then bad "bass devices printed a raw ESC: $(cat -v "$WORK/bass-devices.txt")"
+elif grep -qF '\x1b]0;owned by rogue' "$WORK/bass-devices.txt"; then ok "bass devices shows the rogue's control answer escaped: $(head -c 160 "$WORK/bass-devices.txt")"
+else bad "bass devices did not show the rogue's answer: $(cat -v "$WORK/bass-devices.txt" | head -c 300)"; fi
 OUT=$(inB timeout 20 "$BIN/bass" --name rep status 2>&1) || true
 printf '%s' "$OUT" >"$WORK/bass-status.txt"
 if grep -q $'\x1b' "$WORK/bass-status.txt"; then bad "bass status printed a raw ESC: $(cat -v "$WORK/bass-status.txt")"
-elif grep -qF '\x1b]0;owned by rogue' "$WORK/bass-status.txt"; then ok "bass status shows the rogue's control answer escaped: $(head -c 160 "$WORK/bass-status.txt")"
-else bad "bass status did not show the rogue's answer: $(cat -v "$WORK/bass-status.txt" | head -c 300)"; fi
+elif grep -q "source live not asked" "$WORK/bass-status.txt"; then ok "bass status: the mirror's own answer, the rogue's error not taken as the source's Status"
+else bad "bass status of the replica under attack: $(cat -v "$WORK/bass-status.txt" | head -c 300)"; fi
 RC=0; wait $RP || RC=$?
 [[ $RC == 0 ]] && ok "rogue peer connected and sent everything: $(cat "$WORK/rogue.json")" || bad "rogue peer exit $RC: $(cat "$WORK/rogue.log")"
 wait $R || true; J=$(cat "$WORK/r.json")
