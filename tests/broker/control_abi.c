@@ -1,6 +1,7 @@
-/* The control-plane C ABI (bass_acquire, bass_stop, bass_status, bass_list_devices) against
- * real bassd processes started by tests/broker/run.sh: broker "default" and broker "second"
- * in $BASS_RUNTIME_DIR, both idle. Every check prints its name; any failure exits 1. */
+/* The control-plane C ABI (bass_acquire, bass_stop, bass_status, bass_replica_status,
+ * bass_list_devices) against real bassd processes started by tests/broker/run.sh: broker
+ * "default" and broker "second" in $BASS_RUNTIME_DIR, both idle. Every check prints its name;
+ * any failure exits 1. */
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -150,8 +151,25 @@ static void test_errors(void) {
   CHECK(bass_list_devices(NULL, NULL, 0, NULL) == BASS_ERR_NULL_ARGUMENT, "NULL out_len");
 }
 
+/* bass_replica_status on a bassd: not a replica (BASS_ERR_NOT_FOUND, the message says so, the
+ * output untouched); NULL output refused; a broker that is not running is NO_BROKER. The
+ * replica side is read through the same call by tests/bridge/outage_long.sh (Python). */
+static void test_replica_status_of_a_bassd(void) {
+  bass_replica_info ri;
+  memset(&ri, 0xAB, sizeof ri);
+  bass_result r = bass_replica_status(NULL, &ri);
+  CHECK(r == BASS_ERR_NOT_FOUND, "a bassd is no replica: %d", r);
+  CHECK(strstr(bass_last_error(), "not a replica") != NULL, "the message says why: %s", bass_last_error());
+  CHECK(ri.link_up == 0xABABABABu && (unsigned char)ri.source[0] == 0xAB, "nothing written on failure");
+  r = bass_replica_status(NULL, NULL);
+  CHECK(r == BASS_ERR_NULL_ARGUMENT, "NULL output: %d", r);
+  r = bass_replica_status("nobody-runs-this", &ri);
+  CHECK(r == BASS_ERR_NO_BROKER, "no such broker: %d", r);
+}
+
 int main(void) {
   test_list_devices();
+  test_replica_status_of_a_bassd();
   test_acquire_read_stop();
   test_second_broker();
   test_errors();
