@@ -112,7 +112,7 @@ install-files:
 	install -m 0644 cmake/bassclientConfig.cmake $(INSTALL_ROOT)/lib/cmake/bassclient/
 	sed -e 's|@VERSION@|$(VERSION)|' cmake/bassclientConfigVersion.cmake.in \
 	  > $(INSTALL_ROOT)/lib/cmake/bassclient/bassclientConfigVersion.cmake
-	install -m 0644 matlab/bass_mex.c matlab/bass_mex_tables.h matlab/bass_mex_results.h matlab/Bass.m matlab/README.md $(INSTALL_ROOT)/share/bass/matlab/
+	install -m 0644 matlab/bass_mex.c matlab/bass_mex_tables.h matlab/bass_mex_results.h matlab/bass_mex_fields.h matlab/Bass.m matlab/README.md $(INSTALL_ROOT)/share/bass/matlab/
 	install -m 0644 ros2/bass_msgs/package.xml ros2/bass_msgs/CMakeLists.txt $(INSTALL_ROOT)/share/bass/ros2/bass_msgs/
 	install -m 0644 ros2/bass_msgs/msg/ChunkInfo.msg $(INSTALL_ROOT)/share/bass/ros2/bass_msgs/msg/
 	broker/systemd/install-units.sh $(INSTALL_ROOT) $(PREFIX)

@@ -56,8 +56,8 @@
 #include "bass.h"
 #include "mex.h"
 
-/* The tables of bass.h facts (error ids, struct fields, flags), checked against the header by
- * tests/clients/test_mex_drift.py. */
+/* The tables of bass.h facts (error ids, struct fields, flags), generated with bass.h from the
+ * library's Rust definitions by `make header`. */
 #include "bass_mex_tables.h"
 
 /* Interrupt flags of the host, resolved at load time if present (weak: absent is NULL).

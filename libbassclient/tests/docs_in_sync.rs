@@ -43,6 +43,18 @@ fn every_result_code_in_the_docs_has_the_headers_name_and_value() {
     assert_eq!(docs_results(&docs), want, "docs/c-api.md's result table differs from the library's codes");
 }
 
+/// matlab/README.md names every error identifier the MEX gateway raises.
+#[test]
+fn the_matlab_readme_names_every_error_identifier() {
+    let readme = read("matlab/README.md");
+    let missing: Vec<&str> = bass_result::all()
+        .iter()
+        .map(|r| r.mex_id())
+        .filter(|&id| id != "bass:ok" && !readme.contains(&format!("`{id}`")))
+        .collect();
+    assert!(missing.is_empty(), "matlab/README.md does not name {missing:?}");
+}
+
 #[test]
 fn every_name_the_docs_mention_exists_in_the_header() {
     let header = read("include/bass.h");

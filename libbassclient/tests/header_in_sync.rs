@@ -3,6 +3,8 @@
 
 use std::path::PathBuf;
 
+mod bindings;
+
 #[test]
 fn committed_header_matches_cbindgen_output() {
     let crate_dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
@@ -36,9 +38,10 @@ fn the_header_defines_only_prefixed_names() {
     assert!(stray.is_empty(), "bass.h defines unprefixed names {stray:?}: exclude them in cbindgen.toml");
 }
 
-/// The result-code tables of the bindings, made from the one Rust table (`result_table!` in
-/// ffi/mod.rs): Python's `RESULT_NAMES` and the MEX gateway's error identifiers.
-fn binding_tables() -> [(&'static str, String); 2] {
+/// The bindings' generated files: the result-code tables made from the one Rust table
+/// (`result_table!` in lib.rs: Python's `RESULT_NAMES`, the MEX gateway's error identifiers),
+/// and the structs and constants read from the sources (tests/bindings).
+fn binding_tables() -> [(&'static str, String); 4] {
     use bassclient::bass_result;
     let short = |r: bass_result| {
         let n = r.name().to_str().expect("ASCII").to_owned();
@@ -62,7 +65,13 @@ fn binding_tables() -> [(&'static str, String); 2] {
         mex.push_str(&format!("    [{}] = \"{}\",\n", r.name().to_str().expect("ASCII"), r.mex_id()));
     }
     mex.push_str("};\n\n#endif\n");
-    [("python/bass/_results.py", py), ("matlab/bass_mex_results.h", mex)]
+    let crate_dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    [
+        ("python/bass/_results.py", py),
+        ("matlab/bass_mex_results.h", mex),
+        ("python/bass/_abi.py", bindings::python(&crate_dir)),
+        ("matlab/bass_mex_fields.h", bindings::mex(&crate_dir)),
+    ]
 }
 
 #[test]

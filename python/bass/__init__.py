@@ -38,7 +38,7 @@ from ._results import RESULT_NAMES  # noqa: E402
 for _code, _name in RESULT_NAMES.items():
     globals()["BASS_" + ("OK" if _code == 0 else "ERR_" + _name)] = _code
 
-STATE_NAMES = {0: "idle", 1: "capturing", 2: "stopped", 3: "error", 4: "superseded", 5: "starting"}
+from ._abi import STATE_NAMES  # noqa: E402
 
 # Chunk flags (bass.h's BASS_CHUNK_*), by name: CHUNK_GAP, CHUNK_DISCONTINUITY, ...
 CHUNK_FLAGS = dict(_lib.CHUNK_FLAGS)

@@ -14,7 +14,7 @@ make -C "$ROOT" --no-print-directory install PREFIX="$PREFIX" >"$WORK/install.lo
 VERSION=$(sed -n 's/^version = "\(.*\)"/\1/p' "$ROOT/Cargo.toml" | head -1)
 for f in bin/bassd bin/bass "lib/libbassclient.so.$VERSION" lib/libbassclient.a include/bass.h include/bass.hpp \
          lib/pkgconfig/bassclient.pc lib/cmake/bassclient/bassclientConfig.cmake \
-         lib/cmake/bassclient/bassclientConfigVersion.cmake share/bass/matlab/bass_mex.c share/bass/matlab/bass_mex_tables.h share/bass/matlab/bass_mex_results.h; do
+         lib/cmake/bassclient/bassclientConfigVersion.cmake share/bass/matlab/bass_mex.c share/bass/matlab/bass_mex_tables.h share/bass/matlab/bass_mex_results.h share/bass/matlab/bass_mex_fields.h; do
   [[ -f $PREFIX/$f ]] || { echo "install: $f missing" >&2; exit 1; }
 done
 echo "install: files in place under $PREFIX"
