@@ -115,13 +115,13 @@ install-files:
 	install -m 0644 matlab/bass_mex.c matlab/bass_mex_tables.h matlab/bass_mex_results.h matlab/bass_mex_fields.h matlab/Bass.m matlab/README.md $(INSTALL_ROOT)/share/bass/matlab/
 	install -m 0644 ros2/bass_msgs/package.xml ros2/bass_msgs/CMakeLists.txt $(INSTALL_ROOT)/share/bass/ros2/bass_msgs/
 	install -m 0644 ros2/bass_msgs/msg/ChunkInfo.msg $(INSTALL_ROOT)/share/bass/ros2/bass_msgs/msg/
-	broker/systemd/install-units.sh $(INSTALL_ROOT) $(PREFIX)
+	packaging/systemd/install-units.sh $(INSTALL_ROOT) $(PREFIX)
 	@echo "installed bass $(VERSION) into $(INSTALL_ROOT)"
 
 # A Debian package of what `make install PREFIX=/usr` installs, with the systemd units and the
 # group bass (docs/broker.md, "Running bass as a service"): target/deb/bass_VERSION-1_ARCH.deb.
 deb: build-ship
-	broker/debian/build-deb.sh target/deb
+	packaging/debian/build-deb.sh target/deb
 
 # The package built, linted, installed, used and purged on this machine (root; tests/package).
 test-package: build-all

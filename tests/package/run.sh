@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The Debian package, end to end on this machine (make test-package; root): build it from the
-# release binaries already built (broker/debian/build-deb.sh), lint it (no error; only the
+# release binaries already built (packaging/debian/build-deb.sh), lint it (no error; only the
 # warnings of tests/package/lintian-warnings.txt), install it with dpkg -i, verify every
 # installed systemd unit with systemd-analyze, run the installed bassd the way its unit does
 # (the capability set, no_new_privs, the RT and memlock limits) on sim:pattern and check what
@@ -55,7 +55,7 @@ cleanup() {
 trap cleanup EXIT
 
 # 1. Build (no cargo: the binaries of make build-all).
-DEB=$(timeout 300 "$ROOT/broker/debian/build-deb.sh" "$WORK/deb" | tail -1) || fail "build-deb.sh failed"
+DEB=$(timeout 300 "$ROOT/packaging/debian/build-deb.sh" "$WORK/deb" | tail -1) || fail "build-deb.sh failed"
 [[ -f $DEB ]] || fail "no package built"
 say "built $(basename "$DEB") ($(du -k "$DEB" | cut -f1) KiB) in $((SECONDS - T0)) s"
 grep -q 'libasound2' <<<"$(dpkg-deb -f "$DEB" Depends)" || fail "Depends lacks libasound2: $(dpkg-deb -f "$DEB" Depends)"

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # make test-systemd: bass under a real systemd (root). A minimal Debian root (debootstrap
 # --variant=minbase with systemd, built once and kept in $BASS_SYSROOT_CACHE, default
-# /var/tmp/bass-sysroot-cache) gets the package (broker/debian/build-deb.sh) with dpkg -i
+# /var/tmp/bass-sysroot-cache) gets the package (packaging/debian/build-deb.sh) with dpkg -i
 # and a start-up acquisition in /etc/bass/bassd.conf, and is booted with systemd as PID 1 of
 # its own pid namespace (unshare + chroot; systemd-nspawn -b cannot run here). In it:
 #   1. bassd.service starts at boot and reaches READY (Type=notify): active, STATUS capturing;
@@ -47,7 +47,7 @@ cleanup() {
 }
 trap cleanup EXIT
 
-DEB=$(timeout 300 "$ROOT/broker/debian/build-deb.sh" "$WORK/deb" | tail -1) || fail "build-deb.sh failed"
+DEB=$(timeout 300 "$ROOT/packaging/debian/build-deb.sh" "$WORK/deb" | tail -1) || fail "build-deb.sh failed"
 # The root holds systemd and what the package depends on (names of its Depends).
 deps=$(dpkg-deb -f "$DEB" Depends | tr ',|' '\n\n' | sed 's/(.*//; s/ //g' | grep -v '^$' | sort -u | paste -sd, -)
 INCLUDE=systemd,systemd-sysv,dbus,$deps

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Builds the Debian package of bass from binaries already built (`make deb` builds them
-# first): broker/debian/build-deb.sh OUTDIR  ->  OUTDIR/bass_VERSION-1_ARCH.deb (path printed
+# first): packaging/debian/build-deb.sh OUTDIR  ->  OUTDIR/bass_VERSION-1_ARCH.deb (path printed
 # on the last line).
 #
 # A plain dpkg-deb layout, no debhelper or cargo-deb: `make install-files DESTDIR=STAGE
@@ -14,7 +14,7 @@
 set -euo pipefail
 [[ $# -eq 1 ]] || { echo "usage: $0 OUTDIR" >&2; exit 2; }
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
-HERE=$ROOT/broker/debian
+HERE=$ROOT/packaging/debian
 mkdir -p "$1"
 OUT=$(cd "$1" && pwd)
 VERSION=$(sed -n 's/^version = "\(.*\)"/\1/p' "$ROOT/Cargo.toml" | head -1)

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Installs the systemd units, the example configurations and the service documentation
-# (called by `make install`): broker/systemd/install-units.sh INSTALL_ROOT PREFIX
+# (called by `make install`): packaging/systemd/install-units.sh INSTALL_ROOT PREFIX
 #   INSTALL_ROOT  where files go ($DESTDIR$PREFIX)
 #   PREFIX        where they will be at run time (the units name PREFIX/bin/bassd)
 # Units go to INSTALL_ROOT/lib/systemd/system (for PREFIX /usr/local: /usr/local/lib/systemd/
