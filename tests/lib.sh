@@ -3,19 +3,25 @@
 # that waits for its socket. A suite sets SUITE (its name in messages) before sourcing.
 #   BASS_BIN_DIR  where bassd, bass and libbassclient.so are (default <target>/release)
 TOP=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
-BIN=${BASS_BIN_DIR:-${CARGO_TARGET_DIR:-$TOP/target}/release}
+TARGET=${CARGO_TARGET_DIR:-$TOP/target}
+BIN=${BASS_BIN_DIR:-$TARGET/release}
 : "${SUITE:=tests}"
 passed=0
 failed=0
+FAILED=()
 PIDS=()
 
 say() { echo "$SUITE: $*"; }
+# A suite that stops at its first failure says why and exits 1.
+fail() { echo "$SUITE: FAIL: $*" >&2; exit 1; }
 ok() { passed=$((passed + 1)); echo "ok   $*"; }
-bad() { failed=$((failed + 1)); echo "FAIL $*"; }
+bad() { failed=$((failed + 1)); FAILED+=("$*"); echo "FAIL $*"; }
 
-# The suite's verdict: the counts, and a status that fails when anything did.
+# The suite's verdict: the counts (and what failed), and a status that fails when anything did.
 summary() {
   echo "$SUITE: $passed passed, $failed failed"
+  local f
+  for f in "${FAILED[@]}"; do echo "$SUITE:   failed: $f"; done
   [[ $failed == 0 ]]
 }
 

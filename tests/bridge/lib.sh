@@ -12,10 +12,11 @@
 # A case file calls `rig_up`, runs its checks with `ok`/`bad`, and ends with `rig_done`
 # (exit 0 only if nothing failed). Assertions are on counts and contents, never on timings.
 set -euo pipefail
-ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
-TARGET=${CARGO_TARGET_DIR:-$ROOT/target}
-BIN=$TARGET/release
 CASE=$(basename "${0%.sh}")
+# The shell suites' rig: TOP, BIN, ok/bad and the verdict (summary), PIDS.
+SUITE=$CASE
+source "$(dirname "${BASH_SOURCE[0]}")/../lib.sh"
+ROOT=$TOP
 cd "$ROOT"
 if [[ $(id -u) -ne 0 ]]; then echo "$CASE: needs root (network namespaces)"; exit 1; fi
 
@@ -25,9 +26,6 @@ WORK=$(mktemp -d "/tmp/bass-bridge-$CASE.XXXXXX")
 DIR_A=$WORK/a; DIR_B=$WORK/b; DIR_C=$WORK/c; mkdir -p "$DIR_A" "$DIR_B" "$DIR_C"
 ADDR_A=fd00:ba55::1; ADDR_B=fd00:ba55::2; ADDR_C=fd00:ba55::3
 EP="tcp/[$ADDR_A]:7447"
-PIDS=()
-FAILED=()
-PASS=0; FAIL=0
 RATE=48000; NFPC=480; NCOP=50
 # Open bridges in the rig (the suite's own namespaces): the security cases drop this.
 INSECURE=(--insecure)
@@ -82,13 +80,11 @@ IN_A=(ip netns exec "$NS_A" env BASS_RUNTIME_DIR="$DIR_A")
 IN_B=(ip netns exec "$NS_B" env BASS_RUNTIME_DIR="$DIR_B")
 IN_C=(ip netns exec "$NS_C" env BASS_RUNTIME_DIR="$DIR_C")
 
-ok()   { echo "  ok: $*"; PASS=$((PASS + 1)); }
-bad()  { echo "  FAIL: $*"; FAIL=$((FAIL + 1)); FAILED+=("$*"); }
 field() { python3 -c "import json,sys; print(json.loads(sys.argv[1])[sys.argv[2]])" "$1" "$2"; }
 # status KEY [FILE]: a field of the mirror's status file.
 status() { python3 -c "import json,sys; print(json.load(open(sys.argv[1]))[sys.argv[2]])" "${2:-$DIR_B/status.json}" "$1"; }
 
-start_bassd() {
+start_source() {
   "${IN_A[@]}" "$BIN/bassd" --name src --rt-priority 0 --acquire sim:pattern --rate $RATE \
     --frames $NFPC --chunks $NCOP --channels 2 >>"$WORK/bassd.log" 2>&1 &
   BASSD=$!; PIDS+=($BASSD)
@@ -129,12 +125,7 @@ rig_logs() {
   for f in "$WORK"/*.log; do [[ -f $f ]] && { echo "--- $(basename "$f")"; tail -25 "$f"; }; done
 }
 rig_done() {
-  echo "$CASE: $PASS passed, $FAIL failed"
-  if [[ $FAIL != 0 ]]; then
-    rig_logs
-    echo "$CASE: $FAIL failed:"; printf '  FAIL: %s\n' "${FAILED[@]}"
-    exit 1
-  fi
+  summary || { rig_logs; exit 1; }
   exit 0
 }
 # gone PID: the process has exited (a zombie not yet reaped counts as gone).

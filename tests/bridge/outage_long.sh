@@ -8,7 +8,7 @@
 CASE_LIMIT=$((OUTAGE + 120))
 source "$(dirname "$0")/../lib.sh"
 rig_up
-start_bassd; start_serve; start_mirror; wait_replica
+start_source; start_serve; start_mirror; wait_replica
 AFTER=12
 reader $((RATE * (2 + OUTAGE + AFTER))) $((OUTAGE + AFTER + 40)) >"$WORK/r.json" & R=$!
 # The documented readers beside it, each bounded by its own limit: they must ride through the

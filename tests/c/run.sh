@@ -3,9 +3,10 @@
 # it plain, under AddressSanitizer + UndefinedBehaviorSanitizer, and under valgrind's memcheck
 # (with the C examples: a C or C++ program run under memcheck must run clean).
 set -euo pipefail
-top=$(cd "$(dirname "$0")/../.." && pwd)
-lib="${CARGO_TARGET_DIR:-$top/target}/release"
-[[ -f "$lib/libbassclient.so" ]] || { echo "build first: cargo build --release" >&2; exit 1; }
+SUITE=tests/c
+source "$(dirname "$0")/../lib.sh"
+top=$TOP lib=$BIN
+need_built libbassclient.so
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 cc=${CC:-cc}

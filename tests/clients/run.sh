@@ -4,8 +4,9 @@
 # live port (bassd sim:pattern, else examples-c/sim_writer), the Octave tests and the
 # installation test.
 set -euo pipefail
-ROOT=$(cd "$(dirname "$0")/../.." && pwd)
-TARGET=${CARGO_TARGET_DIR:-$ROOT/target}
+SUITE=tests/clients
+source "$(dirname "$0")/../lib.sh"
+ROOT=$TOP
 export CLIENTS_BIN=${CLIENTS_BIN:-$TARGET/clients}
 cd "$ROOT"
 

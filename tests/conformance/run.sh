@@ -4,8 +4,10 @@
 # every driver's output must equal vectors.txt byte for byte.
 set -euo pipefail
 HERE=$(cd "$(dirname "$0")" && pwd)
-ROOT=$(cd "$HERE/../.." && pwd)
-TARGET=${CARGO_TARGET_DIR:-$ROOT/target}
+SUITE=tests/conformance
+source "$HERE/../lib.sh"
+ROOT=$TOP
+# The drivers tests/clients/build.sh built.
 BIN=${CLIENTS_BIN:-$TARGET/clients}
 VEC=$HERE/vectors.txt
 OUT=$(mktemp -d)

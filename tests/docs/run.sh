@@ -6,12 +6,11 @@
 # compiled and run by tests/clients/install_test.sh.
 #   BASS_BIN_DIR  where bassd, bass and libbassclient.so(.0) are (default <target>/release)
 set -euo pipefail
-ROOT=$(cd "$(dirname "$0")/../.." && pwd)
-TARGET=${CARGO_TARGET_DIR:-$ROOT/target}
-BIN=$(cd "${BASS_BIN_DIR:-$TARGET/release}" && pwd)
-for f in bassd bass libbassclient.so libbassclient.so.0; do
-  [[ -e $BIN/$f ]] || { echo "tests/docs: $BIN/$f missing (cargo build --release)" >&2; exit 1; }
-done
+SUITE=tests/docs
+source "$(dirname "$0")/../lib.sh"
+ROOT=$TOP
+need_built bassd bass libbassclient.so libbassclient.so.0
+BIN=$(cd "$BIN" && pwd)
 MEXDIR=$TARGET/docs-test/matlab
 opts=()
 if command -v octave >/dev/null && command -v mkoctfile >/dev/null; then

@@ -15,18 +15,16 @@
 # Knobs: BASS_FAULTS_TORN_SECS (60), BASS_FAULTS_SOAK_FRAMES (4.5e9), BASS_FAULTS_KILLS (100),
 # BASS_FAULTS_SEED, BASS_FAULTS_MIRI=0 to skip Miri.
 set -euo pipefail
-top=$(cd "$(dirname "$0")/../.." && pwd)
+SUITE=faults
+source "$(dirname "$0")/../lib.sh"
+top=$TOP target=$TARGET
 cd "$top"
-target="${CARGO_TARGET_DIR:-$top/target}"
 export CARGO_TARGET_DIR="$target"
 cargo=${CARGO:-cargo}
 out="$target/faults"
 rm -rf "$out"
 mkdir -p "$out"
 log="$out/log.txt"
-passed=0
-failed=0
-failures=()
 t0=$SECONDS
 
 step() { # name, command...
@@ -37,12 +35,9 @@ step() { # name, command...
   last_ok=0
   if "$@" 2>&1 | tee -a "$log"; then
     last_ok=1
-    passed=$((passed + 1))
-    echo "== faults: $name: ok ($((SECONDS - s)) s)"
+    ok "$name ($((SECONDS - s)) s)"
   else
-    failed=$((failed + 1))
-    failures+=("$name")
-    echo "== faults: $name: FAILED ($((SECONDS - s)) s)"
+    bad "$name ($((SECONDS - s)) s)"
   fi
 }
 
@@ -115,8 +110,4 @@ echo
 echo "== faults: measured figures ($out/figures.txt)"
 cat "$out/figures.txt"
 echo "== faults: $((SECONDS - t0)) s"
-if ((failed > 0)); then
-  printf '== faults: FAILED: %s\n' "${failures[@]}"
-fi
-echo "faults: $passed passed, $failed failed"
-((failed == 0))
+summary

@@ -13,10 +13,10 @@
 # purge the package and check that none of its files is left. Every step is bounded in time; nothing skips; the machine is left as
 # it was found, also on failure (the group bass, if this test created it, is removed too).
 set -euo pipefail
-ROOT=$(cd "$(dirname "$0")/../.." && pwd)
+SUITE=test-package
+source "$(dirname "$0")/../lib.sh"
+ROOT=$TOP
 T0=$SECONDS
-say() { echo "test-package: $*"; }
-fail() { echo "test-package: FAIL: $*" >&2; exit 1; }
 
 [[ $(id -u) -eq 0 ]] || fail "needs root (dpkg -i, dpkg --purge)"
 for t in dpkg-deb dpkg-shlibdeps lintian systemd-analyze pkg-config cc strace setpriv prlimit timeout readelf python3 getent ss octave mkoctfile; do

@@ -21,10 +21,10 @@
 # It prints the restart gaps (frames, ms of audio, last chunk before to first after), the events.
 # In `make test`: about 60 s, plus about 2 minutes of debootstrap (network) the first time on a machine.
 set -euo pipefail
-ROOT=$(cd "$(dirname "$0")/../.." && pwd)
+SUITE=test-systemd
+source "$(dirname "$0")/../lib.sh"
+ROOT=$TOP
 T0=$SECONDS
-say() { echo "test-systemd: $*"; }
-fail() { echo "test-systemd: FAIL: $*" >&2; exit 1; }
 [[ $(id -u) -eq 0 ]] || fail "needs root (chroot, unshare, dpkg in the root)"
 for t in debootstrap unshare nsenter chroot cc timeout; do
   command -v "$t" >/dev/null || fail "$t missing (apt-get install debootstrap util-linux gcc)"

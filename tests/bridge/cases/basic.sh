@@ -7,7 +7,7 @@ source "$(dirname "$0")/../lib.sh"
 rig_up
 
 echo "== 1. clean link"
-start_bassd; start_serve; start_mirror; wait_replica
+start_source; start_serve; start_mirror; wait_replica
 J=$(reader $((RATE * 3)) 20) || true
 check_exact "$J" "clean link"
 [[ $(field "$J" gap) == 0 && $(field "$J" lost) == 0 ]] && ok "clean link: no gap, no loss" || bad "clean link lost frames: $J"
@@ -45,7 +45,7 @@ check_exact "$J" "new epoch"
 echo "== 5. bassd killed upstream: replica in error, recovers with bassd and an Acquire"
 reader $((RATE * 4)) 30 > "$WORK/r5.json" & R=$!
 sleep 1; kill -9 $BASSD 2>/dev/null || true; sleep 2
-start_bassd
+start_source
 wait $R || true; J=$(cat "$WORK/r5.json")
 check_exact "$J" "bassd killed"
 (( $(field "$J" errors) >= 1 )) && ok "bassd killed: readers of the replica saw a device error" || bad "no error seen: $J"

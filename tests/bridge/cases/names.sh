@@ -21,7 +21,7 @@ OUT=$(inB timeout 10 "$BIN/bass" --name src2 status 2>&1) && grep -q capturing <
   && ok "bass --name src2 status still reaches the local bassd" || bad "local bassd lost its socket: $OUT"
 
 echo "== a second mirror with the name of a first is refused; the first goes on"
-start_bassd; start_serve; start_mirror
+start_source; start_serve; start_mirror
 wait_replica
 RC=0; OUT=$(inB timeout 10 "$BB" "${mirror_args[@]}" --name rep 2>&1) || RC=$?
 [[ $RC == 2 ]] && grep -q "pid $MIRROR (bass-bridge)" <<<"$OUT" && ok "second mirror refused naming the first: $(tail -1 <<<"$OUT" | cut -c1-220)" \

@@ -5,7 +5,7 @@
 # outage-long-* (15 s, 60 s).
 source "$(dirname "$0")/../lib.sh"
 rig_up
-start_bassd; start_serve; start_mirror; wait_replica
+start_source; start_serve; start_mirror; wait_replica
 
 echo "== robot's address removed for 6 s, then back"
 reader $((RATE * 16)) 50 >"$WORK/r1.json" & R=$!

@@ -54,7 +54,7 @@ same_as_source() {
   fi
 }
 
-start_bassd; start_serve; start_mirror; wait_replica
+start_source; start_serve; start_mirror; wait_replica
 new_replicas() { grep -c 'new replica' "$WORK/mirror.log" || true; }
 more_replicas_than() { (( $(new_replicas) > $1 )); }
 # The mirror makes at most one new replica a second: let the first one age.

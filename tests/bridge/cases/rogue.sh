@@ -11,7 +11,7 @@ source "$(dirname "$0")/../lib.sh"
 rig_up
 ROGUE_EP="tcp/[$ADDR_B]:7450"
 
-start_bassd; start_serve; start_mirror --listen "$ROGUE_EP"
+start_source; start_serve; start_mirror --listen "$ROGUE_EP"
 wait_replica
 # The clock estimate needs a few rounds from the real source first (a sane estimate exists).
 wait_for 10 bash -c "python3 -c \"import json,sys; sys.exit(json.load(open('$DIR_B/status.json'))['clock_offset_ns'] is None)\"" \

@@ -40,7 +40,7 @@ PY
 ); then ok "bass_msgs: $P"; else bad "bass_msgs package: $P"; fi
 
 echo "== 1. peer to peer: serve --ros2 beside a mirror"
-start_bassd; wait_port "$DIR_A" src
+start_source; wait_port "$DIR_A" src
 start_serve --ros2; start_mirror; wait_replica
 wait_for 10 grep -q 'Zenoh session open' "$WORK/serve.log" || bad "serve never opened its session"
 Z=$(zid_of "$WORK/serve.log")

@@ -34,7 +34,7 @@ for id in ws1 ws2; do
   $BB credentials "$C/$id.cred" --trust "$C/robot.pub" 2>/dev/null
   $BB credentials "$C/robot.cred" --trust "$C/$id.pub" 2>/dev/null
 done
-start_bassd; wait_port "$DIR_A" src
+start_source; wait_port "$DIR_A" src
 
 # judge LABEL ACL(on|off) CONSUMER_JSON FORGER_JSON
 judge() {

@@ -54,7 +54,7 @@ RC=0; OUT=$(inA timeout 10 $BB serve --name src --listen "$EP" --no-scouting --c
 [[ $RC == 2 ]] && grep -q "old shared-password credentials file" <<<"$OUT" && ! grep -q 0123456789abcdef <<<"$OUT" \
   && ok "a version-1 file is refused, saying why, without its content" || bad "old file (exit $RC): $OUT"
 
-start_bassd
+start_source
 start_serve --listen "$EP_C" --credentials "$C/robot.cred" --allow-control ws1
 "${IN_B[@]}" $BB mirror --source src --name rep --connect "$EP" --listen "$WS1_EP" --no-scouting --timeout 1 \
   --credentials "$C/ws1.cred" --status-file "$DIR_B/status.json" >>"$WORK/mirror.log" 2>&1 &

@@ -12,7 +12,7 @@ rig_up
 EP2="tcp/[$ADDR_A]:7449"
 IN_A2=(ip netns exec "$NS_A" env BASS_RUNTIME_DIR="$DIR_C")
 
-start_bassd
+start_source
 "${IN_A2[@]}" "$BIN/bassd" --name src --rt-priority 0 --acquire sim:pattern --rate $RATE \
   --frames $NFPC --chunks $NCOP --channels 2 >>"$WORK/bassd2.log" 2>&1 &
 PIDS+=($!)
