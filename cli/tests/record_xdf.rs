@@ -84,7 +84,8 @@ fn a_name_ending_in_xdf_is_an_xdf_file_and_bits_are_refused() {
 fn same_in_the_xdf_crate(path: &Path, v: &Value) {
     let f = xdf::XDFFile::from_bytes(&std::fs::read(path).unwrap()).expect("the xdf crate reads the file");
     let audio = f.streams.iter().find(|s| s.r#type.as_deref() == Some("Audio")).expect("an Audio stream");
-    let markers = f.streams.iter().find(|s| s.r#type.as_deref() == Some("Markers")).expect("a Markers stream");
+    let markers =
+        f.streams.iter().find(|s| s.r#type.as_deref() == Some("Markers")).expect("a Markers stream");
     assert_eq!((audio.channel_count, audio.nominal_srate), (2, Some(8000.0)));
     assert_eq!(markers.samples.len() as u64, v["nmarkers"].as_u64().unwrap());
     let (first, stamps) = (v["first"].as_u64().unwrap(), v["stamps"].as_array().unwrap());
