@@ -63,6 +63,10 @@ fi
 if ! python3 -c 'import importlib.metadata as m, mcap, mcap_ros2, rosbags; assert (m.version("mcap"), m.version("mcap-ros2-support"), m.version("rosbags")) == ("1.6.0", "0.6.0", "0.11.9")' 2>/dev/null; then
   python3 -m pip install -q mcap==1.6.0 mcap-ros2-support==0.6.0 rosbags==0.11.9 2>/dev/null || python3 -m pip install -q --break-system-packages mcap==1.6.0 mcap-ros2-support==0.6.0 rosbags==0.11.9
 fi
+# The XDF reader of the recording suite (tests/replay/xdf_check.py, cli/tests/record_xdf.rs).
+if ! python3 -c 'import importlib.metadata as m, pyxdf; assert m.version("pyxdf") == "1.17.5"' 2>/dev/null; then
+  python3 -m pip install -q pyxdf==1.17.5 2>/dev/null || python3 -m pip install -q --break-system-packages pyxdf==1.17.5
+fi
 # The Lab Streaming Layer inlet of the client suite (tests/clients/test_lsl.py) and the liblsl
 # its wheel ships, which `bass lsl` loads at run time.
 if ! python3 -c 'import importlib.metadata as m, pylsl; assert m.version("pylsl") == "1.18.6"' 2>/dev/null; then

@@ -12,6 +12,7 @@
 //! - [`record`]: `bass record FILE.wav` with its timestamp sidecar, and `--check`;
 //! - [`wav`]: the WAV writer, header parser and repair of `bass record`;
 //! - [`lsl`]: `bass lsl`, the port as a Lab Streaming Layer stream with loss markers;
+//! - [`labstream`]: what `bass lsl` and an XDF recording say alike (desc, stamps, markers);
 //! - [`exit`]: the documented exit codes and how errors map onto them;
 //! - [`out`]: stdout and stderr as Unix tools use them (a closed pipe ends a command quietly).
 #![forbid(unsafe_code)]
@@ -20,6 +21,7 @@ pub mod bass;
 pub mod blocks;
 pub mod exit;
 pub mod follow;
+pub mod labstream;
 pub mod lsl;
 pub mod meter;
 pub mod out;

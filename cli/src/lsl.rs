@@ -19,6 +19,7 @@ use bassport::{ChunkInfo, Error, Port};
 
 use crate::exit::{self, Exit};
 use crate::follow::{after_stop, open_port, AfterStop, Outage};
+use crate::labstream::{self, zero_filled, Run, ZeroRuns, GAP, OVERRUN};
 use crate::out::{note, outln};
 
 /// `bass lsl` options.
@@ -53,13 +54,7 @@ struct Totals {
 pub fn run(name: &str, a: &LslArgs, timeout: Duration) -> Result<()> {
     let lsl = Lsl::load(a.liblsl.as_deref()).map_err(|e| Exit::new(exit::USAGE, e))?;
     let offset = lsl.clock_offset_s(|| monotonic_ns() as f64 / 1e9);
-    let stream = a.stream.clone().unwrap_or_else(|| {
-        if name == "default" {
-            "bass".into()
-        } else {
-            format!("bass-{name}")
-        }
-    });
+    let stream = a.stream.clone().unwrap_or_else(|| labstream::stream_name(name));
     let end = a.seconds.and_then(|s| Instant::now().checked_add(Duration::from_secs_f64(s)));
     let mut port = open_port(name, timeout, None)?;
     let mut totals = Totals::default();
@@ -77,7 +72,7 @@ pub fn run(name: &str, a: &LslArgs, timeout: Duration) -> Result<()> {
             "lsl: streams {stream:?} (Audio, {} ch int32, {} Hz) and {:?} (Markers) from port {name}, epoch {epoch}",
             port.geometry().channels,
             port.geometry().sample_rate,
-            format!("{stream}-loss")
+            labstream::marker_stream_name(&stream)
         )?;
         let ended = outlets.follow(name, &port, offset, end, timeout, &mut outage, &mut totals)?;
         match ended {
@@ -117,25 +112,10 @@ struct Outlets<'a> {
 impl<'a> Outlets<'a> {
     fn new(lsl: &'a Lsl, stream: &str, name: &str, port: &Port) -> Result<Outlets<'a>> {
         let g = port.geometry();
-        let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
-            .map(|h| h.trim().to_owned())
-            .unwrap_or_default();
-        let mut desc: Vec<(String, String)> = vec![
-            ("acquisition/manufacturer".into(), "bass".into()),
-            ("bass/broker".into(), name.into()),
-            ("bass/host".into(), host.clone()),
-            ("bass/epoch".into(), port.epoch().to_string()),
-            ("bass/frames_per_chunk".into(), g.frames_per_chunk.to_string()),
-            ("bass/chunks_on_port".into(), g.chunks_on_port.to_string()),
-            ("bass/frame_indexing".into(), "frames are numbered from 1 at the start of the acquisition (epoch); the k-th sample of a chunk pushed is frame first_frame + k; a loss marker names the frames not pushed".into()),
-            ("bass/timestamps".into(), "each sample's capture time: the chunk's first-frame CLOCK_MONOTONIC stamp plus its offset at the nominal rate, in LSL's clock".into()),
-        ];
-        for c in 0..g.channels {
-            desc.push((format!("channels/channel#{c}/label"), format!("ch{c}")));
-            desc.push((format!("channels/channel#{c}/unit"), "int32 full scale".into()));
-            desc.push((format!("channels/channel#{c}/type"), "Audio".into()));
-        }
-        let source = format!("bass:{host}:{name}");
+        let host = labstream::hostname();
+        let channels: Vec<u32> = (0..g.channels).collect();
+        let desc = labstream::audio_desc(name, &host, port.epoch(), g, &channels, labstream::Clock::Lsl);
+        let source = labstream::source_id(&host, name);
         let audio = lsl
             .outlet(&StreamSpec {
                 name: stream,
@@ -147,10 +127,10 @@ impl<'a> Outlets<'a> {
                 desc: &desc,
             })
             .map_err(anyhow::Error::msg)?;
-        let marker_desc = vec![("bass/audio_stream".to_owned(), stream.to_owned())];
+        let marker_desc = labstream::marker_desc(stream);
         let markers = lsl
             .outlet(&StreamSpec {
-                name: &format!("{stream}-loss"),
+                name: &labstream::marker_stream_name(stream),
                 kind: "Markers",
                 channels: 1,
                 rate: 0.0,
@@ -164,14 +144,11 @@ impl<'a> Outlets<'a> {
 
     /// The LSL time of frame `frame` of the chunk described by `ci`.
     fn time_of(&self, ci: &ChunkInfo, frame: u64, offset: f64) -> f64 {
-        ci.mono_ns as f64 / 1e9 + (frame as f64 - ci.first_frame as f64) / self.rate + offset
+        labstream::stamp_s(ci.mono_ns, ci.first_frame, frame, self.rate) + offset
     }
 
     fn marker(&self, first_frame: u64, frames: u64, cause: &str, t: f64, totals: &mut Totals) -> Result<()> {
-        let text = format!(
-            r#"{{"first_frame":{first_frame},"frames":{frames},"cause":"{cause}","epoch":{}}}"#,
-            self.epoch
-        );
+        let text = labstream::marker_json(first_frame, frames, cause, self.epoch);
         self.markers.push_str(&text, t).map_err(anyhow::Error::msg)?;
         totals.markers += 1;
         Ok(())
@@ -196,8 +173,7 @@ impl<'a> Outlets<'a> {
         let mut bufs = vec![vec![0i32; nfpc as usize]; ch];
         let mut interleaved = Vec::with_capacity(nfpc as usize * ch);
         let mut stamps = Vec::with_capacity(nfpc as usize);
-        // The run of zero-filled frames going on: first frame, frames, its LSL time.
-        let mut run: Option<(u64, u64, f64)> = None;
+        let mut run = ZeroRuns::default();
         let ended = loop {
             if end.is_some_and(|e| Instant::now() >= e) {
                 break Ended::Limit;
@@ -239,13 +215,13 @@ impl<'a> Outlets<'a> {
                 // a stamp, counted as lost.
                 self.end_run(&mut run, totals)?;
                 totals.lost += r.loss + r.frames as u64;
-                self.marker(before, r.loss + r.frames as u64, "overrun", self.rate_time_now(offset), totals)?;
+                self.marker(before, r.loss + r.frames as u64, OVERRUN, self.rate_time_now(offset), totals)?;
                 continue;
             };
             if r.loss > 0 {
                 self.end_run(&mut run, totals)?;
                 totals.lost += r.loss;
-                self.marker(before, r.loss, "overrun", self.time_of(&ci, before, offset), totals)?;
+                self.marker(before, r.loss, OVERRUN, self.time_of(&ci, before, offset), totals)?;
             }
             // The zero-filled frames: a GAP chunk's, and the zeros of a chunk flagged
             // DISCONTINUITY (where a gap begins or ends inside a chunk); one marker per run,
@@ -253,12 +229,9 @@ impl<'a> Outlets<'a> {
             let flagged = ci.flags & (chunk_flags::GAP | chunk_flags::DISCONTINUITY) != 0;
             for i in 0..r.frames {
                 let f = first + i as u64;
-                let zero = flagged && (ci.flags & chunk_flags::GAP != 0 || bufs.iter().all(|b| b[i] == 0));
-                match (&mut run, zero) {
-                    (Some((_, n, _)), true) => *n += 1,
-                    (None, true) => run = Some((f, 1, self.time_of(&ci, f, offset))),
-                    (Some(_), false) => self.end_run(&mut run, totals)?,
-                    (None, false) => {}
+                let zero = zero_filled(ci.flags, bufs.iter().all(|b| b[i] == 0));
+                if let Some(ended) = run.frame(f, zero, || self.time_of(&ci, f, offset)) {
+                    self.gap_marker(ended, totals)?;
                 }
             }
             if !flagged {
@@ -277,13 +250,18 @@ impl<'a> Outlets<'a> {
         Ok(ended)
     }
 
-    /// The gap marker of the run of zero-filled frames `run` (if any), which ends here.
-    fn end_run(&self, run: &mut Option<(u64, u64, f64)>, totals: &mut Totals) -> Result<()> {
-        if let Some((first, frames, t)) = run.take() {
-            totals.gap += frames;
-            self.marker(first, frames, "gap", t, totals)?;
+    /// The gap marker of the run of zero-filled frames going on (if any), which ends here.
+    fn end_run(&self, run: &mut ZeroRuns, totals: &mut Totals) -> Result<()> {
+        match run.end() {
+            Some(ended) => self.gap_marker(ended, totals),
+            None => Ok(()),
         }
-        Ok(())
+    }
+
+    /// The gap marker of a run of zero-filled frames that ended.
+    fn gap_marker(&self, run: Run, totals: &mut Totals) -> Result<()> {
+        totals.gap += run.frames;
+        self.marker(run.first_frame, run.frames, GAP, run.stamp, totals)
     }
 
     /// Now, in LSL's clock (for a marker whose frames have no stamp left).

@@ -100,7 +100,9 @@ impl Lsl {
 
     /// A stream outlet: `name`, `kind` (LSL's content type, e.g. "Audio"), `channels`,
     /// `rate` (0: irregular), `format`, `source_id`; `desc` adds `(path, value)` elements to the
-    /// stream's description (`path` like "bass/broker" creates the parents as needed, in order).
+    /// stream's description (`path` like "bass/broker" creates the parents as needed, in order;
+    /// a part `name#key` is an element `name`, the key only telling siblings apart, as in
+    /// "channels/channel#0/label").
     pub fn outlet(&self, s: &StreamSpec<'_>) -> Result<Outlet<'_>, String> {
         let c = |v: &str, what: &str| CString::new(v).map_err(|_| format!("{what} {v:?} contains a NUL"));
         let info = self.api.create_streaminfo(
@@ -125,13 +127,13 @@ impl Lsl {
                 parent = match made.iter().find(|(p, _)| *p == so_far) {
                     Some((_, e)) => *e,
                     None => {
-                        let e = self.api.append_child(parent, &c(part, "element")?);
+                        let e = self.api.append_child(parent, &c(element_name(part), "element")?);
                         made.push((so_far.clone(), e));
                         e
                     }
                 };
             }
-            self.api.append_child_value(parent, &c(leaf, "element")?, &c(value, "value")?);
+            self.api.append_child_value(parent, &c(element_name(leaf), "element")?, &c(value, "value")?);
         }
         let outlet = self.api.create_outlet(info, 0, 360);
         self.api.destroy_streaminfo(info);
@@ -205,6 +207,11 @@ impl Drop for Outlet<'_> {
     fn drop(&mut self) {
         self.lsl.api.destroy_outlet(self.outlet);
     }
+}
+
+/// The element name of a description path part (`channel#3` → `channel`).
+fn element_name(part: &str) -> &str {
+    part.split_once('#').map_or(part, |(name, _)| name)
 }
 
 #[cfg(test)]

@@ -17,6 +17,13 @@
 #   mcap-loss      sim:pattern with the recorder stopped: a loss inside, every sample checked
 #   mcap-renumber  mcap-gap replayed from frame 1
 #   mcap-refused   a replay with another chunk size is refused, naming the recording's
+# and `bass record --format xdf` (FILE.xdf), checked by `bass record --check` and by PyPI
+# pyxdf (tests/replay/xdf_check.py) against a WAV + sidecar recorded beside it: every sample,
+# every stamp (its chunk's CLOCK_MONOTONIC + offset / rate, within 1 us), every marker:
+#   xdf-gap   sim:xrun recorded beside gap-ends: the zero-filled runs as gap markers
+#   xdf-loss  sim:pattern, --channels 1,0, the recorder stopped longer than the window: the
+#             frames it lost as one overrun marker, not as samples
+#   xdf-kill  a recorder SIGKILLed between two checkpoints: a file without footers pyxdf reads
 # Assertions are on indices, samples, losses and flags; the stops only create the conditions.
 set -euo pipefail
 SUITE=tests/replay
@@ -104,10 +111,14 @@ sidecar_has() {
 bass acquire sim:xrun -r 8000 --frames 100 --chunks 200 -c 2 >/dev/null
 gap=$work/rec/gap-ends.wav
 gap_bag=$work/rec/gap-mcap
+gap_xdf=$work/rec/gap.xdf
 bass record --format mcap "$gap_bag" --from 4001 --frames 4800 -q --json >"$work/gap-mcap.json" &
 rec=$!
+bass record "$gap_xdf" --from 4001 --frames 4800 -q --json >"$work/gap-xdf.json" &
+rec_xdf=$!
 bass record "$gap" --from 4001 --frames 4800 -q
 wait "$rec" || bad "mcap-gap: bass record --format mcap failed"
+wait "$rec_xdf" || bad "xdf-gap: bass record FILE.xdf failed"
 if sidecar_has "$gap" 's["chunks"][0]["flags"] & 1 and s["chunks"][-1]["flags"] & 1 and s["recording"]["first_frame"] == 4001'; then
   replay gap-ends "$gap"
 else
@@ -177,5 +188,57 @@ elif [[ $out == *"recorded with 100 frames per chunk"* ]]; then
 else
   bad "mcap-refused: refused, but not for the chunk size: $out"
 fi
+
+# xdf_check CASE XDF ARGS...: `bass record --check`, then pyxdf's reading against the WAV.
+xdf_check() {
+  local case=$1 file=$2; shift 2
+  if ! out=$(bass record --check "$file" 2>&1); then
+    bad "$case: bass record --check: $out"; return
+  fi
+  ok "$case: bass record --check: $out"
+  if out=$(python3 "$top/tests/replay/xdf_check.py" "$file" "$@" 2>&1); then
+    ok "$case: $out"
+  else
+    bad "$case: $out"
+  fi
+}
+
+# 8. XDF: the sim:xrun recording made beside gap-ends.
+xdf_check xdf-gap "$gap_xdf" --wav "$gap" --recorder "$work/gap-xdf.json" --expect-gap
+
+# 9. XDF with a loss inside: sim:pattern, a 1000-frame window, channels 1 and 0 recorded, the
+# XDF recorder stopped 0.6 s; a WAV recorder beside it (from the oldest frame, not stopped)
+# holds every frame and row.
+bass acquire sim:pattern -r 8000 --frames 100 --chunks 10 -c 2 >/dev/null
+loss_wav=$work/rec/loss-beside.wav
+loss_xdf=$work/rec/loss.xdf
+"$bin/bass" record "$loss_wav" --from oldest --frames 20000 -q &
+wrec=$!
+"$bin/bass" record "$loss_xdf" --frames 12000 --channels 1,0 -q --json >"$work/loss-xdf.json" &
+rec=$!
+sleep 0.4
+kill -STOP "$rec"; sleep 0.6; kill -CONT "$rec"
+wait "$rec" || bad "xdf-loss: bass record FILE.xdf failed"
+wait "$wrec" || bad "xdf-loss: the WAV recorder beside it failed"
+xdf_check xdf-loss "$loss_xdf" --wav "$loss_wav" --channels 1,0 --recorder "$work/loss-xdf.json" --expect-loss
+
+# 10. XDF after a SIGKILL: the kill between two checkpoints (the size at rest for 200 ms;
+# chunks reach the disk once a second); a WAV recorder beside it holds the frames.
+bass acquire sim:pattern -r 8000 --frames 100 --chunks 200 -c 2 >/dev/null
+kill_wav=$work/rec/kill-beside.wav
+kill_xdf=$work/rec/kill.xdf
+"$bin/bass" record "$kill_wav" --from oldest --frames 40000 -q &
+wrec=$!
+"$bin/bass" record "$kill_xdf" -q &
+rec=$!
+size=0
+for _ in $(seq 100); do
+  before=$(stat -c %s "$kill_xdf" 2>/dev/null || echo 0); sleep 0.2
+  size=$(stat -c %s "$kill_xdf" 2>/dev/null || echo 0)
+  (( size > 20000 && size == before )) && break
+done
+kill -KILL "$rec"; wait "$rec" 2>/dev/null || true
+wait "$wrec" || bad "xdf-kill: the WAV recorder beside it failed"
+xdf_check xdf-kill "$kill_xdf" --wav "$kill_wav" --killed
 
 summary

@@ -15,7 +15,8 @@ const CHECKPOINT_SHARE: u32 = 100;
 
 /// The checkpoints: every [`CHECKPOINT_EVERY`], or less often when the last one took more
 /// than 1 / [`CHECKPOINT_SHARE`] of that (a long sidecar). An MCAP recording writes its
-/// records and the facts they amount to ([`super::mcap_out`]). The recorder flushes the WAV and
+/// records and the facts they amount to ([`super::mcap_out`]); an XDF recording its chunks
+/// ([`super::xdf_out`]). The recorder flushes the WAV and
 /// takes a snapshot of the sidecar; a thread writes the sidecar to a temporary file, patches
 /// the header sizes to the snapshot's frames, and renames the sidecar into place, so the
 /// reading never waits for a long sidecar.
@@ -37,12 +38,16 @@ impl Checkpoints {
         }
         if self.running.is_none() && self.last.elapsed() >= self.every {
             self.last = Instant::now();
+            if let Out::Xdf(x) = &mut rec.out {
+                // The chunks so far go to the disk, whole.
+                return x.checkpoint();
+            }
             if let Out::Mcap(m) = &rec.out {
                 // The messages so far go to the disk, closed by the facts they amount to.
                 let side = rec.sidecar(m.frames_in_messages(), IN_PROGRESS, true);
                 return match &mut rec.out {
                     Out::Mcap(m) => m.checkpoint(&side),
-                    Out::Wav(_) => unreachable!("an MCAP recording"),
+                    _ => unreachable!("an MCAP recording"),
                 };
             }
             let Out::Wav(w) = &mut rec.out else { unreachable!("a WAV recording") };

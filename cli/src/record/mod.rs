@@ -12,7 +12,9 @@
 //! recording, and made to agree with what reached the disk when a write fails.
 //! With `--format mcap` (or a FILE ending in `.mcap`) the same recording is one MCAP file of ROS 2
 //! messages ([`mcap_out`]), complete at every checkpoint; `--check` verifies it too
-//! ([`check_mcap`]). See docs/broker.md for the options, the rounding and what a kill loses.
+//! ([`check_mcap`]). With `--format xdf` (or a FILE ending in `.xdf`) it is one XDF file, the
+//! streams `bass lsl` publishes ([`xdf_out`]), checked by [`check_xdf`]. See docs/broker.md for
+//! the options, the rounding and what a kill loses.
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -31,16 +33,21 @@ use basskit::sidecar;
 
 mod check;
 mod check_mcap;
+mod check_xdf;
 mod checkpoint;
+mod ending;
 mod files;
 pub mod mcap_out;
 mod progress;
 mod recording;
 mod staged;
+pub mod xdf_out;
 
 pub use check::check;
 pub use check_mcap::check_mcap;
+pub use check_xdf::check_xdf;
 use checkpoint::Checkpoints;
+use ending::{close, summary};
 use files::{create, refuse_path};
 use progress::Progress;
 use recording::{Ended, Out, Recording, Step};
@@ -86,13 +93,14 @@ pub struct RecordArgs {
     /// --format mcap, the MCAP file if FILE ends in .mcap, else the bag directory to create
     /// (DIR/DIR_0.mcap and DIR/metadata.yaml)
     pub file: PathBuf,
-    /// wav (WAV + JSON sidecar) or mcap (ROS 2 audio_common_msgs AudioDataStamped, AudioInfo
-    /// and bass_msgs ChunkInfo messages, 32-bit samples) [default: mcap for a FILE ending in
-    /// .mcap, else wav]
+    /// wav (WAV + JSON sidecar), mcap (ROS 2 audio_common_msgs AudioDataStamped, AudioInfo
+    /// and bass_msgs ChunkInfo messages, 32-bit samples) or xdf (XDF 1.0: the audio and loss
+    /// marker streams of `bass lsl`) [default: mcap for a FILE ending in .mcap, xdf for .xdf,
+    /// else wav]
     #[arg(long, value_name = "FORMAT")]
     pub format: Option<OutFormat>,
-    /// Verify FILE (a WAV and its sidecar, or an MCAP recording: a .mcap file or a bag
-    /// directory) instead of recording (exit 0 and one "ok" line, else 1)
+    /// Verify FILE (a WAV and its sidecar, an MCAP recording: a .mcap file or a bag
+    /// directory, or an XDF file) instead of recording (exit 0 and one "ok" line, else 1)
     #[arg(long)]
     pub check: bool,
     /// WAV header: auto (EXTENSIBLE above 16 bits or 2 channels), pcm (plain, for any
@@ -141,10 +149,12 @@ pub fn convert(s: i32, bits: u16) -> i32 {
 }
 
 impl RecordArgs {
-    /// The format: `--format`, else MCAP for a name ending in `.mcap`.
+    /// The format: `--format`, else MCAP for a name ending in `.mcap`, XDF for `.xdf`.
     pub fn out_format(&self) -> OutFormat {
         self.format.unwrap_or(if mcap_out::is_mcap_name(&self.file) {
             OutFormat::Mcap
+        } else if xdf_out::is_xdf_name(&self.file) {
+            OutFormat::Xdf
         } else {
             OutFormat::Wav
         })
@@ -156,21 +166,24 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
     if a.check {
         return run_check(a);
     }
-    let mcap = a.out_format() == OutFormat::Mcap;
-    if mcap && a.bits != 32 {
+    let format = a.out_format();
+    let (mcap, xdf) = (format == OutFormat::Mcap, format == OutFormat::Xdf);
+    if (mcap || xdf) && a.bits != 32 {
+        let f = if mcap { "mcap" } else { "xdf" };
         return Err(Exit::new(
             exit::USAGE,
-            "--format mcap keeps the 32-bit samples as captured: leave out --bits",
+            format!("--format {f} keeps the 32-bit samples as captured: leave out --bits {}", a.bits),
         )
         .into());
     }
     let layout = mcap.then(|| mcap_out::Layout::of(&a.file));
     let side_path = match &layout {
         Some(l) => l.file().to_owned(),
+        None if xdf => a.file.clone(),
         None => sidecar::path_of(&a.file),
     };
     refuse_path(&a.file, a.force)?;
-    if layout.is_none() {
+    if !mcap && !xdf {
         refuse_path(&side_path, a.force)?;
     }
     let stop = Arc::new(AtomicBool::new(false));
@@ -179,7 +192,7 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
     }
     let port = open_port(name, timeout, None)?;
     let (spec, channels) = spec_of(a, &port)?;
-    let max_frames = if mcap {
+    let max_frames = if mcap || xdf {
         bassport::format::MAX_FRAME_INDEX
     } else {
         (WAV_LIMIT - spec.format.header_len()) / spec.frame_bytes()
@@ -199,6 +212,7 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
     let (acquisition, requested) = start_of(name, a, &port, timeout)?;
     let (out, side_file) = match &layout {
         Some(l) => (open_mcap(a, l, name, channels.len(), &port)?, None),
+        None if xdf => (xdf_out::open(a, name, &channels, &port)?, None),
         None => {
             let (w, f) = open_wav(a, &side_path, spec)?;
             (w, Some(f))
@@ -282,13 +296,23 @@ fn start_of(
 
 /// `bass record --check FILE`: a WAV and its sidecar, or an MCAP recording.
 fn run_check(a: &RecordArgs) -> Result<()> {
-    let mcap = a.out_format() == OutFormat::Mcap || a.file.is_dir();
-    let checked = if mcap { check_mcap(&a.file) } else { check(&a.file) };
+    let format = a.out_format();
+    let mcap = format == OutFormat::Mcap || a.file.is_dir();
+    let xdf = format == OutFormat::Xdf && !mcap;
+    let checked = if mcap {
+        check_mcap(&a.file)
+    } else if xdf {
+        check_xdf(&a.file)
+    } else {
+        check(&a.file)
+    };
     match checked {
         Ok(line) => outln!("{line}"),
         Err(problems) => {
             let what = if mcap {
                 format!("{}: not a complete bass MCAP recording", a.file.display())
+            } else if xdf {
+                format!("{}: not a well-formed bass XDF recording", a.file.display())
             } else {
                 format!("{} and its sidecar disagree", a.file.display())
             };
@@ -448,93 +472,6 @@ fn record_loop(
     end
 }
 
-/// Closes the recording (`Recording::finish`); a write that failed (now or while recording)
-/// is an error naming the file, the OS error and the frames kept.
-fn close(
-    a: &RecordArgs,
-    rec: &mut Recording,
-    reason: &str,
-    failure: Option<&Ended>,
-    layout: Option<&mcap_out::Layout>,
-) -> Result<sidecar::Sidecar> {
-    let disk_failed = matches!(failure, Some(Ended::Disk(_)));
-    let done = rec.finish(reason, disk_failed).map_err(|e| {
-        let what = match layout {
-            Some(l) => format!("the MCAP file {} could not be closed", l.file().display()),
-            None => format!("its sidecar {} could not be written", rec.side_path.display()),
-        };
-        Exit::new(
-            exit::FAILURE,
-            format!("{}: the recording ended ({reason}), but {what}: {e}", a.file.display()),
-        )
-    })?;
-    let error = match (failure, &done.error) {
-        (Some(Ended::Disk(e)), _) => Some(e.to_string()),
-        (_, Some(e)) => Some(e.to_string()),
-        _ if done.cut > 0 => Some("no space left for the sidecar".into()),
-        _ => None,
-    };
-    let Some(error) = error else { return Ok(done.side) };
-    let frames = done.side.recording.frames;
-    let text = match layout {
-        Some(l) => {
-            let cut = if done.cut > 0 {
-                format!(" (the last {} frames did not fit)", done.cut)
-            } else {
-                String::new()
-            };
-            format!(
-                "{}: {error}: the recording ends with {frames} frames written{cut}; the file is closed at its last checkpoint, without a summary (readers read it front to back; `bass record --check` passes it)",
-                l.file().display()
-            )
-        }
-        None => {
-            let room = if done.cut > 0 {
-                format!(" ({} frames cut to make room for the sidecar)", done.cut)
-            } else {
-                String::new()
-            };
-            format!(
-                "{}: {error}: the recording ends with {frames} frames written{room}; the header and the sidecar {} describe them",
-                a.file.display(),
-                rec.side_path.display()
-            )
-        }
-    };
-    Err(Exit::new(exit::FAILURE, text).into())
-}
-
-/// The summary line (or JSON object) of a finished recording.
-fn summary(
-    a: &RecordArgs,
-    r: &sidecar::Recording,
-    rec: &Recording,
-    layout: Option<&mcap_out::Layout>,
-) -> Result<()> {
-    if a.json {
-        return outln!("{}", serde_json::to_string(r)?);
-    }
-    if a.quiet {
-        return Ok(());
-    }
-    let head = format!(
-        "recorded {} frames ({:.3} s) from frame {} to {}: {} bytes, {} gap frames, {} frames lost by the recorder; {}",
-        r.frames,
-        r.seconds,
-        r.first_frame,
-        layout.map_or(a.file.as_path(), |l| l.file()).display(),
-        r.bytes,
-        r.gap_frames,
-        r.lost_frames,
-        r.end
-    );
-    match layout {
-        Some(mcap_out::Layout::Bag { dir, .. }) => outln!("{head}; bag directory {}", dir.display()),
-        Some(mcap_out::Layout::File(_)) => outln!("{head}"),
-        None => outln!("{head}; sidecar {}", rec.side_path.display()),
-    }
-}
-
 /// `--format`.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum OutFormat {
@@ -542,6 +479,8 @@ pub enum OutFormat {
     Wav,
     /// One MCAP file (ROS 2 messages, CDR): FILE.mcap, or a rosbag2 bag directory holding it
     Mcap,
+    /// One XDF 1.0 file (LabRecorder's format): the audio stream and the loss marker stream
+    Xdf,
 }
 
 /// `--wav-format`.

@@ -16,6 +16,7 @@ use basskit::sidecar::{self, ChunkRow, Lost, Sidecar};
 use super::convert;
 use super::mcap_out::McapOut;
 use super::staged::{stage, IN_PROGRESS};
+use super::xdf_out::XdfOut;
 
 /// Why the loop ended in failure.
 pub(super) enum Ended {
@@ -72,6 +73,8 @@ pub(super) enum Out {
     Wav(wav::Writer),
     /// An MCAP file in a bag directory (lost frames in no message).
     Mcap(Box<McapOut>),
+    /// An XDF file (lost frames in no chunk, a marker each).
+    Xdf(Box<XdfOut>),
 }
 
 impl Out {
@@ -80,6 +83,7 @@ impl Out {
         match self {
             Out::Wav(w) => w.frames(),
             Out::Mcap(m) => m.frames(),
+            Out::Xdf(x) => x.frames(),
         }
     }
 
@@ -87,7 +91,7 @@ impl Out {
     pub(super) fn frame_bytes(&self, channels: usize) -> u64 {
         match self {
             Out::Wav(w) => w.spec().frame_bytes(),
-            Out::Mcap(_) => 4 * channels as u64,
+            Out::Mcap(_) | Out::Xdf(_) => 4 * channels as u64,
         }
     }
 }
@@ -141,8 +145,10 @@ impl Recording {
                 return Ok(());
             }
             self.first = Some(got);
-            if let Out::Mcap(m) = &mut self.out {
-                m.begin(got);
+            match &mut self.out {
+                Out::Mcap(m) => m.begin(got),
+                Out::Xdf(x) => x.begin(got),
+                Out::Wav(_) => {}
             }
         } else if r.loss > 0 && !self.lose(before, r.loss, limit)? {
             return Ok(()); // the limit
@@ -151,8 +157,10 @@ impl Recording {
         if kept > 0 {
             self.take_rows(&pre, (before - 1) / nfpc, got, kept);
         }
-        if let Out::Mcap(m) = &mut self.out {
-            m.emit(&self.rows, false).map_err(Step::Disk)?;
+        match &mut self.out {
+            Out::Mcap(m) => m.emit(&self.rows, false).map_err(Step::Disk)?,
+            Out::Xdf(x) => x.emit(&self.rows, false).map_err(Step::Disk)?,
+            Out::Wav(_) => {}
         }
         Ok(())
     }
@@ -173,6 +181,7 @@ impl Recording {
                 }
             }
             Out::Mcap(m) => m.lose(lost, &self.rows).map_err(Step::Disk)?,
+            Out::Xdf(x) => x.lose(lost, &self.rows).map_err(Step::Disk)?,
         }
         Ok(lost == loss)
     }
@@ -193,6 +202,13 @@ impl Recording {
                 for i in 0..kept {
                     for &c in &self.channels {
                         m.push(bufs[c as usize][i]);
+                    }
+                }
+            }
+            Out::Xdf(x) => {
+                for i in 0..kept {
+                    for &c in &self.channels {
+                        x.push(bufs[c as usize][i]);
                     }
                 }
             }
@@ -236,7 +252,7 @@ impl Recording {
             .collect();
         // An MCAP recording's rows are its ChunkInfo messages: its facts (written every
         // checkpoint) keep only the GAP rows, for the gap count, not a copy of them all.
-        let mcap = matches!(self.out, Out::Mcap(_));
+        let mcap = matches!(self.out, Out::Mcap(_) | Out::Xdf(_));
         let chunks: Vec<ChunkRow> = if frames == 0 {
             Vec::new()
         } else {
@@ -249,8 +265,8 @@ impl Recording {
                 let data = frames * spec.frame_bytes();
                 (spec.bits, spec.format.header_len() + data + (data & 1), Some(spec.format.name().into()))
             }
-            // The MCAP file's size is known once it is finished (set by `finish`).
-            Out::Mcap(_) => (32, 0, None),
+            // The MCAP or XDF file's size is known once it is finished (set by `finish`).
+            Out::Mcap(_) | Out::Xdf(_) => (32, 0, None),
         };
         let after = first - self.requested;
         let mut s = Sidecar {
@@ -284,7 +300,8 @@ impl Recording {
         let side = self.sidecar(0, IN_PROGRESS, true);
         match &mut self.out {
             Out::Mcap(m) => m.checkpoint(&side),
-            Out::Wav(_) => Ok(()),
+            // An XDF file is complete (its magic and FileHeader) from its creation.
+            Out::Wav(_) | Out::Xdf(_) => Ok(()),
         }
     }
 
@@ -299,6 +316,9 @@ impl Recording {
     /// at its last checkpoint. `disk_failed`: the recording ended on a failed write (`end` says
     /// which). Returns the sidecar (the MCAP file's facts) and how it ended.
     pub(super) fn finish(&mut self, end: &str, disk_failed: bool) -> io::Result<Finished> {
+        if matches!(self.out, Out::Xdf(_)) {
+            return self.finish_xdf(end, disk_failed);
+        }
         if let Out::Mcap(m) = &self.out {
             let (frames, on_disk) = (m.frames(), m.frames_on_disk());
             let mut side = self.sidecar(frames, end, false);
@@ -317,7 +337,7 @@ impl Recording {
             side.recording.bytes = m.close_at_checkpoint(&side)?;
             return Ok(Finished { side, cut: frames - on_disk, error: Some(e) });
         }
-        let Out::Wav(w) = &mut self.out else { unreachable!("an MCAP recording returned above") };
+        let Out::Wav(w) = &mut self.out else { unreachable!("MCAP and XDF recordings returned above") };
         let fb = w.spec().frame_bytes();
         let mut frames = match w.finalize() {
             Ok(n) => n,
@@ -338,6 +358,31 @@ impl Recording {
                 Err(e) => return Err(e),
             }
         }
+    }
+}
+
+impl Recording {
+    /// [`Recording::finish`] of an XDF recording: the footers, or after a failed write the
+    /// file closed at its last checkpoint.
+    fn finish_xdf(&mut self, end: &str, disk_failed: bool) -> io::Result<Finished> {
+        let Out::Xdf(x) = &mut self.out else { unreachable!("an XDF recording") };
+        let (frames, on_disk) = (x.frames(), x.frames_on_disk());
+        let e = match x.finish(&self.rows, end) {
+            Ok(size) => {
+                let mut side = self.sidecar(frames, end, false);
+                side.recording.bytes = size;
+                return Ok(Finished { side, cut: 0, error: None });
+            }
+            Err(e) => e,
+        };
+        // The recording's end is the failure that ended it, else this one.
+        let end = if disk_failed { end.to_owned() } else { e.to_string() };
+        let Out::Xdf(x) = &mut self.out else { unreachable!("an XDF recording") };
+        let size = x.close_at_checkpoint(&end)?;
+        let on_disk = on_disk.min(x.frames_on_disk());
+        let mut side = self.sidecar(on_disk, &end, false);
+        side.recording.bytes = size;
+        Ok(Finished { side, cut: frames - on_disk, error: Some(e) })
     }
 }
 
