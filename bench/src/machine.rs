@@ -17,6 +17,12 @@ pub struct Machine {
     pub load_start: String,
     /// rustc version used for the build (if rustc is on PATH).
     pub rustc: String,
+    /// The CPU vendor (`GenuineIntel`, `AuthenticAMD`, ...).
+    pub vendor: String,
+    /// The copy-related CPU flags present (erms, fsrm, avx2, avx512f).
+    pub copy_flags: Vec<&'static str>,
+    /// The reader's copy path on this CPU (`bassport::ring::copy_path`).
+    pub copy_path: &'static str,
     /// Hypervisor flag present in /proc/cpuinfo.
     pub virtualized: bool,
     /// UTC time of the run.
@@ -49,7 +55,19 @@ impl Machine {
             .and_then(|l| l.split(':').nth(1))
             .map(|s| s.trim().to_owned())
             .unwrap_or_else(|| "unknown".into());
-        let virtualized = cpuinfo.lines().any(|l| l.starts_with("flags") && l.contains(" hypervisor"));
+        let field = |name: &str| {
+            cpuinfo
+                .lines()
+                .find(|l| l.starts_with(name))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|s| s.trim().to_owned())
+                .unwrap_or_default()
+        };
+        let flags = field("flags");
+        let flags: Vec<&str> = flags.split_whitespace().collect();
+        let virtualized = flags.contains(&"hypervisor");
+        let copy_flags =
+            ["erms", "fsrm", "avx2", "avx512f"].into_iter().filter(|f| flags.contains(f)).collect();
         let meminfo = std::fs::read_to_string("/proc/meminfo").unwrap_or_default();
         let mem_kib: f64 = meminfo
             .lines()
@@ -59,6 +77,9 @@ impl Machine {
             .unwrap_or(0.0);
         Machine {
             cpu,
+            vendor: field("vendor_id"),
+            copy_flags,
+            copy_path: bassport::ring::copy_path().name(),
             cores: std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
             kernel: cmd("uname", &["-r"]),
             mem_gib: mem_kib / 1024.0 / 1024.0,
@@ -72,8 +93,11 @@ impl Machine {
     /// One line for the console.
     pub fn one_line(&self) -> String {
         format!(
-            "{} ({} cores{}), Linux {}, {:.0} GiB, load {}",
+            "{} ({}, {}; copy path {}) ({} cores{}), Linux {}, {:.0} GiB, load {}",
             self.cpu,
+            self.vendor,
+            self.copy_flags.join(" "),
+            self.copy_path,
             self.cores,
             if self.virtualized { ", virtual machine" } else { "" },
             self.kernel,

@@ -10,6 +10,7 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
+use bassport::ring::{copy_path, set_copy_path, CopyPath};
 use bassport::{ChunkMeta, Geometry, Port, PortParams, Source, Writer};
 
 use crate::stats::{median, spread};
@@ -64,15 +65,40 @@ impl ReadRow {
     }
 }
 
+/// The copy paths this CPU has that copy wider than a word (the ones part 1 compares).
+pub fn wide_paths() -> Vec<CopyPath> {
+    let auto = copy_path();
+    let paths =
+        CopyPath::ALL.into_iter().filter(|&p| p != CopyPath::Portable && set_copy_path(p).is_ok()).collect();
+    set_copy_path(auto).expect("the chosen path");
+    paths
+}
+
+/// Part 1's reads, by copy path.
+#[derive(Clone, Debug, Default)]
+pub struct ReadResults {
+    /// The path the library chose on this CPU (the one every other part runs).
+    pub chosen: Option<CopyPath>,
+    /// Each wide path's rows, measured in the same repetitions (interleaved).
+    pub by_path: Vec<(CopyPath, Vec<ReadRow>)>,
+}
+
+impl ReadResults {
+    /// The rows of the chosen path.
+    pub fn chosen_rows(&self) -> &[ReadRow] {
+        self.by_path.iter().find(|(p, _)| Some(*p) == self.chosen).map_or(&[], |(_, rows)| rows.as_slice())
+    }
+}
+
 /// Copy-loop experiment: the same 64 KiB copied by memcpy, by the library's ring copy
-/// (`ChannelRing::copy_to`: 16-byte loads on x86-64) and by a loop of Relaxed `AtomicU64`
-/// loads (the portable path, used where there is no wide copy).
+/// (`ChannelRing::copy_to`) on each wide path, and by a loop of Relaxed `AtomicU64` loads
+/// (the portable path, used where there is no wide copy).
 #[derive(Clone, Debug, Default)]
 pub struct CopyLoops {
     /// Per repetition GB/s: memcpy.
     pub memcpy: Vec<f64>,
-    /// Per repetition GB/s: the library's ring copy.
-    pub ring: Vec<f64>,
+    /// Per wide path, per repetition GB/s: the library's ring copy.
+    pub ring: Vec<(CopyPath, Vec<f64>)>,
     /// Per repetition GB/s: AtomicU64 loop.
     pub atomic64: Vec<f64>,
 }
@@ -108,17 +134,24 @@ pub fn copy_loops(reps: usize) -> CopyLoops {
     let mut dst = vec![0i32; n];
     let mut dst64 = vec![0u64; n / 2];
     let iters = 4000;
-    let mut out = CopyLoops::default();
+    let auto = copy_path();
+    let mut out =
+        CopyLoops { ring: wide_paths().into_iter().map(|p| (p, vec![])).collect(), ..Default::default() };
     let gbs = |ns: f64| (n * 4) as f64 / ns;
     for _ in 0..reps {
         let m = time_per_iter(iters, |_| {
             dst.copy_from_slice(&plain);
             std::hint::black_box(&dst);
         });
-        let a = time_per_iter(iters, |_| {
-            ring.copy_to(0, &mut dst);
-            std::hint::black_box(&dst);
-        });
+        for (path, v) in out.ring.iter_mut() {
+            set_copy_path(*path).expect("a path of this CPU");
+            let a = time_per_iter(iters, |_| {
+                ring.copy_to(0, &mut dst);
+                std::hint::black_box(&dst);
+            });
+            v.push(gbs(a));
+        }
+        set_copy_path(auto).expect("the chosen path");
         let b = time_per_iter(iters, |_| {
             for (d, s) in dst64.iter_mut().zip(&src64) {
                 *d = s.load(Ordering::Relaxed);
@@ -126,13 +159,17 @@ pub fn copy_loops(reps: usize) -> CopyLoops {
             std::hint::black_box(&dst64);
         });
         out.memcpy.push(gbs(m));
-        out.ring.push(gbs(a));
         out.atomic64.push(gbs(b));
     }
+    let rings: Vec<String> = out
+        .ring
+        .iter()
+        .map(|(p, v)| format!("{} {} GB/s", p.name(), spread(v, |v| format!("{v:.1}"))))
+        .collect();
     println!(
-        "  copy loops, 64 KiB hot: memcpy {} GB/s, the ring copy {} GB/s, Relaxed AtomicU64 loads {} GB/s",
+        "  copy loops, 64 KiB hot: memcpy {} GB/s, the ring copy {}, Relaxed AtomicU64 loads {} GB/s",
         spread(&out.memcpy, |v| format!("{v:.1}")),
-        spread(&out.ring, |v| format!("{v:.1}")),
+        rings.join(", "),
         spread(&out.atomic64, |v| format!("{v:.1}")),
     );
     out
@@ -189,13 +226,38 @@ impl Filled {
     }
 }
 
-/// Runs part 1 with `reps` repetitions.
-pub fn run(reps: usize) -> Vec<ReadRow> {
+/// Runs part 1 with `reps` repetitions: every wide copy path of this CPU, interleaved (each
+/// repetition measures every block size on one path, then on the next).
+pub fn run(reps: usize) -> ReadResults {
     let filled = Filled::create();
     let max = BLOCKS.iter().map(|b| b.0).max().unwrap_or(1);
     let mut left = vec![0i32; max];
     let mut right = vec![0i32; max];
-    let mut rows: Vec<ReadRow> = BLOCKS
+    let chosen = copy_path();
+    let mut out = ReadResults {
+        chosen: Some(chosen),
+        by_path: wide_paths().into_iter().map(|p| (p, new_rows())).collect(),
+    };
+    for _ in 0..reps {
+        for (path, rows) in out.by_path.iter_mut() {
+            set_copy_path(*path).expect("a path of this CPU");
+            for row in rows.iter_mut() {
+                measure(&filled, row, &mut left, &mut right);
+            }
+        }
+    }
+    set_copy_path(chosen).expect("the chosen path");
+    filled.close();
+    for (path, rows) in &out.by_path {
+        println!("  copy path {}{}:", path.name(), if *path == chosen { " (chosen)" } else { "" });
+        print_rows(rows);
+    }
+    out
+}
+
+/// A row per block size, nothing measured yet.
+fn new_rows() -> Vec<ReadRow> {
+    BLOCKS
         .iter()
         .map(|&(frames, label)| ReadRow {
             frames,
@@ -210,15 +272,7 @@ pub fn run(reps: usize) -> Vec<ReadRow> {
             stream_memcpy_gbs: vec![],
             stream_ratio: vec![],
         })
-        .collect();
-    for _ in 0..reps {
-        for row in rows.iter_mut() {
-            measure(&filled, row, &mut left, &mut right);
-        }
-    }
-    filled.close();
-    print_rows(&rows);
-    rows
+        .collect()
 }
 
 /// One repetition for `row`'s block size: hot (always the newest block) then streaming
@@ -326,6 +380,11 @@ pub struct InfoCost {
     pub read_chunk_ns: Vec<f64>,
     /// Per repetition: ns per /proc liveness read (the former per-call cost).
     pub proc_ns: Vec<f64>,
+    /// Per repetition: ns per `bass_get_audio_data` of one frame (the per-call cost).
+    pub ffi_one_ns: Vec<f64>,
+    /// Per repetition: ns per `Port::get_audio_data` of one frame (the read without the C ABI
+    /// layer: no handle lookup, argument checks or panic boundary).
+    pub rust_one_ns: Vec<f64>,
 }
 
 /// Measures [`InfoCost`], the three alternating in each repetition.
@@ -346,8 +405,30 @@ pub fn info_cost(reps: usize) -> InfoCost {
     assert_eq!(rc as i32, 0, "bass_port_open");
     let (mut left, mut right) = (vec![0i32; nfpc as usize], vec![0i32; nfpc as usize]);
     let (pid, start) = (std::process::id(), bassport::sys::own_start_time());
+    let port = Port::open("bench-info").expect("open port");
     let mut out = InfoCost::default();
     for _ in 0..reps {
+        out.ffi_one_ns.push(time_per_iter(200_000, |_| {
+            let (mut nfr, mut got, mut loss) = (lfi, 0usize, 0u64);
+            // SAFETY: `handle` is open; both buffers hold nfpc >= 1 samples; valid out-pointers.
+            let rc = unsafe {
+                bassclient::bass_get_audio_data(
+                    handle,
+                    1,
+                    &mut nfr,
+                    left.as_mut_ptr(),
+                    right.as_mut_ptr(),
+                    &mut got,
+                    &mut loss,
+                )
+            };
+            assert!(rc as i32 == 0 && got == 1);
+        }));
+        out.rust_one_ns.push(time_per_iter(200_000, |_| {
+            let mut nfr = lfi;
+            let mut dst = [&mut left[..1], &mut right[..1]];
+            assert_eq!(port.get_audio_data(1, &mut nfr, &mut dst).expect("read").frames, 1);
+        }));
         let mut info = std::mem::MaybeUninit::<bassclient::bass_port_info>::uninit();
         out.info_ns.push(time_per_iter(20_000, |_| {
             // SAFETY: `handle` is open; `info` is valid for a write.
@@ -376,7 +457,13 @@ pub fn info_cost(reps: usize) -> InfoCost {
     }
     // SAFETY: `handle` came from bass_port_open and is closed once.
     unsafe { bassclient::bass_port_close(handle) };
+    drop(port);
     let _ = w.remove();
+    println!(
+        "  per call: bass_get_audio_data of one frame {} ns, Port::get_audio_data of one frame {} ns",
+        spread(&out.ffi_one_ns, |v| format!("{v:.0}")),
+        spread(&out.rust_one_ns, |v| format!("{v:.0}")),
+    );
     println!(
         "  info: bass_port_get_info {} ns per call, bass_get_audio_data of one 441-frame chunk {} ns, the /proc liveness read it made before {} ns",
         spread(&out.info_ns, |v| format!("{v:.0}")),

@@ -84,19 +84,89 @@ fn store_run(words: &[AtomicU64], g0: usize, len: usize, get: impl Fn(usize) -> 
     }
 }
 
+/// How a reader copies samples out of the shared window ([`copy_path`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum CopyPath {
+    /// One Relaxed `AtomicU64` load per word (every target; the loom model and Miri).
+    Portable = 0,
+    /// Aligned 16-byte SSE2 loads in inline assembly (x86-64).
+    Sse2 = 1,
+    /// `rep movsb` in inline assembly for runs of at least 2 KiB, the 16-byte loads below
+    /// (x86-64 with fast strings, ERMS).
+    RepMovsb = 2,
+}
+
+impl CopyPath {
+    /// Every path, in the order above.
+    pub const ALL: [CopyPath; 3] = [CopyPath::Portable, CopyPath::Sse2, CopyPath::RepMovsb];
+
+    /// Its name (`portable`, `sse2`, `movsb`), as `$BASS_COPY_PATH` spells it.
+    pub fn name(self) -> &'static str {
+        match self {
+            CopyPath::Portable => "portable",
+            CopyPath::Sse2 => "sse2",
+            CopyPath::RepMovsb => "movsb",
+        }
+    }
+
+    /// The path named `s`.
+    pub fn parse(s: &str) -> Option<CopyPath> {
+        CopyPath::ALL.into_iter().find(|p| p.name() == s)
+    }
+}
+
+#[cfg(all(target_arch = "x86_64", not(loom), not(miri)))]
+pub use wide::{copy_path, set_copy_path};
+
+/// The copy path: the portable one on this target.
+#[cfg(not(all(target_arch = "x86_64", not(loom), not(miri))))]
+pub fn copy_path() -> CopyPath {
+    CopyPath::Portable
+}
+
+/// Refuses every path but the portable one on this target.
+#[cfg(not(all(target_arch = "x86_64", not(loom), not(miri))))]
+pub fn set_copy_path(p: CopyPath) -> Result<(), String> {
+    match p {
+        CopyPath::Portable => Ok(()),
+        _ => Err(format!("{}: this target copies with the portable path only", p.name())),
+    }
+}
+
 /// Loads the samples at positions `g0..g0 + dst.len()` of `words` into `dst`.
 ///
-/// On x86-64 the copy is made with aligned 16-byte SSE2 loads in inline assembly and
-/// aligned 16-byte stores ([`wide::load_run`]): the compiler never vectorises atomic loads,
-/// and a loop of `AtomicU64` loads (the portable path, [`load_run_portable`]) runs at about
-/// 0.5–0.6× memcpy here, the wide copy at about 0.9×. The loom model and Miri run the
-/// portable path.
+/// On x86-64 the copy is made in inline assembly ([`wide::load_run`]): `rep movsb` for long
+/// runs on a CPU with fast strings, else aligned 16-byte SSE2 loads and aligned 16-byte
+/// stores. The compiler never vectorises atomic loads, and a loop of `AtomicU64` loads (the
+/// portable path, [`load_run_portable`]) runs at about 0.5–0.6× memcpy. The loom model and
+/// Miri run the portable path.
 #[inline(always)]
 fn load_run(words: &[AtomicU64], g0: usize, dst: &mut [i32]) {
     #[cfg(all(target_arch = "x86_64", not(loom), not(miri)))]
     wide::load_run(words, g0, dst);
     #[cfg(not(all(target_arch = "x86_64", not(loom), not(miri))))]
     load_run_portable(words, g0, dst);
+}
+
+/// [`load_run`] by path `p`, and the paths this machine has (the tests run every one).
+#[cfg(all(test, not(loom)))]
+fn load_run_by(p: CopyPath, words: &[AtomicU64], g0: usize, dst: &mut [i32]) {
+    #[cfg(all(target_arch = "x86_64", not(miri)))]
+    wide::load_run_with(p, words, g0, dst);
+    #[cfg(not(all(target_arch = "x86_64", not(miri))))]
+    {
+        assert_eq!(p, CopyPath::Portable);
+        load_run_portable(words, g0, dst);
+    }
+}
+
+#[cfg(all(test, not(loom)))]
+fn paths_here() -> Vec<CopyPath> {
+    #[cfg(all(target_arch = "x86_64", not(miri)))]
+    return CopyPath::ALL.into_iter().filter(|&p| wide::supported(p)).collect();
+    #[cfg(not(all(target_arch = "x86_64", not(miri))))]
+    return vec![CopyPath::Portable];
 }
 
 /// [`load_run`] with one Relaxed `AtomicU64` load per word.

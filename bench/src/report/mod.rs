@@ -27,6 +27,8 @@ pub struct Results {
     pub quick: bool,
     /// Part 1.
     pub read: Vec<crate::read::ReadRow>,
+    /// Part 1 by copy path (`read` holds the chosen path's rows).
+    pub read_paths: Option<crate::read::ReadResults>,
     /// Part 1, copy-loop experiment.
     pub copy_loops: Option<crate::read::CopyLoops>,
     /// Part 1, the cost of `bass_port_get_info`.
@@ -65,10 +67,14 @@ pub fn write(r: &Results, docs: &Path) {
     let _ = writeln!(md, "## Machine\n");
     let _ = writeln!(
         md,
-        "- CPU: {} — {} cores online{}",
+        "- CPU: {} ({}) — {} cores online{}; copy flags: {}; the reader's copy path: **{}** \
+         (`bassport::ring::copy_path`: `movsb` = `rep movsb` on CPUs with ERMS, `sse2` = aligned 16-byte loads)",
         m.cpu,
+        m.vendor,
         m.cores,
-        if m.virtualized { ", virtual machine (hypervisor flag set)" } else { "" }
+        if m.virtualized { ", virtual machine (hypervisor flag set)" } else { "" },
+        if m.copy_flags.is_empty() { "none".to_owned() } else { m.copy_flags.join(", ") },
+        m.copy_path,
     );
     let _ = writeln!(md, "- Kernel: Linux {}; memory {:.0} GiB; {}", m.kernel, m.mem_gib, m.rustc);
     let _ = writeln!(

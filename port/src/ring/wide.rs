@@ -1,6 +1,7 @@
-//! The wide copy of x86-64.
+//! The wide copy of x86-64: aligned 16-byte loads, or `rep movsb` for long runs on a CPU
+//! with fast strings (ERMS), the instruction glibc's memcpy uses for large copies.
 //!
-//! Why it is sound (the argument of docs/port-format.md, "Copy width"): every load is an
+//! Why the 16-byte loads are sound (the argument of docs/port-format.md, "Copy width"): every load is an
 //! aligned 16-byte `movdqa` of the sample area, made in inline assembly, so the compiler
 //! sees no plain read of memory another process writes (the assembly is opaque to it, like
 //! an atomic operation). Each such load reads two whole aligned 8-byte sample words, the unit
@@ -11,10 +12,91 @@
 //! protocol around the copy (Acquire load of the last frame, `fence(Acquire)` and the
 //! intent re-check after it) is unchanged: the assembly is not `nomem`, so the compiler
 //! keeps it before the fence.
+//!
+//! Why `rep movsb` is sound: it is inline assembly too, so the compiler sees no plain read of
+//! the shared words and can neither split, merge, repeat nor elide it; it reads exactly the
+//! run's bytes. A fast-string copy is atomic at no particular width, so a sample the writer
+//! stores into during the copy may be read torn: such a sample belongs to a frame the intent
+//! re-check after the copy drops (the writer announces every slot it may write before writing
+//! it), so a torn value never reaches the caller. This is the model of a seqlock read with a
+//! per-byte atomic copy (Rust RFC 3301, `AtomicPerByte`), which x86's memory model defines:
+//! a load racing a store returns, byte for byte, the old or the new value.
 
-use super::load_run_portable;
+use super::{load_run_portable, CopyPath};
 use std::arch::x86_64::{__m128i, _mm_or_si128, _mm_slli_si128, _mm_srli_si128, _mm_store_si128};
-use std::sync::atomic::AtomicU64;
+use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
+
+/// Shortest run (bytes) copied by `rep movsb` on the `RepMovsb` path: below it the start-up
+/// of a string instruction costs more than the 16-byte loop (docs/performance.md, part 1).
+pub const MOVSB_MIN_BYTES: usize = 2048;
+
+/// The path in use (`CopyPath as u8`), or `UNCHOSEN` before the first copy.
+static PATH: AtomicU8 = AtomicU8::new(UNCHOSEN);
+const UNCHOSEN: u8 = u8::MAX;
+
+/// Whether this CPU has fast strings (ERMS: `rep movsb` moves whole cache lines).
+fn has_erms() -> bool {
+    std::arch::is_x86_feature_detected!("ermsb")
+}
+
+/// The copy path: the one set by [`set_copy_path`], else `$BASS_COPY_PATH` (`sse2`, `movsb`,
+/// `portable`; anything else, or a path this CPU lacks, is ignored), else `rep movsb` on a CPU
+/// with ERMS and the 16-byte loads on the others. Chosen once per process.
+pub fn copy_path() -> CopyPath {
+    match PATH.load(Ordering::Relaxed) {
+        0 => CopyPath::Portable,
+        1 => CopyPath::Sse2,
+        2 => CopyPath::RepMovsb,
+        _ => {
+            let wanted = std::env::var("BASS_COPY_PATH").ok().and_then(|v| CopyPath::parse(&v));
+            let p = match wanted {
+                Some(p) if supported(p) => p,
+                _ if has_erms() => CopyPath::RepMovsb,
+                _ => CopyPath::Sse2,
+            };
+            // A racing first call stores the same choice.
+            PATH.store(p as u8, Ordering::Relaxed);
+            p
+        }
+    }
+}
+
+/// Whether this CPU can run path `p`.
+pub(super) fn supported(p: CopyPath) -> bool {
+    p != CopyPath::RepMovsb || has_erms()
+}
+
+/// Makes every later copy of this process use `p` (the bench compares the paths); refuses a
+/// path this CPU lacks.
+pub fn set_copy_path(p: CopyPath) -> Result<(), String> {
+    if !supported(p) {
+        return Err(format!("{}: this CPU has no fast strings (ERMS)", p.name()));
+    }
+    PATH.store(p as u8, Ordering::Relaxed);
+    Ok(())
+}
+
+/// Copies `n` bytes from `src` to `dst` with `rep movsb`.
+///
+/// # Safety
+/// `src .. src + n` lies inside one live `[AtomicU64]`; `dst .. dst + n` lies inside memory
+/// the caller borrows exclusively; the two do not overlap.
+#[inline(always)]
+unsafe fn movsb(src: *const u8, dst: *mut u8, n: usize) {
+    // SAFETY: the caller guarantees both ranges; the instruction reads exactly
+    // `src .. src + n` and writes exactly `dst .. dst + n` (the direction flag is clear, as
+    // the ABI requires at every call), uses no stack and leaves the flags alone. See the
+    // module's comment for why the racing read of the shared words is sound.
+    unsafe {
+        std::arch::asm!(
+            "rep movsb",
+            inout("rcx") n => _,
+            inout("rsi") src => _,
+            inout("rdi") dst => _,
+            options(nostack, preserves_flags),
+        );
+    }
+}
 
 /// Output vectors per assembly block (4 × 16 bytes).
 const BLOCK: usize = 4;
@@ -118,9 +200,27 @@ unsafe fn copy_vectors<const T: i32>(src: *const u8, out: *mut __m128i, vectors:
 /// vector by the portable path, the middle a vector at a time.
 #[inline(always)]
 pub(super) fn load_run(words: &[AtomicU64], g0: usize, dst: &mut [i32]) {
+    load_run_with(copy_path(), words, g0, dst)
+}
+
+/// [`load_run`] by path `path` (a path this CPU has).
+#[inline(always)]
+pub(super) fn load_run_with(path: CopyPath, words: &[AtomicU64], g0: usize, dst: &mut [i32]) {
     let len = dst.len();
     let base = words.as_ptr() as usize;
     let end = base + 8 * words.len();
+    match path {
+        CopyPath::Portable => return load_run_portable(words, g0, dst),
+        CopyPath::RepMovsb if 4 * len >= MOVSB_MIN_BYTES => {
+            assert!(4 * (g0 + len) <= 8 * words.len(), "run outside the sample words");
+            // SAFETY: samples `g0 .. g0 + len` are bytes `4 * g0 .. 4 * (g0 + len)` of
+            // `words` (checked just above); `dst` holds `len` samples and is borrowed
+            // exclusively, so it cannot overlap the shared words.
+            unsafe { movsb((base + 4 * g0) as *const u8, dst.as_mut_ptr() as *mut u8, 4 * len) };
+            return;
+        }
+        _ => {}
+    }
     // Samples to copy first so that the stores are 16-byte aligned (dst is 4-aligned).
     let mut head = ((16 - (dst.as_ptr() as usize & 15)) & 15) / 4;
     // The aligned source vector holding the first sample of the middle must not start
