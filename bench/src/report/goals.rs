@@ -34,14 +34,14 @@ fn read_goals(read: &[crate::read::ReadRow]) -> Vec<Goal> {
         let worst_stream = big.iter().map(|x| x.stream_ratio_median()).fold(f64::INFINITY, f64::min);
         g.push(Goal {
             part: "1 read",
-            goal: "`bass_get_audio_data` ≥ 0.8× memcpy for blocks ≥ 64 KiB, hot and streaming".into(),
+            goal: "`bass_get_audio_data` ≥ 0.95× memcpy for blocks ≥ 64 KiB, hot and streaming, on the chosen copy path".into(),
             measured: format!(
                 "worst block ≥ 64 KiB: {} with the source hot in L1/L2 (the same block re-read); {} streaming through the window",
                 fmt_ratio(worst),
                 fmt_ratio(worst_stream)
             ),
             borderline: false,
-            met: Some(worst >= 0.8 && worst_stream >= 0.8),
+            met: Some(worst >= 0.95 && worst_stream >= 0.95),
         });
     }
     g
