@@ -2,8 +2,9 @@
 //! bass at all, to measure the CPU floor of one Zenoh message per chunk on this machine.
 //!
 //! `pub` puts messages of BYTES bytes at RATE per second (absolute-deadline pacing, as bassd's
-//! simulated device) for SECONDS, on a session listening on ENDPOINT, with the same
-//! congestion control as `serve` (block). `sub` connects to ENDPOINT and counts them. Both
+//! simulated device) for SECONDS, on a session listening on ENDPOINT, with the publication
+//! settings of `serve`'s chunk publisher (congestion control, express, priority: the constants
+//! of `bass_bridge::net`). `sub` connects to ENDPOINT and counts them. Both
 //! with multicast and gossip scouting off. Each prints one JSON line with its count.
 //!
 //! usage: zenoh_floor pub ENDPOINT RATE BYTES SECONDS
@@ -13,7 +14,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use zenoh::qos::CongestionControl;
+use bass_bridge::net::{CHUNK_CONGESTION, CHUNK_EXPRESS, CHUNK_PRIORITY};
 use zenoh::Wait;
 
 const KEY: &str = "bass-bench/floor";
@@ -45,7 +46,9 @@ fn main() {
             let s = session(Some(&endpoint), None);
             let publisher = s
                 .declare_publisher(KEY)
-                .congestion_control(CongestionControl::Block)
+                .congestion_control(CHUNK_CONGESTION)
+                .express(CHUNK_EXPRESS)
+                .priority(CHUNK_PRIORITY)
                 .wait()
                 .expect("declare the publisher");
             let payload = vec![0x5au8; bytes];

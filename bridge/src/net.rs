@@ -54,7 +54,7 @@ pub use crate::usage::UsageError;
 
 mod config;
 
-pub use config::{connect_endpoints, is_loopback, Prepared, CHUNK_CONGESTION};
+pub use config::{connect_endpoints, is_loopback, Prepared, CHUNK_CONGESTION, CHUNK_EXPRESS, CHUNK_PRIORITY};
 use config::{for_mode, guard_namespace};
 
 /// Who opens a session: what [`NetOpts::open`] guards.

@@ -240,6 +240,8 @@ fn chunk_publisher(session: &zenoh::Session, o: &ServeOpts) -> Result<(Publisher
     let publisher = session
         .declare_publisher(o.net.key(&o.name, "chunks"))
         .congestion_control(crate::net::CHUNK_CONGESTION)
+        .express(crate::net::CHUNK_EXPRESS)
+        .priority(crate::net::CHUNK_PRIORITY)
         .wait()
         .map_err(|e| anyhow!("declare publisher: {e}"))?;
     let matched = Arc::new(AtomicBool::new(false));

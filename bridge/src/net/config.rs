@@ -114,6 +114,14 @@ const OUTAGE_SETTINGS: &[(&str, &str)] = &[
 /// How serve's chunk publisher behaves when the link cannot take more: see [`OUTAGE_SETTINGS`].
 pub const CHUNK_CONGESTION: zenoh::qos::CongestionControl = zenoh::qos::CongestionControl::Drop;
 
+/// Chunks go out at once, not batched with what follows them (Zenoh's express publication):
+/// a chunk's delay is its own, not the batch's (docs/network.md, "Latency").
+pub const CHUNK_EXPRESS: bool = true;
+
+/// Chunks are the link's real-time traffic: they pass the control and clock messages queued
+/// beside them.
+pub const CHUNK_PRIORITY: zenoh::qos::Priority = zenoh::qos::Priority::RealTime;
+
 impl NetOpts {
     /// The Zenoh configuration these options make, checked against the security policy:
     /// without authentication only loopback is allowed, unless `--insecure`.
