@@ -2,7 +2,8 @@
 //! is that one file, a name without it a rosbag2 bag directory; a full file system ends the
 //! recording naming ENOSPC and a SIGKILL leaves the last checkpoint, both as files that
 //! PyPI `mcap` (with `mcap-ros2-support`'s decoder) reads to the end, that
-//! `bass record --check` passes and that bassd replays.
+//! `bass record --check` passes and that bassd replays; `--foxglove-audio` is refused but for
+//! MCAP, and its RawAudio messages are checked by `--check`.
 
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
@@ -210,4 +211,43 @@ fn a_sigkilled_mcap_recorder_leaves_its_last_checkpoint_readable_and_replayable(
             );
         }
     }
+}
+
+#[test]
+fn foxglove_audio_is_refused_unless_the_recording_is_mcap_and_checked_when_it_is() {
+    let dir = TempDir::new("mcap-foxglove");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    b.client().acquire(&acquire_req("sim:pattern", 8000, 80, 200, 2)).unwrap();
+    for (name, extra, format) in
+        [("take.wav", None, "wav"), ("take.xdf", None, "xdf"), ("take.mcap", Some("xdf"), "xdf")]
+    {
+        let path = dir.join(name);
+        let mut args = vec!["record", path.to_str().unwrap(), "--foxglove-audio", "--frames", "80", "-q"];
+        if let Some(f) = extra {
+            args.extend(["--format", f]);
+        }
+        let o = bass(&b, &args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", text(&o));
+        let want = format!(
+            "--foxglove-audio adds a channel to an MCAP recording: use --format mcap (or a FILE ending in .mcap), not --format {format}"
+        );
+        assert!(text(&o).contains(&want), "{args:?}: {}", text(&o));
+        assert!(!path.exists() && !dir.join(&format!("{name}.json")).exists(), "{:?}", dir.entries());
+    }
+    // With MCAP: one RawAudio message per audio message, held against it by --check.
+    let take = dir.join("take.mcap");
+    let o = bass(&b, &["record", take.to_str().unwrap(), "--foxglove-audio", "--frames", "800", "-q"]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    assert_eq!(assert_facts_describe_the_messages(&read_mcap(&take, 2)), 800);
+    let line = check_ok(&take);
+    assert!(
+        line.contains("MCAP (10 audio messages)")
+            && line.contains("; 10 RawAudio messages (pcm-s16) agree with them"),
+        "{line}"
+    );
+    // --check verifies whatever the file holds: the option has no meaning there.
+    let o =
+        Command::new(bass_bin()).args(["record", "--check", "--foxglove-audio"]).arg(&take).output().unwrap();
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("'--check' cannot be used with '--foxglove-audio'"), "{}", text(&o));
 }

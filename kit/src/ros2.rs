@@ -1,7 +1,7 @@
 //! ROS 2 messages of bass: the one definition of the type names, the message definitions and
 //! the CDR encoding of what bass puts on a ROS 2 topic or in an MCAP recording.
 //!
-//! Three messages, each serialised as CDR little-endian (XCDR1, as rmw implementations write
+//! Four messages, each serialised as CDR little-endian (XCDR1, as rmw implementations write
 //! it) behind the 4-byte encapsulation header `00 01 00 00`:
 //!
 //! - [`AudioDataStamped`] (`audio_common_msgs/msg/AudioDataStamped`): one run of frames, its
@@ -9,7 +9,9 @@
 //!   `header.stamp` the CLOCK_REALTIME of its first frame;
 //! - [`AudioInfo`] (`audio_common_msgs/msg/AudioInfo`): channels, rate, `S32LE`, `wave`;
 //! - [`ChunkInfo`] (`bass_msgs/msg/ChunkInfo`, bass's own): the frame index, frames, chunk
-//!   flags, both clocks and the loss before the audio message with the same stamp.
+//!   flags, both clocks and the loss before the audio message with the same stamp;
+//! - [`foxglove::RawAudio`] (`foxglove_msgs/msg/RawAudio`, Foxglove's): the same run as 16-bit
+//!   PCM, for Foxglove's Audio panel (only in MCAP recordings that ask for it).
 //!
 //! ```text
 //!  AudioDataStamped CDR body (offsets after the encapsulation header)
@@ -131,6 +133,16 @@ pub enum CdrError {
         field: &'static str,
         /// Value found.
         value: u64,
+    },
+    /// A string field holding another value than the one required.
+    #[error("{field}: {found:?}, not {expected:?}")]
+    Unexpected {
+        /// Field.
+        field: &'static str,
+        /// Value found.
+        found: String,
+        /// Value required.
+        expected: &'static str,
     },
     /// Bytes after the last field beyond alignment padding.
     #[error("{extra} bytes after the message's last field")]
@@ -489,6 +501,8 @@ impl Topics {
 pub fn delimiter(type_name: &str) -> String {
     format!("{RULE}\nMSG: {type_name}\n")
 }
+
+pub mod foxglove;
 
 #[cfg(test)]
 mod tests;

@@ -9,9 +9,10 @@
 - the frames tile the recording: each message starts where the one before ended plus its
   `lost_before`; the losses and GAP frames they describe are those the recorder reported
   (--recorder, its `--json` line) and the `bass` metadata record says;
-- the samples are the signal's: `--signal pattern` (every sample is pattern(frame, channel) of
-  the sim device) or `--signal xrun` (GAP chunks are zeros; elsewhere each sample names its
-  channel and the device frames run on by one inside a message);
+- the samples are the signal's, for the recorded channels in their order: `--signal pattern`
+  (every sample is pattern(frame, channel) of the sim device) or `--signal xrun` (GAP chunks
+  are zeros; elsewhere each sample names its channel and the device frames run on by one
+  inside a message);
 - `--wav REC.wav`: a WAV recording of the same port (with its sidecar) holds the same samples
   for every frame both have, and the same chunk rows (flags, both clocks);
 - `rosbags` opens the directory as a rosbag2 bag and the .mcap file alone, and deserialises
@@ -107,7 +108,8 @@ def main():
         print(f"{files[0]}: no bass metadata record")
         return 1
     acq, rec = facts["acquisition"], facts["recording"]
-    nch, nfpc = len(rec["channels"]), acq["frames_per_chunk"]
+    chans = rec["channels"]
+    nch, nfpc = len(chans), acq["frames_per_chunk"]
     if len(infos) != 1:
         problems.append(f"{len(infos)} AudioInfo messages, want 1")
     else:
@@ -142,9 +144,9 @@ def main():
             if gap:
                 if any(s):
                     problems.append(f"frame {f} of a GAP chunk is {s}, not zeros")
-            elif a.signal == "pattern" and s != tuple(pattern(f, c) for c in range(nch)):
-                problems.append(f"frame {f}: {s}, the pattern is {tuple(pattern(f, c) for c in range(nch))}")
-            elif a.signal == "xrun" and s != tuple(pattern(f, c) for c in range(nch)):
+            elif a.signal == "pattern" and s != tuple(pattern(f, c) for c in chans):
+                problems.append(f"frame {f}: {s}, the pattern is {tuple(pattern(f, c) for c in chans)}")
+            elif a.signal == "xrun" and s != tuple(pattern(f, c) for c in chans):
                 if any(s) or not ci.flags & DISCONTINUITY:
                     problems.append(f"frame {f}: {s}, neither the pattern nor the zeros of a DISCONTINUITY chunk")
         nxt = ci.first_frame + ci.frames

@@ -17,6 +17,12 @@
 #   mcap-loss      sim:pattern with the recorder stopped: a loss inside, every sample checked
 #   mcap-renumber  mcap-gap replayed from frame 1
 #   mcap-refused   a replay with another chunk size is refused, naming the recording's
+#   mcap-foxglove       sim:xrun recorded beside gap-ends with --foxglove-audio --channels 1,0:
+#                       `bass record --check` and tests/replay/foxglove_check.py (PyPI mcap +
+#                       mcap-ros2-support) hold every RawAudio message against its audio
+#                       message (stamp, every sample rounded to 16 bits, GAP zeros) and the
+#                       schema against Foxglove's published definition; replayed as well
+#   mcap-foxglove-loss  the same beside mcap-loss (stopped with it): lost frames in no message
 # and `bass record --format xdf` (FILE.xdf), checked by `bass record --check` and by PyPI
 # pyxdf (tests/replay/xdf_check.py) against a WAV + sidecar recorded beside it: every sample,
 # every stamp (its chunk's CLOCK_MONOTONIC + offset / rate, within 1 us), every marker:
@@ -112,13 +118,18 @@ bass acquire sim:xrun -r 8000 --frames 100 --chunks 200 -c 2 >/dev/null
 gap=$work/rec/gap-ends.wav
 gap_bag=$work/rec/gap-mcap
 gap_xdf=$work/rec/gap.xdf
+fox_bag=$work/rec/fox-mcap
 bass record --format mcap "$gap_bag" --from 4001 --frames 4800 -q --json >"$work/gap-mcap.json" &
 rec=$!
 bass record "$gap_xdf" --from 4001 --frames 4800 -q --json >"$work/gap-xdf.json" &
 rec_xdf=$!
+bass record --format mcap "$fox_bag" --from 4001 --frames 4800 --channels 1,0 --foxglove-audio -q \
+  --json >"$work/fox-mcap.json" &
+rec_fox=$!
 bass record "$gap" --from 4001 --frames 4800 -q
 wait "$rec" || bad "mcap-gap: bass record --format mcap failed"
 wait "$rec_xdf" || bad "xdf-gap: bass record FILE.xdf failed"
+wait "$rec_fox" || bad "mcap-foxglove: bass record --format mcap --foxglove-audio failed"
 if sidecar_has "$gap" 's["chunks"][0]["flags"] & 1 and s["chunks"][-1]["flags"] & 1 and s["recording"]["first_frame"] == 4001'; then
   replay gap-ends "$gap"
 else
@@ -166,19 +177,51 @@ if mcap_check mcap-gap "$gap_bag" --signal xrun --expect-gap --recorder "$work/g
   replay_mcap mcap-renumber "$gap_bag" "$work/gap-mcap-ref.wav" --renumber
 fi
 
+# fox_check CASE BAG ARGS...: `bass record --check` (which holds the RawAudio messages against
+# the audio messages), then PyPI mcap + mcap-ros2-support's reading (foxglove_check.py).
+fox_check() {
+  local case=$1 bag=$2; shift 2
+  if ! out=$(bass record --check "$bag" 2>&1); then
+    bad "$case: bass record --check: $out"; return 1
+  fi
+  if [[ $out != *"RawAudio messages (pcm-s16) agree"* ]]; then
+    bad "$case: bass record --check saw no RawAudio messages: $out"; return 1
+  fi
+  ok "$case: bass record --check: ...${out##*chunk rows}"
+  if out=$(python3 "$top/tests/replay/foxglove_check.py" "$bag" "$@" 2>&1); then
+    ok "$case: $out"; return 0
+  fi
+  bad "$case: $out"; return 1
+}
+
+# 5b. MCAP with --foxglove-audio: sim:xrun recorded beside gap-ends, channels 1 and 0; the
+# RawAudio channel checked, the rest as any MCAP recording, and the file replayed (bassd
+# replays the audio messages and leaves the RawAudio channel).
+if fox_check mcap-foxglove "$fox_bag" --expect-gap \
+    && mcap_check mcap-foxglove "$fox_bag" --signal xrun --expect-gap --recorder "$work/fox-mcap.json" \
+      --ref "$work/fox-mcap-ref.wav"; then
+  replay_mcap mcap-foxglove "$fox_bag" "$work/fox-mcap-ref.wav"
+fi
+
 # 6. MCAP with a loss inside: sim:pattern, a 1000-frame window, the recorder stopped 0.6 s;
-# replayed from the .mcap file itself.
+# replayed from the .mcap file itself. A recorder with --foxglove-audio beside it, stopped
+# with it.
 bass acquire sim:pattern -r 8000 --frames 100 --chunks 10 -c 2 >/dev/null
 loss_bag=$work/rec/loss-mcap
+fox_loss=$work/rec/fox-loss.mcap
 "$bin/bass" record --format mcap "$loss_bag" --frames 12000 -q --json >"$work/loss-mcap.json" &
 rec=$!
+"$bin/bass" record "$fox_loss" --foxglove-audio --frames 12000 -q &
+rec_fox=$!
 sleep 0.4
-kill -STOP "$rec"; sleep 0.6; kill -CONT "$rec"
+kill -STOP "$rec" "$rec_fox"; sleep 0.6; kill -CONT "$rec" "$rec_fox"
 wait "$rec" || true
+wait "$rec_fox" || bad "mcap-foxglove-loss: bass record --foxglove-audio failed"
 if mcap_check mcap-loss "$loss_bag" --signal pattern --expect-loss --recorder "$work/loss-mcap.json" \
     --ref "$work/loss-mcap-ref.wav"; then
   replay_mcap mcap-loss "$loss_bag/loss-mcap_0.mcap" "$work/loss-mcap-ref.wav"
 fi
+fox_check mcap-foxglove-loss "$fox_loss" --expect-loss || true
 
 # 7. The replay of an MCAP recording keeps the recorded chunks: another chunk size is refused.
 if out=$(bass acquire "sim:file:$gap_bag" -r 8000 --frames 50 --chunks 400 -c 2 2>&1); then

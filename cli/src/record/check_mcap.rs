@@ -1,17 +1,20 @@
 //! `bass record --check REC.mcap` (or a bag directory): an MCAP recording of `bass record`,
 //! read front to back, its messages held against each other and against its `bass` metadata
-//! record (the facts a WAV's sidecar holds).
+//! record (the facts a WAV's sidecar holds); RawAudio messages (`--foxglove-audio`) against the
+//! audio messages they convert ([`super::foxglove::Check`]).
 
 use std::collections::HashMap;
 use std::fs::File;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
+use basskit::ros2::foxglove::RAW_AUDIO;
 use basskit::ros2::{self, AudioDataStamped, ChunkInfo};
 use basskit::sidecar::{ChunkRow, Lost, Sidecar};
 use mcap::records::Record;
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
+use super::foxglove;
 use super::mcap_out::{METADATA_NAME, METADATA_SIDECAR};
 
 /// Largest record read (a message of 64 channels × 1 Mi frames of 32 bits).
@@ -25,6 +28,8 @@ struct Contents {
     facts: Option<Sidecar>,
     /// ChunkInfo and the audio message's sample count, in file order.
     runs: Vec<(ChunkInfo, usize)>,
+    /// The RawAudio messages, each against its audio message.
+    raw: foxglove::Check,
     /// The footer points to a summary.
     summary: bool,
     problems: Vec<String>,
@@ -94,6 +99,7 @@ fn read(file: &mut File) -> Contents {
                 let kind = match schemas.get(&c.schema_id).map(String::as_str) {
                     Some(ros2::CHUNK_INFO) => ros2::CHUNK_INFO,
                     Some(ros2::AUDIO_DATA_STAMPED) => ros2::AUDIO_DATA_STAMPED,
+                    Some(RAW_AUDIO) => RAW_AUDIO,
                     _ => continue,
                 };
                 kinds.insert(c.id, kind);
@@ -107,8 +113,12 @@ fn read(file: &mut File) -> Contents {
                     }
                     Err(e) => r.problems.push(format!("ChunkInfo message {}: {e}", header.sequence)),
                 },
+                Some(&RAW_AUDIO) => r.raw.raw(header.sequence, &data),
                 Some(_) => match (AudioDataStamped::decode(&data), pending.take()) {
-                    (Ok(a), Some((s, info))) if s == header.sequence => r.runs.push((info, a.data.len() / 4)),
+                    (Ok(a), Some((s, info))) if s == header.sequence => {
+                        r.runs.push((info, a.data.len() / 4));
+                        r.raw.audio(s, a);
+                    }
                     (Err(e), _) => r.problems.push(format!("audio message {}: {e}", header.sequence)),
                     _ => r.problems.push(format!(
                         "audio message {} has no ChunkInfo with its sequence number before it",
@@ -214,6 +224,8 @@ pub fn check_mcap(path: &Path) -> Result<String, Vec<String>> {
         return Err(v);
     };
     v.extend(against_facts(&mut side, &got.runs));
+    let raw_messages = got.raw.messages;
+    v.extend(got.raw.finish(got.runs.len(), side.acquisition.sample_rate, side.recording.channels.len()));
     if !v.is_empty() {
         return Err(v);
     }
@@ -233,6 +245,9 @@ pub fn check_mcap(path: &Path) -> Result<String, Vec<String>> {
         r.gap_frames,
         side.chunks.len(),
     );
+    if raw_messages > 0 {
+        line += &format!("; {raw_messages} RawAudio messages (pcm-s16) agree with them");
+    }
     if let Some(q) = r.requested_first_frame {
         line += &format!("; started {} frames after the requested frame {q}", r.started_after_requested);
     }

@@ -3,7 +3,7 @@
 //! `NAME/metadata.yaml` (`<name>` the directory's own name).
 //!
 //! The MCAP file (profile `ros2`, chunked, uncompressed, as rosbag2's MCAP plugin writes by
-//! default) holds three channels, each with a `ros2msg` schema and CDR messages from
+//! default) holds three channels (four on request), each with a `ros2msg` schema and CDR messages from
 //! [`basskit::ros2`]:
 //!
 //! - `/bass/<broker>/audio_info`: one `audio_common_msgs/msg/AudioInfo`;
@@ -11,7 +11,10 @@
 //!   `bass_msgs/msg/ChunkInfo` with the frame index, frames, flags, both clocks and the loss
 //!   before it;
 //! - `/bass/<broker>/audio`: the same run's `AudioDataStamped`, interleaved S32LE, written just
-//!   after its ChunkInfo with the same MCAP sequence number and log time.
+//!   after its ChunkInfo with the same MCAP sequence number and log time;
+//! - with `--foxglove-audio`, `/bass/<broker>/raw_audio`: the same run as a
+//!   `foxglove_msgs/msg/RawAudio` in `pcm-s16`, written just after the audio message with the
+//!   same sequence number, log time and stamp ([`super::foxglove`]).
 //!
 //! Frames the recorder lost are in no message (never zeros presented as audio): the next
 //! ChunkInfo's `lost_before` counts them. A metadata record `bass` holds the sidecar's file-level
@@ -37,8 +40,11 @@ use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
+use basskit::ros2::foxglove::RAW_AUDIO;
 use basskit::ros2::{self, AudioDataStamped, AudioInfo, ChunkInfo, Header, Time, Topics};
 use basskit::sidecar::{ChunkRow, Sidecar};
+
+use super::foxglove;
 
 /// Name of the metadata record holding the sidecar's facts.
 pub const METADATA_NAME: &str = "bass";
@@ -47,7 +53,7 @@ pub const METADATA_SIDECAR: &str = "sidecar";
 
 /// QoS offered (rosbag2's `offered_qos_profiles`, the integer form every rosbag2 release reads):
 /// reliable, volatile, keep last 100, for the audio and chunk topics.
-const QOS_STREAM: &str = "- history: 1\n  depth: 100\n  reliability: 1\n  durability: 2\n  deadline:\n    sec: 9223372036\n    nsec: 854775807\n  lifespan:\n    sec: 9223372036\n    nsec: 854775807\n  liveliness: 1\n  liveliness_lease_duration:\n    sec: 9223372036\n    nsec: 854775807\n  avoid_ros_namespace_conventions: false\n";
+pub(super) const QOS_STREAM: &str = "- history: 1\n  depth: 100\n  reliability: 1\n  durability: 2\n  deadline:\n    sec: 9223372036\n    nsec: 854775807\n  lifespan:\n    sec: 9223372036\n    nsec: 854775807\n  liveliness: 1\n  liveliness_lease_duration:\n    sec: 9223372036\n    nsec: 854775807\n  avoid_ros_namespace_conventions: false\n";
 /// For AudioInfo: transient local, so a subscriber that joins late still gets it.
 const QOS_LATCHED: &str = "- history: 1\n  depth: 1\n  reliability: 1\n  durability: 1\n  deadline:\n    sec: 9223372036\n    nsec: 854775807\n  lifespan:\n    sec: 9223372036\n    nsec: 854775807\n  liveliness: 1\n  liveliness_lease_duration:\n    sec: 9223372036\n    nsec: 854775807\n  avoid_ros_namespace_conventions: false\n";
 
@@ -219,6 +225,8 @@ pub struct McapOut {
     nfpc: u64,
     epoch: u64,
     info: AudioInfo,
+    /// The RawAudio channel, if asked for.
+    raw: Option<foxglove::Channel>,
     /// Frames in the file so far (lost ones included).
     frames: u64,
     /// Acquisition frame of the first frame of `pending`.
@@ -284,6 +292,7 @@ impl McapOut {
             nfpc: u64::from(nfpc.max(1)),
             epoch,
             info,
+            raw: None,
             frames: 0,
             pending_from: 0,
             pending: Vec::new(),
@@ -295,6 +304,16 @@ impl McapOut {
             last_ns: 0,
             buf: Vec::new(),
         })
+    }
+
+    /// Adds the `foxglove_msgs/msg/RawAudio` channel of `broker` (before the first message).
+    pub fn add_raw_audio(&mut self, broker: &str) -> io::Result<()> {
+        let rate = u32::try_from(self.rate).unwrap_or(u32::MAX);
+        let channels = self.channels;
+        let raw =
+            foxglove::Channel::add(self.writer()?, broker, rate, channels, QOS_STREAM).map_err(mcap_err)?;
+        self.raw = Some(raw);
+        Ok(())
     }
 
     /// Frames in the file so far.
@@ -391,20 +410,28 @@ impl McapOut {
         }
         .encode(&mut self.buf);
         self.message(1, log_time)?;
-        AudioDataStamped::encode_samples(&header, &self.pending[..n as usize * self.channels], &mut self.buf);
+        let samples = n as usize * self.channels;
+        AudioDataStamped::encode_samples(&header, &self.pending[..samples], &mut self.buf);
         self.message(2, log_time)?;
+        if let Some(raw) = &mut self.raw {
+            raw.encode(header.stamp, &self.pending[..samples], &mut self.buf);
+            raw.messages += 1;
+            let id = raw.id;
+            self.send(id, log_time)?;
+        }
         self.seq += 1;
         Ok(())
     }
 
     fn message(&mut self, k: usize, log_time: u64) -> io::Result<()> {
-        let h = mcap::records::MessageHeader {
-            channel_id: self.ch[k],
-            sequence: self.seq,
-            log_time,
-            publish_time: log_time,
-        };
         self.counts[k] += 1;
+        self.send(self.ch[k], log_time)
+    }
+
+    /// Writes `buf` as the message of the current sequence number on channel `channel_id`.
+    fn send(&mut self, channel_id: u16, log_time: u64) -> io::Result<()> {
+        let h =
+            mcap::records::MessageHeader { channel_id, sequence: self.seq, log_time, publish_time: log_time };
         let w = self.w.as_mut().ok_or_else(|| io::Error::other("the MCAP file is finished"))?;
         w.write_to_known_channel(&h, &self.buf).map_err(mcap_err)
     }
@@ -503,24 +530,24 @@ impl McapOut {
     fn metadata_yaml(&self) -> String {
         let start = self.first_ns.unwrap_or(0);
         let duration = self.last_ns.saturating_sub(start);
-        let total: u64 = self.counts.iter().sum();
+        let total = self.counts.iter().sum::<u64>() + self.raw.as_ref().map_or(0, |r| r.messages);
         let file = self.path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         let mut y = String::from("rosbag2_bagfile_information:\n  version: 5\n  storage_identifier: mcap\n");
         y += &format!("  duration:\n    nanoseconds: {duration}\n");
         y += &format!("  starting_time:\n    nanoseconds_since_epoch: {start}\n");
         y += &format!("  message_count: {total}\n  topics_with_message_count:\n");
-        for (k, (topic, ty, qos)) in [
-            (&self.topics.info, ros2::AUDIO_INFO, QOS_LATCHED),
-            (&self.topics.chunks, ros2::CHUNK_INFO, QOS_STREAM),
-            (&self.topics.audio, ros2::AUDIO_DATA_STAMPED, QOS_STREAM),
+        let raw = self.raw.as_ref().map(|r| (&r.topic, RAW_AUDIO, QOS_STREAM, r.messages));
+        for (topic, ty, qos, count) in [
+            (&self.topics.info, ros2::AUDIO_INFO, QOS_LATCHED, self.counts[0]),
+            (&self.topics.chunks, ros2::CHUNK_INFO, QOS_STREAM, self.counts[1]),
+            (&self.topics.audio, ros2::AUDIO_DATA_STAMPED, QOS_STREAM, self.counts[2]),
         ]
         .into_iter()
-        .enumerate()
+        .chain(raw)
         {
             y += &format!(
-                "    - topic_metadata:\n        name: {topic}\n        type: {ty}\n        serialization_format: cdr\n        offered_qos_profiles: {}\n      message_count: {}\n",
+                "    - topic_metadata:\n        name: {topic}\n        type: {ty}\n        serialization_format: cdr\n        offered_qos_profiles: {}\n      message_count: {count}\n",
                 yaml_quote(qos),
-                self.counts[k]
             );
         }
         y += "  compression_format: \"\"\n  compression_mode: \"\"\n";

@@ -12,7 +12,8 @@
 //! recording, and made to agree with what reached the disk when a write fails.
 //! With `--format mcap` (or a FILE ending in `.mcap`) the same recording is one MCAP file of ROS 2
 //! messages ([`mcap_out`]), complete at every checkpoint; `--check` verifies it too
-//! ([`check_mcap`]). With `--format xdf` (or a FILE ending in `.xdf`) it is one XDF file, the
+//! ([`check_mcap`]); `--foxglove-audio` adds the same audio in 16 bits for Foxglove
+//! ([`foxglove`]). With `--format xdf` (or a FILE ending in `.xdf`) it is one XDF file, the
 //! streams `bass lsl` publishes ([`xdf_out`]), checked by [`check_xdf`]. See docs/broker.md for
 //! the options, the rounding and what a kill loses.
 
@@ -37,6 +38,7 @@ mod check_xdf;
 mod checkpoint;
 mod ending;
 mod files;
+mod foxglove;
 pub mod mcap_out;
 mod progress;
 mod recording;
@@ -110,6 +112,11 @@ pub struct RecordArgs {
     /// Bits per sample: 32 (as captured), 24 or 16 (rounded half up, saturating)
     #[arg(short = 'b', long, default_value_t = 32, value_parser = parse_bits)]
     pub bits: u16,
+    /// With --format mcap: also each run as a foxglove_msgs/msg/RawAudio on
+    /// /bass/<broker>/raw_audio (pcm-s16: the samples rounded to 16 bits as --bits 16 rounds
+    /// them), the message Foxglove's Audio panel plays
+    #[arg(long, conflicts_with = "check")]
+    pub foxglove_audio: bool,
     /// Channels to record, e.g. 0,1 [default: all]
     #[arg(long, value_name = "LIST", value_delimiter = ',',
           value_parser = clap::value_parser!(u32).range(0..64))]
@@ -168,14 +175,7 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
     }
     let format = a.out_format();
     let (mcap, xdf) = (format == OutFormat::Mcap, format == OutFormat::Xdf);
-    if (mcap || xdf) && a.bits != 32 {
-        let f = if mcap { "mcap" } else { "xdf" };
-        return Err(Exit::new(
-            exit::USAGE,
-            format!("--format {f} keeps the 32-bit samples as captured: leave out --bits {}", a.bits),
-        )
-        .into());
-    }
+    refuse_for_format(a, format)?;
     let layout = mcap.then(|| mcap_out::Layout::of(&a.file));
     let side_path = match &layout {
         Some(l) => l.file().to_owned(),
@@ -250,6 +250,29 @@ pub fn run(name: &str, a: &RecordArgs, timeout: Duration) -> Result<()> {
         Some(Ended::Other(e)) => Err(e),
         _ => said,
     }
+}
+
+/// The options `format` cannot honour: `--bits` but 32 for MCAP and XDF, `--foxglove-audio` but
+/// for MCAP.
+fn refuse_for_format(a: &RecordArgs, format: OutFormat) -> Result<()> {
+    let (mcap, xdf) = (format == OutFormat::Mcap, format == OutFormat::Xdf);
+    if (mcap || xdf) && a.bits != 32 {
+        let f = if mcap { "mcap" } else { "xdf" };
+        return Err(Exit::new(
+            exit::USAGE,
+            format!("--format {f} keeps the 32-bit samples as captured: leave out --bits {}", a.bits),
+        )
+        .into());
+    }
+    if a.foxglove_audio && !mcap {
+        let f = if xdf { "xdf" } else { "wav" };
+        return Err(Exit::new(
+            exit::USAGE,
+            format!("--foxglove-audio adds a channel to an MCAP recording: use --format mcap (or a FILE ending in .mcap), not --format {f}"),
+        )
+        .into());
+    }
+    Ok(())
 }
 
 /// The acquisition recorded (the port's, and the device format the broker reports) and the
@@ -366,9 +389,12 @@ fn open_mcap(
     }
     let f = create(layout.file(), a.force)?;
     let g = port.geometry();
-    let m =
+    let mut m =
         mcap_out::McapOut::new(layout, f, name, channels, g.sample_rate, g.frames_per_chunk, port.epoch())
             .with_context(|| format!("write {}", layout.file().display()))?;
+    if a.foxglove_audio {
+        m.add_raw_audio(name).with_context(|| format!("write {}", layout.file().display()))?;
+    }
     Ok(Out::Mcap(Box::new(m)))
 }
 
