@@ -22,7 +22,7 @@ use bassport::sys::{monotonic_ns, realtime_ns};
 use bassport::{ChunkMeta, Geometry, Source, Writer};
 
 use crate::device::{Capture, ReadEvent, RecordedChunk, StopSignal};
-use crate::rate_estimator::RateDll;
+use basskit::rate_estimator::RateDll;
 
 mod timeline;
 

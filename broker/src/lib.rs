@@ -9,7 +9,6 @@
 //! - [`request`]: checks an Acquire before anything running is touched (and the operator's bounds);
 //! - [`policy`]: which device names a client may make the broker open;
 //! - [`convert`]: device sample formats to left-justified S32;
-//! - [`rate_estimator`]: the device-clock rate estimator (a delay-locked loop);
 //! - [`pins`]: superseded ports still mapped by readers, and the bound on them;
 //! - [`os`]: the Linux edge on rustix (eventfd, signals, sleeps, scheduling, credentials, lock);
 // `unsafe` only in `os`, the broker's Linux edge (each block with its SAFETY comment).
@@ -24,7 +23,6 @@ pub mod handoff;
 pub mod os;
 pub mod pins;
 pub mod policy;
-pub mod rate_estimator;
 pub mod request;
 pub mod server;
 pub mod supervise;
