@@ -12,7 +12,9 @@
 # Rates (CPU, wire bytes) are divided by the measured interval (timestamps taken with the
 # counters at both of its ends), not by SECONDS: the readers' start-up and the clock sampler
 # make the interval 1.1-1.2 x SECONDS.
-# Then two more tables:
+# Then the Time table (BENCH_NET_TIME=0 skips it): every replica chunk's mapped stamp against
+# the source's, clean and with asymmetric clock answers, and pylsl's time_correction() beside
+# it (docs/time.md). Then two more tables:
 # - recovery after link outages of BENCH_NET_OUTAGES seconds (default "15 60"; "" skips),
 #   in the same namespaces (scripts/bench-net-recovery.py measures);
 # - one robot serving BENCH_NET_FANOUT workstations (default 8; 0 skips) against one, peer to
@@ -126,6 +128,61 @@ print(f"| 64: bare Zenoh, no bass (publisher / subscriber) | – | – | {100 * 
 PY
 fi
 cat "$WORK/table" | tee "$OUT"
+
+# Time (docs/time.md): the replica's mapped chunk stamps against the source's (one
+# CLOCK_MONOTONIC in both namespaces: the source's stamp is the truth), 48-frame chunks, clean
+# and with every clock answer held 600 us after its time was read (bass-bridge-faults
+# --fault clock-delay=600: 0 us one way, 600 us the other); then pylsl's time_correction()
+# between an outlet and an inlet in the same namespaces (liblsl over IPv6, unicast to the
+# outlet's address). scripts/bench-time.py measures. BENCH_NET_TIME=0 skips it.
+if [ "${BENCH_NET_TIME:-1}" = 1 ]; then
+  {
+  echo
+  echo "| clock path | mapped-stamp error p50 / p99 / p99.9 / max (us) | chunks | inside the mirror's uncertainty | uncertainty p50 (us) | first uncertainty after (s) |"
+  echo "|---|---:|---:|---:|---:|---:|"
+  } >>"$OUT"
+  for CASE in ${BENCH_NET_TIME_CASES:-clean clock-delay=600}; do
+    SERVE_CMD=("$BIN/bass-bridge" serve); [ "$CASE" != clean ] && SERVE_CMD=("$BIN/bass-bridge-faults" --fault "$CASE" serve)
+    rm -f "$WORK/status.json"
+    "${IN_A[@]}" "$BIN/bassd" --name src --rt-priority 0 --acquire sim:pattern --rate 48000 --frames 48 \
+      --chunks 1000 --channels 2 >"$WORK/bassd-time.log" 2>&1 & BASSD=$!; PIDS+=($BASSD)
+    "${IN_A[@]}" "${SERVE_CMD[@]}" "${SERVE_X[@]}" --name src --listen "$EP" --no-scouting \
+      >"$WORK/serve-time.log" 2>&1 & SERVE=$!; PIDS+=($SERVE)
+    sleep 0.5
+    "${IN_B[@]}" "$BIN/bass-bridge" mirror "${MIRROR_X[@]}" --source src --name rep --connect "$EP" --no-scouting \
+      --status-file "$WORK/status.json" >"$WORK/mirror-time.log" 2>&1 & MIRROR=$!; PIDS+=($MIRROR)
+    R=$(PYTHONPATH="$ROOT/python" python3 scripts/bench-time.py replica "$WORK/a" src "$WORK/b" rep "$WORK/status.json" "$SECS") || R='{}'
+    python3 - "$CASE" "$R" >>"$OUT" <<'PY'
+import json, sys
+case, r = sys.argv[1], json.loads(sys.argv[2] or "{}")
+e, u = r.get("error_us") or {}, r.get("uncertainty_us") or {}
+f = lambda v: "–" if v is None else f"{v:.1f}"
+n = r.get("chunks") or 0
+cov = f"{100 * r.get('covered', 0) / n:.2f} %" if n else "–"
+label = "bass mirror, clean" if case == "clean" else "bass mirror, clock answers 600 us late (asymmetric)"
+label += f" ({r.get('before_estimate', 0)} chunks before the first estimate, stamped at arrival, left out)"
+print(f"| {label} | {f(e.get('p50'))} / {f(e.get('p99'))} / {f(e.get('p999'))} / {f(e.get('max'))} | {n} | {cov} "
+      f"| {f(u.get('p50'))} | {f(r.get('first_uncertainty_s'))} |")
+PY
+    echo "time $CASE: $R" >&2
+    stop $MIRROR $SERVE $BASSD
+  done
+  printf '[ports]\nIPv6 = force\n[multicast]\nResolveScope = link\n[lab]\nKnownPeers = {fd00:ba55::1}\n' >"$WORK/lsl_api.cfg"
+  "${IN_A[@]}" LSLAPICFG="$WORK/lsl_api.cfg" python3 scripts/bench-time.py lsl-outlet bench-time $((SECS + 15)) \
+    >"$WORK/lsl-outlet.log" 2>&1 & LO=$!; PIDS+=($LO)
+  sleep 1
+  R=$("${IN_B[@]}" LSLAPICFG="$WORK/lsl_api.cfg" timeout $((SECS + 30)) python3 scripts/bench-time.py lsl-inlet bench-time "$SECS") || R='{}'
+  python3 - "$R" >>"$OUT" <<'PY'
+import json, sys
+r = json.loads(sys.argv[1] or "{}")
+e = r.get("error_us") or {}
+f = lambda v: "–" if v is None else f"{v:.1f}"
+print(f"| pylsl time_correction(), clean (\\|offset\\|, 5 per second; LSL gives no per-sample bound) | {f(e.get('p50'))} / {f(e.get('p99'))} / {f(e.get('p999'))} / {f(e.get('max'))} | {e.get('n', 0)} corrections | – | – | {f(r.get('first_s'))} |")
+PY
+  echo "time lsl: $R" >&2
+  stop $LO
+  tail -n 5 "$OUT"
+fi
 
 # Recovery after a link outage: 480-frame chunks, the link taken down on the robot's side
 # (`ip link set vA down`; the addresses stay, keep_addr_on_down above) for D seconds, then up;

@@ -2,7 +2,10 @@
 //! `bass-bridge-faults` (`--fault drop=S,dup=S,reorder=S,delay=S serve ...`): drops, duplicates, swaps with the next
 //! message, or holds back by four messages the message of sequence number S;
 //! `control-delay=MS` holds every forwarded control request MS milliseconds before it goes to
-//! the broker (to have many in progress at once). The installed `bass-bridge` has no such option.
+//! the broker (to have many in progress at once); `clock-delay=US` holds every clock answer US
+//! microseconds after its time was read (an asymmetric path: the answer's way back is longer
+//! than the probe's way out, the case a round trip's half cannot see). The installed
+//! `bass-bridge` has no such option.
 
 use std::time::Duration;
 
@@ -23,6 +26,7 @@ pub struct Faults {
     plan: Vec<(u64, Action)>,
     held: Vec<(u64, Vec<u8>)>,
     control_delay: Duration,
+    clock_delay: Duration,
 }
 
 impl Faults {
@@ -31,6 +35,7 @@ impl Faults {
         let Some(spec) = spec else { return Ok(Faults::default()) };
         let mut plan = Vec::new();
         let mut control_delay = Duration::ZERO;
+        let mut clock_delay = Duration::ZERO;
         for item in spec.split(',').filter(|s| !s.is_empty()) {
             let Some((what, seq)) = item.split_once('=') else {
                 bail!("--fault item {item:?}: use what=SEQ")
@@ -44,16 +49,27 @@ impl Faults {
                 control_delay = Duration::from_millis(number()?);
                 continue;
             }
+            if what == "clock-delay" {
+                clock_delay = Duration::from_micros(number()?);
+                continue;
+            }
             let a = match what {
                 "drop" => Action::Drop,
                 "dup" => Action::Dup,
                 "reorder" => Action::Reorder,
                 "delay" => Action::Delay,
-                _ => bail!("--fault: unknown fault {what:?} (drop, dup, reorder, delay, control-delay)"),
+                _ => bail!(
+                    "--fault: unknown fault {what:?} (drop, dup, reorder, delay, control-delay, clock-delay)"
+                ),
             };
             plan.push((number()?, a));
         }
-        Ok(Faults { plan, held: Vec::new(), control_delay })
+        Ok(Faults { plan, held: Vec::new(), control_delay, clock_delay })
+    }
+
+    /// How long each clock answer is held after its time was read (`clock-delay=US`).
+    pub fn clock_delay(&self) -> Duration {
+        self.clock_delay
     }
 
     /// How long each forwarded control request is held (`control-delay=MS`; zero without).
@@ -107,6 +123,9 @@ mod tests {
     fn the_control_delay_is_parsed_and_bad_numbers_are_named() {
         let f = Faults::parse(Some("control-delay=2000,drop=3")).unwrap();
         assert_eq!(f.control_delay(), Duration::from_millis(2000));
+        let f = Faults::parse(Some("clock-delay=600")).unwrap();
+        assert_eq!(f.clock_delay(), Duration::from_micros(600));
+        assert_eq!(f.control_delay(), Duration::ZERO);
         let e = Faults::parse(Some("control-delay=2s")).err().expect("2s is refused").to_string();
         assert!(e.contains("\"control-delay=2s\"") && e.contains("\"2s\""), "{e}");
         let e = Faults::parse(Some("drop=-1")).err().expect("-1 is refused").to_string();

@@ -119,7 +119,7 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
         .map_err(|e| anyhow!("declare state publisher: {e}"))?;
     let shared = Arc::new(Mutex::new(SourceState { ..Default::default() }));
     let info = declare_info(&session, &o, shared.clone(), cred.clone())?;
-    let clock = declare_clock(&session, &o, cred.as_deref())?;
+    let clock = declare_clock(&session, &o, cred.as_deref(), faults.clock_delay())?;
     let control_stats = Arc::new(crate::control::Audit::default());
     let control = declare_control(&session, &o, cred.as_ref(), faults.control_delay(), &control_stats)?;
     #[cfg(feature = "iceoryx2")]
@@ -277,11 +277,13 @@ fn declare_info(
         .map_err(|e| anyhow!("declare info queryable: {e}"))
 }
 
-/// The `clock` queryable: this host's CLOCK_MONOTONIC, with `cred` a keyed answer.
+/// The `clock` queryable: this host's CLOCK_MONOTONIC, with `cred` a keyed answer; `delay`
+/// (zero but in the fault build's tests) holds each answer after its time was read.
 fn declare_clock(
     session: &zenoh::Session,
     o: &ServeOpts,
     cred: Option<&crate::credentials::Credentials>,
+    delay: Duration,
 ) -> Result<Queryable<()>> {
     let (clock_key, clock_keys) = (o.net.key(&o.name, "clock"), cred.map(crate::clock::ReplyKeys::new));
     session
@@ -296,6 +298,9 @@ fn declare_clock(
                     &now,
                 )
             });
+            if !delay.is_zero() {
+                std::thread::sleep(delay);
+            }
             if let Err(e) = q.reply(q.key_expr().clone(), now.to_vec()).attachment(sig).wait() {
                 tracing::debug!("clock reply: {e}");
             }

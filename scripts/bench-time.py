@@ -1,0 +1,152 @@
+#!/usr/bin/env python3
+"""Timestamp figures of the network bench (scripts/bench-network.sh, "Time" table).
+
+    bench-time.py replica DIR_A SRC DIR_B REP STATUS SECS
+        Follows the replica port REP (runtime directory DIR_B) for SECS seconds and, for every
+        chunk that arrives, compares its mapped CLOCK_MONOTONIC stamp with the source port's
+        stamp of the same first frame (SRC in DIR_A). The two network namespaces share one
+        CLOCK_MONOTONIC, so the source's stamp is the truth: error = replica - source. Every
+        second it reads the mirror's status file STATUS for the clock uncertainty it gives
+        (half the best round trip), and a chunk counts as covered when |error| is within the
+        uncertainty of that second. Prints one JSON object.
+
+    bench-time.py lsl-outlet NAME SECS      (in the source's namespace)
+    bench-time.py lsl-inlet NAME SECS       (in the mirror's namespace)
+        pylsl's clock offset between two processes, as LSL users get it: the inlet calls
+        time_correction() five times a second for SECS seconds; the true offset is 0 (one
+        CLOCK_MONOTONIC), so |value| is the error. The inlet prints one JSON object.
+"""
+
+import json
+import os
+import sys
+import time
+
+
+def quantiles(values):
+    v = sorted(values)
+    q = lambda p: v[round((len(v) - 1) * p)] if v else None
+    return {"n": len(v), "p50": q(0.5), "p99": q(0.99), "p999": q(0.999), "max": v[-1] if v else None}
+
+
+def open_port(directory, name, wait_s=15.0):
+    """Port NAME of runtime directory DIRECTORY, waiting up to WAIT_S for it to exist."""
+    import bass
+
+    os.environ["BASS_RUNTIME_DIR"] = directory
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            return bass.Port(name)
+        except bass.BassError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+
+
+def live_replica(dir_b, rep_name, wait_s=15.0):
+    """The replica once it holds the source's frames (the mirror replaces an idle replica by the
+    source's geometry when the first chunk arrives)."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        rep = open_port(dir_b, rep_name, wait_s)
+        i = rep.info()
+        if i["state_name"] == "capturing" and i["last_frame_index"] > 0:
+            return rep
+        rep.close()
+        if time.monotonic() > deadline:
+            raise SystemExit(f"replica {rep_name} not capturing after {wait_s} s")
+        time.sleep(0.1)
+
+
+def replica(dir_a, src_name, dir_b, rep_name, status_path, secs):
+    """Chunks stamped before the mirror had a clock estimate (stamped at their arrival) are
+    counted apart; the rest are compared with the source and with the uncertainty the status
+    file gave for the second before (it is rewritten once a second)."""
+    src, rep = open_port(dir_a, src_name), live_replica(dir_b, rep_name)
+    nfpc = rep.info()["frames_per_chunk"]
+    errors, covered, unc_seen, before_estimate, misses, replaced = [], 0, [], 0, {}, 0
+    first_estimate_s = None
+    t0 = time.monotonic()
+    unc, prev_unc, next_status = None, None, 0.0
+    nxt = rep.last_frame_index + 1
+    while time.monotonic() - t0 < secs:
+        now = time.monotonic() - t0
+        if now >= next_status:
+            next_status = now + 1.0
+            try:
+                st = json.load(open(status_path))
+                prev_unc, unc = unc, st.get("clock_uncertainty_ns")
+                if unc is not None:
+                    unc_seen.append(unc)
+                    first_estimate_s = first_estimate_s if first_estimate_s is not None else now
+            except (OSError, ValueError):
+                pass
+            if rep.info()["state_name"] != "capturing":
+                # The mirror replaced the replica (a new source geometry or epoch): follow the new one.
+                rep.close()
+                rep = live_replica(dir_b, rep_name)
+                nxt = rep.last_frame_index + 1
+                replaced += 1
+        lfi = rep.last_frame_index
+        while nxt + nfpc - 1 <= lfi:
+            try:
+                r, s = rep.chunk_info(nxt), src.chunk_info(nxt)
+            except Exception as e:  # the chunk left one of the windows: skip it
+                misses[type(e).__name__ + ": " + str(e)[:80]] = misses.get(type(e).__name__ + ": " + str(e)[:80], 0) + 1
+                nxt += nfpc
+                continue
+            gap = r.flags & 1  # GAP chunks are stamped by the mirror, not mapped
+            if not gap and r.first_frame == s.first_frame:
+                e = r.mono_ns - s.mono_ns
+                if unc is None or prev_unc is None:
+                    before_estimate += 1
+                else:
+                    errors.append(abs(e) / 1e3)
+                    covered += abs(e) <= max(unc, prev_unc)
+            nxt = r.first_frame + r.frames
+        time.sleep(0.002)
+    out = {"error_us": quantiles(errors), "uncertainty_us": quantiles([u / 1e3 for u in unc_seen]),
+           "covered": covered, "chunks": len(errors), "before_estimate": before_estimate,
+           "first_uncertainty_s": first_estimate_s, "skipped": misses, "replica_replaced": replaced}
+    print(json.dumps(out))
+
+
+def lsl_outlet(name, secs):
+    import pylsl
+
+    info = pylsl.StreamInfo(name, "Bench", 1, 0, pylsl.cf_int32, name)
+    outlet = pylsl.StreamOutlet(info)
+    time.sleep(secs)
+    del outlet
+
+
+def lsl_inlet(name, secs):
+    import pylsl
+
+    streams = pylsl.resolve_byprop("name", name, timeout=10)
+    if not streams:
+        print(json.dumps({"error": f"no LSL stream {name!r} found in 10 s"}))
+        return
+    inlet = pylsl.StreamInlet(streams[0])
+    values, t0, first = [], time.monotonic(), None
+    while time.monotonic() - t0 < secs:
+        try:
+            values.append(abs(inlet.time_correction(timeout=2.0)) * 1e6)
+            first = first if first is not None else time.monotonic() - t0
+        except pylsl.TimeoutError:
+            pass
+        time.sleep(0.2)
+    print(json.dumps({"error_us": quantiles(values), "first_s": first}))
+
+
+if __name__ == "__main__":
+    a = sys.argv[1:]
+    if a[:1] == ["replica"] and len(a) == 7:
+        replica(a[1], a[2], a[3], a[4], a[5], float(a[6]))
+    elif a[:1] == ["lsl-outlet"] and len(a) == 3:
+        lsl_outlet(a[1], float(a[2]))
+    elif a[:1] == ["lsl-inlet"] and len(a) == 3:
+        lsl_inlet(a[1], float(a[2]))
+    else:
+        sys.exit(__doc__)
