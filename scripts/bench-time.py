@@ -92,8 +92,9 @@ def replica(dir_a, src_name, dir_b, rep_name, status_path, secs):
         while nxt + nfpc - 1 <= lfi:
             try:
                 r, s = rep.chunk_info(nxt), src.chunk_info(nxt)
-            except Exception as e:  # the chunk left one of the windows: skip it
-                misses[type(e).__name__ + ": " + str(e)[:80]] = misses.get(type(e).__name__ + ": " + str(e)[:80], 0) + 1
+            except Exception as e:  # the chunk left one of the windows: skip it, counted by reason
+                why = f"{type(e).__name__}: {str(e)[:80]}"
+                misses[why] = misses.get(why, 0) + 1
                 nxt += nfpc
                 continue
             gap = r.flags & 1  # GAP chunks are stamped by the mirror, not mapped
