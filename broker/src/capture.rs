@@ -286,6 +286,17 @@ impl Assembler<'_> {
         frames.saturating_mul(1_000_000_000) / self.rate
     }
 
+    /// The bound of a chunk's stamp `mono` (docs/time.md, "Bounds"): from the rate loop's
+    /// prediction once it has settled, else the a-priori bound: one chunk's duration, at
+    /// least 1 ms (the first chunks, and every chunk after a gap, whose stamp is extrapolated).
+    fn stamp_bound_ns(&self, mono: u64) -> u64 {
+        let apriori = self.frames_ns(self.nfpc as u64).max(1_000_000);
+        match self.observed {
+            Some(_) => self.dll.stamp_bound_ns(mono).unwrap_or(apriori),
+            None => apriori,
+        }
+    }
+
     /// Appends `n` zero frames whose first one is due at `t_ns`.
     fn push_zeros(&mut self, mut n: u64, mut t_ns: u64) {
         while n > 0 {
@@ -341,7 +352,8 @@ impl Assembler<'_> {
             flags |= chunk_flags::DISCONTINUITY;
             self.discontinuity = false;
         }
-        let meta = ChunkMeta { mono_ns: mono.max(1), realtime_ns: realtime.max(1), flags };
+        let bound_ns = Some(self.stamp_bound_ns(mono));
+        let meta = ChunkMeta { mono_ns: mono.max(1), realtime_ns: realtime.max(1), flags, bound_ns, ..ChunkMeta::default() };
         let src = if all_zero { Source::Zeros } else { Source::Interleaved(&self.chunk) };
         {
             let mut w = self.shared.writer();

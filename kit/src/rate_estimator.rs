@@ -58,6 +58,9 @@ struct WindowMin {
     mins: [(f64, f64); BUCKETS],
     /// Device time at which the newest sub-window began.
     start: f64,
+    /// Device time at which the window began to fill (it holds a whole window from
+    /// `born + WINDOW_S` on).
+    born: f64,
 }
 
 /// The largest drift of the reference line the filter follows (5000 ppm).
@@ -65,7 +68,7 @@ const MAX_SLOPE: f64 = 5e-3;
 
 impl WindowMin {
     fn new(now: f64) -> WindowMin {
-        WindowMin { mins: [(f64::INFINITY, now); BUCKETS], start: now }
+        WindowMin { mins: [(f64::INFINITY, now); BUCKETS], start: now, born: now }
     }
 
     /// Adds error `v` seen at device time `now`.
@@ -85,24 +88,82 @@ impl WindowMin {
         }
     }
 
+    /// The lowest of the sub-window minima carried to `now` along `slope`, and how far apart
+    /// they lie (the line's own uncertainty; 0 with fewer than two).
+    fn envelope(&self, now: f64, slope: f64) -> Option<(f64, f64)> {
+        let carried = self.mins.iter().filter(|(v, _)| v.is_finite()).map(|&(v, at)| v + slope * (now - at));
+        let (lo, hi) = carried.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
+        (hi >= lo).then_some((lo, hi - lo))
+    }
+
     /// The minimum-delay reference at device time `now`: the lowest of the sub-window
     /// minima, each carried forward along the line through the oldest and newest of them.
     /// The line's slope is the loop's own rate error as the least-delayed stamps see it, so
     /// a loop that is off still finds stamps near the reference (no lock-out).
     fn reference(&self, now: f64) -> Option<f64> {
+        self.carried(now).reduce(f64::min)
+    }
+
+    /// The sub-window minima, each carried forward to `now` along the line through the
+    /// oldest and newest of them.
+    fn carried(&self, now: f64) -> impl Iterator<Item = f64> + '_ {
         let mut filled = self.mins.iter().filter(|(v, _)| v.is_finite());
-        let first = *filled.next()?;
-        let last = filled.next_back().copied().unwrap_or(first);
-        let slope = if last.1 - first.1 >= WINDOW_S / BUCKETS as f64 {
-            ((last.0 - first.0) / (last.1 - first.1)).clamp(-MAX_SLOPE, MAX_SLOPE)
-        } else {
-            0.0
+        let first = filled.next().copied();
+        let last = filled.next_back().copied().or(first);
+        let slope = match (first, last) {
+            (Some(f), Some(l)) if l.1 - f.1 >= WINDOW_S / BUCKETS as f64 => {
+                ((l.0 - f.0) / (l.1 - f.1)).clamp(-MAX_SLOPE, MAX_SLOPE)
+            }
+            _ => 0.0,
         };
-        self.mins
-            .iter()
-            .filter(|(v, _)| v.is_finite())
-            .map(|&(v, at)| v + slope * (now - at))
-            .reduce(f64::min)
+        self.mins.iter().filter(|(v, _)| v.is_finite()).map(move |&(v, at)| v + slope * (now - at))
+    }
+}
+
+/// The lower envelope of the stamps in absolute terms: each stamp's distance from the
+/// nominal-rate line through the anchor, its minima over a window ([`WindowMin`], whose
+/// carried slope takes up the device's rate error). Unlike the loop's prediction it has no
+/// moving baseline, so it is where the least-delayed stamps lie ([`RateDll::stamp_bound_ns`]).
+#[derive(Clone, Debug)]
+struct Floor {
+    /// The anchor stamp (s after the origin).
+    from: f64,
+    /// Periods since the anchor of the last stamp (or skipped period).
+    k: u64,
+    /// Nominal period (s).
+    period: f64,
+    win: WindowMin,
+}
+
+impl Floor {
+    fn new(from: f64, period: f64) -> Floor {
+        let mut f = Floor { from, k: 0, period, win: WindowMin::new(0.0) };
+        f.win.push(0.0, 0.0);
+        f
+    }
+
+    /// Distance of a stamp `t`, `k` periods after the anchor, from the nominal line, and the
+    /// window key of it.
+    fn residual(&self, t: f64, k: u64) -> (f64, f64) {
+        let at = k as f64 * self.period;
+        (t - (self.from + at), at)
+    }
+
+    fn push(&mut self, t: f64) {
+        let (r, at) = self.residual(t, self.k);
+        self.win.push(r, at);
+    }
+
+    /// The bound of stamp `t` of the next period, once the window has filled; `slope` is the
+    /// device's rate error against nominal (the loop's estimate), along which the minima are
+    /// carried (their own first-to-last slope is too noisy over one window for this).
+    fn bound(&self, t: f64, slope: f64) -> Option<f64> {
+        let (r, at) = self.residual(t, self.k + 1);
+        if at - self.win.born < WINDOW_S {
+            return None;
+        }
+        let (line, spread) = self.win.envelope(at, slope)?;
+        Some((r - line).abs() + spread)
     }
 }
 
@@ -110,6 +171,7 @@ impl WindowMin {
 #[derive(Clone, Debug)]
 pub struct RateDll {
     period_frames: f64,
+    nominal_hz: f64,
     origin_ns: Option<u64>,
     t1: f64,
     e2: f64,
@@ -122,6 +184,8 @@ pub struct RateDll {
     outliers_for: f64,
     /// Device time until which the anchor settles (see [`RateDll::update`]).
     settle_until: f64,
+    /// Where the least-delayed stamps lie (None before the first anchor).
+    floor: Option<Floor>,
 }
 
 impl RateDll {
@@ -133,18 +197,21 @@ impl RateDll {
             origin_ns: None,
             t1: 0.0,
             e2: period_frames / nominal_hz.max(1.0),
+            nominal_hz: nominal_hz.max(1.0),
             anchored: false,
             elapsed: 0.0,
             window: WindowMin::new(0.0),
             since_accepted: 0.0,
             outliers_for: 0.0,
             settle_until: 0.0,
+            floor: None,
         }
     }
 
     /// Forgets the time anchor (after a gap in the frames); the period estimate is kept.
     pub fn reset(&mut self) {
         self.anchored = false;
+        self.floor = None;
         self.window = WindowMin::new(self.elapsed);
         self.since_accepted = 0.0;
         self.outliers_for = 0.0;
@@ -154,6 +221,9 @@ impl RateDll {
     pub fn skip(&mut self) {
         if self.anchored {
             self.free_run();
+            if let Some(f) = self.floor.as_mut() {
+                f.k += 1;
+            }
         }
     }
 
@@ -179,6 +249,7 @@ impl RateDll {
     }
 
     fn anchor(&mut self, t: f64) {
+        self.floor = Some(Floor::new(t, self.period_frames / self.nominal_hz));
         self.t1 = t + self.e2;
         self.anchored = true;
         self.window = WindowMin::new(self.elapsed);
@@ -197,6 +268,12 @@ impl RateDll {
             return self.rate();
         }
         let e = t - self.t1;
+        if let Some(f) = self.floor.as_mut() {
+            f.k += 1;
+            if e <= OUTLIER_PERIODS * self.e2 {
+                f.push(t);
+            }
+        }
         if self.elapsed < self.settle_until {
             // The first stamp may itself be late: for a few periods the anchor only moves to
             // earlier stamps (delays are never negative) and the period is left alone.
@@ -240,6 +317,28 @@ impl RateDll {
     pub fn rate(&self) -> f64 {
         self.period_frames / self.e2
     }
+
+    /// A bound (ns) of how far a chunk stamped `t_ns` lies from its true capture instant,
+    /// asked before the chunk's own [`RateDll::update`]. A stamp is the instant plus a delay
+    /// that is never negative; the least-delayed stamps of the window lie on a line (the
+    /// filter's reference, carried to this chunk), so the instant lies within the stamp's
+    /// distance from that line, widened by how much the window's minima disagree (the line's
+    /// own uncertainty) and by one frame (no stamp is finer than a sample). None while the
+    /// loop has no settled line (until its window has filled, 1 s of device time after the
+    /// first stamp or after [`RateDll::reset`]): the caller
+    /// gives its a-priori bound then. What the line cannot see is a delay every stamp shares
+    /// (the converter's constant latency): docs/time.md says so.
+    pub fn stamp_bound_ns(&self, t_ns: u64) -> Option<u64> {
+        let origin = self.origin_ns?;
+        if !self.anchored {
+            return None;
+        }
+        let t = (t_ns as f64 - origin as f64) * 1e-9;
+        // The device's period is e2 where the nominal line assumes period_frames / nominal.
+        let slope = self.e2 * self.nominal_hz / self.period_frames - 1.0;
+        let b = self.floor.as_ref()?.bound(t, slope)? + 1.0 / self.nominal_hz;
+        b.is_finite().then(|| (b * 1e9).ceil() as u64)
+    }
 }
 
 #[cfg(test)]
@@ -275,6 +374,35 @@ mod tests {
         }
         let p = ppm(rate, true_rate);
         assert!(p.abs() < 5.0, "estimate {rate} Hz is {p} ppm off {true_rate} Hz");
+    }
+
+    /// The stamp bound against the truth: a device 100 ppm fast, stamps late by 0–300 µs
+    /// (a thread's wake-up delay, never early), bursts of 2 ms late every 97th chunk. Every
+    /// settled bound must hold the stamp's distance from the true instant, and stay narrow.
+    #[test]
+    fn the_stamp_bound_holds_the_truth_through_jitter_and_bursts() {
+        let (nominal, period) = (48_000.0, 480u32);
+        let true_rate = nominal * (1.0 + 100e-6);
+        let mut dll = RateDll::new(nominal, period);
+        let mut rng = Lcg(777);
+        let (mut bounded, mut widths) = (0, Vec::new());
+        for k in 0..6000u64 {
+            let truth = 1.0 + k as f64 * f64::from(period) / true_rate;
+            let delay = if k % 97 == 50 { 2e-3 } else { rng.next() * 300e-6 };
+            let t = ((truth + delay) * 1e9) as u64;
+            if let Some(b) = dll.stamp_bound_ns(t) {
+                let err = (t as f64 - truth * 1e9).abs();
+                assert!(err <= b as f64 + 1.0, "chunk {k}: stamp {err} ns from the truth, bound {b} ns");
+                bounded += 1;
+                widths.push(b);
+            }
+            dll.update(t);
+        }
+        assert!(bounded > 5850, "only {bounded} of 6000 chunks had a settled bound");
+        widths.sort_unstable();
+        let median = widths[widths.len() / 2];
+        // The delays are 0–300 µs (median 150): the bound adds the line's width and one frame.
+        assert!(median < 250_000, "median bound {median} ns: wider than the delays warrant");
     }
 
     #[test]

@@ -404,7 +404,7 @@ pub unsafe extern "C" fn bass_port_chunk_info(
     boundary("bass_port_chunk_info", || {
         let p = self::port(port)?;
         let out = nonnull_mut(out_info, "out_info")?;
-        let ChunkInfo { first_frame, frames, mono_ns, realtime_ns, flags } = p.chunk_info(frame)?;
+        let ChunkInfo { first_frame, frames, mono_ns, realtime_ns, flags, .. } = p.chunk_info(frame)?;
         // SAFETY: checked non-null; caller guarantees validity.
         unsafe { put(out, bass_chunk_info { first_frame, mono_ns, realtime_ns, frames, flags }) };
         Ok(())

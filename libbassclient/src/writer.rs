@@ -76,7 +76,7 @@ unsafe fn meta_from(meta: *const bass_chunk_meta) -> ChunkMeta {
     }
     // SAFETY: non-null; caller guarantees validity.
     let m = unsafe { &*meta };
-    ChunkMeta { mono_ns: m.mono_ns, realtime_ns: m.realtime_ns, flags: m.flags }
+    ChunkMeta { mono_ns: m.mono_ns, realtime_ns: m.realtime_ns, flags: m.flags, ..ChunkMeta::default() }
 }
 
 fn publish(w: *mut bass_writer, src: Source<'_>, meta: ChunkMeta, out_lfi: *mut u64) -> Result<(), Failure> {

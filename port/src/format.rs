@@ -1,4 +1,4 @@
-//! The port format (version 2.3: [`VERSION_MAJOR`], [`VERSION_MINOR`]): the one definition of
+//! The port format (version 2.4: [`VERSION_MAJOR`], [`VERSION_MINOR`]): the one definition of
 //! the shared-memory layout.
 //!
 //! A port is one file (by default in `/dev/shm`) holding one acquisition.
@@ -35,8 +35,9 @@ pub const VERSION_MAJOR: u32 = 2;
 /// Minor version: additions that old readers may ignore.
 /// 1 added state 5 (starting) and `lost_upstream_frames` (offset 192, zero in minor-0 ports);
 /// 2 added `restart_grace_ms` (offset 104, zero in older ports); 3 added `writer_pid_ns`
-/// (offset 112, zero in older ports).
-pub const VERSION_MINOR: u32 = 3;
+/// (offset 112, zero in older ports); 4 added the chunk extension table (`ext_table_offset`,
+/// offset 120; zero in older ports: no table).
+pub const VERSION_MINOR: u32 = 4;
 /// The longest `restart_grace_ms` a reader honours (1 hour; `bassd --restart-grace-ms` allows
 /// no more): a larger value read from a header is taken as this.
 pub const MAX_RESTART_GRACE_MS: u32 = 3_600_000;
@@ -44,6 +45,13 @@ pub const MAX_RESTART_GRACE_MS: u32 = 3_600_000;
 pub const HEADER_SIZE: usize = 4096;
 /// Size of one chunk-table entry.
 pub const CHUNK_ENTRY_SIZE: usize = 32;
+/// Size of one chunk-extension-table entry (minor 4).
+pub const CHUNK_EXT_SIZE: usize = 32;
+/// Alignment of the chunk extension table.
+pub const EXT_ALIGN: u64 = 64;
+/// `bound_ns` of a chunk whose timestamp has no known bound (and of every chunk of a port
+/// without an extension table).
+pub const BOUND_UNKNOWN: u64 = u64::MAX;
 /// Alignment of the sample rings.
 pub const SAMPLES_ALIGN: u64 = 4096;
 /// Sample format code for signed 32-bit samples in host byte order.
@@ -209,7 +217,9 @@ pub struct Header {
     /// The writer's pid namespace (the inode of its `/proc/self/ns/pid`; 0 = unknown): a reader
     /// in another pid namespace cannot look `writer_pid` up and goes by the heartbeat (minor 3).
     pub writer_pid_ns: AtomicU64,
-    _pad1: [u8; 8],
+    /// Byte offset of the chunk extension table ([`ChunkExt`]; minor 4): total_size rounded up
+    /// to [`EXT_ALIGN`]; 0 = the port has none (older writers).
+    pub ext_table_offset: AtomicU64,
     /// Index of the newest published frame (frames are numbered from 1).
     pub last_frame_index: AtomicU64,
     /// Highest frame index the writer may be writing now (>= last_frame_index).
@@ -245,6 +255,7 @@ const _: () = assert!(offset_of!(Header, epoch) == 64);
 const _: () = assert!(offset_of!(Header, futex) == 100);
 const _: () = assert!(offset_of!(Header, restart_grace_ms) == 104);
 const _: () = assert!(offset_of!(Header, writer_pid_ns) == 112);
+const _: () = assert!(offset_of!(Header, ext_table_offset) == 120);
 const _: () = assert!(offset_of!(Header, last_frame_index) == 128);
 const _: () = assert!(offset_of!(Header, write_intent) == 136);
 const _: () = assert!(offset_of!(Header, started_mono_ns) == 184);
@@ -268,6 +279,25 @@ pub struct ChunkEntry {
 }
 
 const _: () = assert!(size_of::<ChunkEntry>() == CHUNK_ENTRY_SIZE);
+
+/// One chunk-extension-table entry (minor 4), written with the chunk's [`ChunkEntry`] before
+/// its frames are published; valid for a chunk only while `first_frame` equals the chunk's.
+#[repr(C)]
+pub struct ChunkExt {
+    /// Index of the chunk's first frame: the row belongs to that chunk.
+    pub first_frame: AtomicU64,
+    /// Half-width (ns) of the interval around `mono_ns` (and `realtime_ns`) in which the first
+    /// frame's true capture time lies; [`BOUND_UNKNOWN`] if none is known.
+    pub bound_ns: AtomicU64,
+    /// Bit c set: channel c's frames in this chunk are not real (zero-filled: the device
+    /// feeding that channel lost them), though the chunk as a whole is not a GAP.
+    pub missing_channels: AtomicU64,
+    /// Bit c set: channel c is resampled from a follower device whose alignment to the
+    /// master's frame index is not yet within its bound (before lock).
+    pub unaligned_channels: AtomicU64,
+}
+
+const _: () = assert!(size_of::<ChunkExt>() == CHUNK_EXT_SIZE);
 const _: () = assert!(size_of::<AtomicI32>() == 4);
 
 /// The immutable geometry of a port, validated.
@@ -292,8 +322,12 @@ pub struct Layout {
     pub chunk_table_offset: u64,
     /// Offset of channel 0's ring.
     pub samples_offset: u64,
-    /// Total size in bytes.
+    /// End of the sample rings: the header's `total_size`.
     pub total_size: u64,
+    /// Offset of the chunk extension table; 0 = none (a port of an older writer).
+    pub ext_table_offset: u64,
+    /// Bytes the port occupies: `total_size`, or the end of the extension table.
+    pub mapped_size: u64,
 }
 
 impl Geometry {
@@ -331,10 +365,19 @@ impl Geometry {
             .and_then(|n| n.div_ceil(2).checked_mul(8))
             .ok_or_else(too_big)?;
         let total_size = samples_offset.checked_add(ring_bytes).ok_or_else(too_big)?;
-        if total_size > MAX_TOTAL_SIZE || usize::try_from(total_size).is_err() {
+        let ext_table_offset = total_size.div_ceil(EXT_ALIGN) * EXT_ALIGN;
+        let mapped_size = ext_table_offset + u64::from(self.chunks_on_port) * CHUNK_EXT_SIZE as u64;
+        if mapped_size > MAX_TOTAL_SIZE || usize::try_from(mapped_size).is_err() {
             return Err(too_big());
         }
-        Ok(Layout { frames_on_port, chunk_table_offset, samples_offset, total_size })
+        Ok(Layout { frames_on_port, chunk_table_offset, samples_offset, total_size, ext_table_offset, mapped_size })
+    }
+}
+
+impl Layout {
+    /// The same layout without an extension table (a port of a writer older than minor 4).
+    pub fn without_ext(self) -> Layout {
+        Layout { ext_table_offset: 0, mapped_size: self.total_size, ..self }
     }
 }
 
@@ -385,7 +428,20 @@ pub fn validate(h: &Header, file_len: u64) -> Result<Validated, Error> {
         frames_per_chunk: h.frames_per_chunk.load(Relaxed),
         chunks_on_port: h.chunks_on_port.load(Relaxed),
     };
-    let layout = geometry.layout().map_err(|e| corrupt(format!("geometry: {e}")))?;
+    let full = geometry.layout().map_err(|e| corrupt(format!("geometry: {e}")))?;
+    let minor = h.version_minor.load(Relaxed);
+    // Minor 4 added the extension table; an older writer left the word zero.
+    let ext = if minor >= 4 { h.ext_table_offset.load(Relaxed) } else { 0 };
+    let layout = match ext {
+        0 => full.without_ext(),
+        e if e == full.ext_table_offset => full,
+        e => {
+            return Err(corrupt(format!(
+                "ext_table_offset = {e} disagrees with the geometry (expected {} or 0)",
+                full.ext_table_offset
+            )))
+        }
+    };
     let stored =
         (h.chunk_table_offset.load(Relaxed), h.samples_offset.load(Relaxed), h.total_size.load(Relaxed));
     if stored != (layout.chunk_table_offset, layout.samples_offset, layout.total_size) {
@@ -394,13 +450,13 @@ pub fn validate(h: &Header, file_len: u64) -> Result<Validated, Error> {
             stored.0, stored.1, stored.2, layout.chunk_table_offset, layout.samples_offset, layout.total_size
         )));
     }
-    if layout.total_size > file_len {
+    if layout.mapped_size > file_len {
         return Err(corrupt(format!(
             "file is {file_len} bytes but the header describes {} bytes (truncated?)",
-            layout.total_size
+            layout.mapped_size
         )));
     }
-    Ok(Validated { geometry, layout, version_minor: h.version_minor.load(Relaxed) })
+    Ok(Validated { geometry, layout, version_minor: minor })
 }
 
 /// Reads a NUL-padded text field.

@@ -266,7 +266,7 @@ impl Port {
 
     /// Bytes of the port file the header describes.
     pub fn size(&self) -> u64 {
-        self.layout.total_size
+        self.layout.mapped_size
     }
 
     /// nFOP.
@@ -308,10 +308,10 @@ impl Port {
         // run). The offset it moves is never used: the port is only accessed through the map.
         let len = rustix::fs::seek(&self.file, rustix::fs::SeekFrom::End(0))
             .map_err(|e| Error::io("lseek of the port file", e.into()))?;
-        if len < self.layout.total_size {
+        if len < self.layout.mapped_size {
             return Err(Error::Corrupt(format!(
                 "port file shrank to {len} bytes under the reader (needs {})",
-                self.layout.total_size
+                self.layout.mapped_size
             )));
         }
         Ok(())

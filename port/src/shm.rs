@@ -9,7 +9,7 @@ use std::sync::atomic::AtomicU64;
 use memmap2::{MmapOptions, MmapRaw};
 
 use crate::error::{Error, Result};
-use crate::format::{ChunkEntry, Header, Layout, CHUNK_ENTRY_SIZE, HEADER_SIZE};
+use crate::format::{ChunkEntry, ChunkExt, Header, Layout, CHUNK_ENTRY_SIZE, CHUNK_EXT_SIZE, HEADER_SIZE};
 use crate::sigbus;
 
 /// A shared mapping of a whole port file.
@@ -84,6 +84,19 @@ impl Mapping {
         // SAFETY: bounds and alignment asserted above; ChunkEntry is atomics only, valid for
         // any bit pattern; the memory lives as long as `self`.
         unsafe { std::slice::from_raw_parts(self.raw.as_ptr().add(start) as *const ChunkEntry, count) }
+    }
+
+    /// The chunk extension table of a validated layout, if the port has one (minor 4).
+    pub fn chunk_ext(&self, layout: &Layout, chunks: u32) -> Option<&[ChunkExt]> {
+        if layout.ext_table_offset == 0 {
+            return None;
+        }
+        let start = layout.ext_table_offset as usize;
+        let count = chunks as usize;
+        assert!(start % 8 == 0 && start + count * CHUNK_EXT_SIZE <= self.len, "layout checked against mapping");
+        // SAFETY: bounds and alignment asserted above; ChunkExt is atomics only, valid for any
+        // bit pattern; the memory lives as long as `self`.
+        Some(unsafe { std::slice::from_raw_parts(self.raw.as_ptr().add(start) as *const ChunkExt, count) })
     }
 
     /// The sample words of a validated layout (`channels * nFOP` samples, two per word).

@@ -10,7 +10,7 @@ use std::sync::atomic::Ordering::{Relaxed, Release};
 use std::sync::Arc;
 
 use crate::error::{Error, Result};
-use crate::format::{self, ChunkEntry, Geometry, Header, Layout, State};
+use crate::format::{self, ChunkEntry, ChunkExt, Geometry, Header, Layout, State};
 use crate::memfd;
 use crate::paths;
 use crate::portfile;
@@ -46,6 +46,13 @@ pub struct ChunkMeta {
     pub realtime_ns: u64,
     /// [`format::chunk_flags`].
     pub flags: u32,
+    /// Bound (ns) of the timestamps' error: the first frame's true capture time lies within
+    /// `mono_ns ± bound_ns`; None = not known (see [`format::ChunkExt::bound_ns`]).
+    pub bound_ns: Option<u64>,
+    /// Channels whose frames in this chunk are not real ([`format::ChunkExt::missing_channels`]).
+    pub missing_channels: u64,
+    /// Channels not yet aligned within their bound ([`format::ChunkExt::unaligned_channels`]).
+    pub unaligned_channels: u64,
 }
 
 /// What holds a port's memory.
@@ -133,7 +140,7 @@ impl Writer {
         let dir = portfile::open_dir(&dir_path)?;
         let previous = Previous::inspect(&dir, &name, path)?;
         portfile::remove_stale_temps(&dir, &dir_path, &name);
-        portfile::check_space(&dir, &dir_path, layout.total_size)?;
+        portfile::check_space(&dir, &dir_path, layout.mapped_size)?;
         let (tmp_name, file) = portfile::create_temp(&dir, &dir_path, &name)?;
         let mut pending = PendingPort {
             place: Place::File { dir, dir_path, name, tmp_name: Some(tmp_name) },
@@ -191,7 +198,7 @@ impl Writer {
             Some(d) => Previous::inspect(d, &file_name, &path)?,
             None => None,
         };
-        let file = memfd::create(name, layout.total_size)?;
+        let file = memfd::create(name, layout.mapped_size)?;
         let mut pending = PendingPort {
             place: Place::Memfd { dir, name: file_name, resumable },
             path,
@@ -311,7 +318,9 @@ impl Writer {
             return Err(Error::InvalidArgument(format!("frame index {lfi} would pass the format's limit")));
         }
         let table = self.mapping.chunk_table(&self.layout, self.geometry.chunks_on_port);
-        let entry = &table[((lfi / nfpc as u64) % u64::from(self.geometry.chunks_on_port)) as usize];
+        let slot = ((lfi / nfpc as u64) % u64::from(self.geometry.chunks_on_port)) as usize;
+        let entry = &table[slot];
+        let ext = self.mapping.chunk_ext(&self.layout, self.geometry.chunks_on_port).map(|x| &x[slot]);
         let ring = Ring {
             last_frame_index: &h.last_frame_index,
             write_intent: &h.write_intent,
@@ -322,7 +331,7 @@ impl Writer {
         let mono = if meta.mono_ns == 0 { now_mono } else { meta.mono_ns };
         let real = if meta.realtime_ns == 0 { sys::realtime_ns() } else { meta.realtime_ns };
         let new_lfi = ring.publish(lfi, nfpc, channels, &src, || {
-            write_entry(entry, lfi + 1, mono, real, meta.flags, nfpc as u32);
+            write_entry(entry, ext, lfi + 1, Stamp { mono, real, meta: &meta }, nfpc as u32);
         });
         h.chunks_published.fetch_add(1, Relaxed);
         if matches!(src, Source::Zeros) {
@@ -437,10 +446,25 @@ fn wake(h: &Header) {
     sys::futex_wake_all(&h.futex);
 }
 
-fn write_entry(e: &ChunkEntry, first: u64, mono: u64, real: u64, flags: u32, frames: u32) {
+/// A chunk's timestamps (0 in `meta` already replaced by now) and the rest of its meta.
+struct Stamp<'a> {
+    mono: u64,
+    real: u64,
+    meta: &'a ChunkMeta,
+}
+
+/// Writes a chunk's table row and, if the port has the extension table, its extension row
+/// (both before the chunk's frames are published: a reader that sees the frames sees them).
+fn write_entry(e: &ChunkEntry, x: Option<&ChunkExt>, first: u64, s: Stamp<'_>, frames: u32) {
     e.first_frame.store(first, Relaxed);
-    e.mono_ns.store(mono, Relaxed);
-    e.realtime_ns.store(real, Relaxed);
-    e.flags.store(flags, Relaxed);
+    e.mono_ns.store(s.mono, Relaxed);
+    e.realtime_ns.store(s.real, Relaxed);
+    e.flags.store(s.meta.flags, Relaxed);
     e.frames.store(frames, Relaxed);
+    if let Some(x) = x {
+        x.first_frame.store(first, Relaxed);
+        x.bound_ns.store(s.meta.bound_ns.unwrap_or(format::BOUND_UNKNOWN), Relaxed);
+        x.missing_channels.store(s.meta.missing_channels, Relaxed);
+        x.unaligned_channels.store(s.meta.unaligned_channels, Relaxed);
+    }
 }

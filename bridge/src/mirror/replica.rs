@@ -57,14 +57,14 @@ pub fn publish(
         let from_source = h.source_lost.saturating_sub(r.last_source_lost).min(missing);
         r.writer.publish_lost(
             missing,
-            ChunkMeta { mono_ns: 0, realtime_ns: 0, flags: chunk_flags::TIME_ESTIMATED },
+            ChunkMeta { mono_ns: 0, realtime_ns: 0, flags: chunk_flags::TIME_ESTIMATED, ..ChunkMeta::default() },
         )?;
         st.gap_frames_lost += missing;
         st.gap_frames_source += from_source;
     }
     r.last_source_lost = h.source_lost;
     let flags = wire::port_flags(h.flags) | chunk_flags::TIME_ESTIMATED;
-    let meta = ChunkMeta { mono_ns: mono, realtime_ns: h.realtime_ns, flags };
+    let meta = ChunkMeta { mono_ns: mono, realtime_ns: h.realtime_ns, flags, ..ChunkMeta::default() };
     if c.is_gap() {
         r.writer.publish(Source::Zeros, meta)?;
     } else {

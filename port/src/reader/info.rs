@@ -23,12 +23,17 @@ impl Port {
     /// # let path = dir.join("bass-doc.port");
     /// let geometry = Geometry { channels: 1, sample_rate: 8000, frames_per_chunk: 2, chunks_on_port: 4 };
     /// let mut w = Writer::create_at(&path, &PortParams { geometry, device: "doc".into(), group: None })?;
-    /// let late = ChunkMeta { mono_ns: 1_000, realtime_ns: 2_000, flags: chunk_flags::LATE };
+    /// let late = ChunkMeta { mono_ns: 1_000, realtime_ns: 2_000, flags: chunk_flags::LATE, ..ChunkMeta::default() };
     /// w.publish(Source::Interleaved(&[1, 2]), late)?;
     /// let port = Port::open_path(&path)?;
     /// let c = port.chunk_info(2)?;
     /// assert_eq!((c.first_frame, c.frames, c.mono_ns, c.flags), (1, 2, 1_000, chunk_flags::LATE));
-    /// assert!(matches!(port.chunk_info(3), Err(Error::FrameNotYet { frame: 3, last: 2 })));
+    /// assert_eq!(c.bound(), None); // published without a bound
+    /// let bounded = ChunkMeta { mono_ns: 3_000, bound_ns: Some(40_000), missing_channels: 1, ..late };
+    /// w.publish(Source::Interleaved(&[0, 0]), bounded)?;
+    /// let c = port.chunk_info(3)?;
+    /// assert_eq!((c.first_frame, c.bound(), c.missing_channels), (3, Some(40_000), 1));
+    /// assert!(matches!(port.chunk_info(5), Err(Error::FrameNotYet { frame: 5, last: 4 })));
     /// # drop(port);
     /// # w.remove()?;
     /// # std::fs::remove_dir_all(&dir).ok();
@@ -51,13 +56,19 @@ impl Port {
         let chunk = (frame - 1) / nfpc;
         let table = self.mapping.chunk_table(&self.layout, self.geometry.chunks_on_port);
         let e = &table[(chunk % u64::from(self.geometry.chunks_on_port)) as usize];
+        let slot = (chunk % u64::from(self.geometry.chunks_on_port)) as usize;
+        let ext = self.mapping.chunk_ext(&self.layout, self.geometry.chunks_on_port).map(|x| &x[slot]);
         let info = ChunkInfo {
             first_frame: e.first_frame.load(Relaxed),
             frames: e.frames.load(Relaxed),
             mono_ns: e.mono_ns.load(Relaxed),
             realtime_ns: e.realtime_ns.load(Relaxed),
             flags: e.flags.load(Relaxed),
+            bound_ns: ext.map_or(format::BOUND_UNKNOWN, |x| x.bound_ns.load(Relaxed)),
+            missing_channels: ext.map_or(0, |x| x.missing_channels.load(Relaxed)),
+            unaligned_channels: ext.map_or(0, |x| x.unaligned_channels.load(Relaxed)),
         };
+        let ext_first = ext.map(|x| x.first_frame.load(Relaxed));
         fence(Acquire);
         let intact = ring.first_intact(self.header().write_intent.load(Relaxed));
         self.check_intact()?;
@@ -68,6 +79,12 @@ impl Port {
             return Err(Error::Corrupt(format!(
                 "chunk table entry for frame {frame} says first frame {}, {} frames",
                 info.first_frame, info.frames
+            )));
+        }
+        if let Some(x) = ext_first.filter(|&x| x != info.first_frame) {
+            return Err(Error::Corrupt(format!(
+                "chunk extension row for frame {frame} says first frame {x}, the chunk table {}",
+                info.first_frame
             )));
         }
         Ok(info)

@@ -66,6 +66,20 @@ pub struct ChunkInfo {
     pub realtime_ns: u64,
     /// `format::chunk_flags`.
     pub flags: u32,
+    /// Bound (ns) of the timestamps' error ([`crate::format::ChunkExt::bound_ns`]);
+    /// [`crate::format::BOUND_UNKNOWN`] if none is known or the port has no extension table.
+    pub bound_ns: u64,
+    /// Channels whose frames in this chunk are not real ([`crate::format::ChunkExt`]).
+    pub missing_channels: u64,
+    /// Channels not yet aligned within their bound ([`crate::format::ChunkExt`]).
+    pub unaligned_channels: u64,
+}
+
+impl ChunkInfo {
+    /// The timestamp bound, if known.
+    pub fn bound(&self) -> Option<u64> {
+        Some(self.bound_ns).filter(|&b| b != crate::format::BOUND_UNKNOWN)
+    }
 }
 
 /// Frames to be read in place; valid only after [`Port::view_overwritten`] says so.

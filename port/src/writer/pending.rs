@@ -46,9 +46,9 @@ impl PendingPort {
     pub(super) fn build(&mut self, params: &PortParams) -> Result<()> {
         if let Place::File { dir_path, .. } = &self.place {
             portfile::set_mode_group(&self.file, params.group)?;
-            portfile::allocate(&self.file, dir_path, self.layout.total_size)?;
+            portfile::allocate(&self.file, dir_path, self.layout.mapped_size)?;
         }
-        let mut mapping = Mapping::new(&self.file, self.layout.total_size, true)?;
+        let mut mapping = Mapping::new(&self.file, self.layout.mapped_size, true)?;
         if matches!(self.place, Place::File { .. }) {
             // Its owner or root can shrink a port file under the writer too: guarded, a
             // publish then fails (Corrupt) instead of the broker dying of SIGBUS.
@@ -70,7 +70,7 @@ impl PendingPort {
 
     /// Bytes the port file occupies (all allocated).
     pub fn size(&self) -> u64 {
-        self.layout.total_size
+        self.layout.mapped_size
     }
 
     /// The epoch of the port this one replaces, if any.
@@ -167,6 +167,7 @@ pub(super) fn init_header(h: &Header, g: &Geometry, l: &Layout, device: &str) {
     h.chunk_table_offset.store(l.chunk_table_offset, Relaxed);
     h.samples_offset.store(l.samples_offset, Relaxed);
     h.total_size.store(l.total_size, Relaxed);
+    h.ext_table_offset.store(l.ext_table_offset, Relaxed);
     h.state.store(State::Starting as u32, Relaxed);
     format::write_text(&h.device, device);
 }

@@ -6,7 +6,7 @@
 
 use std::sync::atomic::Ordering::{Relaxed, Release};
 
-use super::{wake, write_entry, ChunkMeta, Writer};
+use super::{wake, write_entry, ChunkMeta, Stamp, Writer};
 use crate::error::{Error, Result};
 use crate::format::{self, State};
 use crate::ring::{Ring, Source};
@@ -164,6 +164,7 @@ impl Writer {
         let from = end - fop;
         let cop = u64::from(self.geometry.chunks_on_port);
         let table = self.mapping.chunk_table(&self.layout, self.geometry.chunks_on_port);
+        let ext = self.mapping.chunk_ext(&self.layout, self.geometry.chunks_on_port);
         let ring = Ring {
             last_frame_index: &h.last_frame_index,
             write_intent: &h.write_intent,
@@ -177,8 +178,9 @@ impl Writer {
         let last = ring.publish(from, fop as usize, channels, &Source::Zeros, || {
             for k in 0..cop {
                 let first = from + k * nfpc + 1;
-                let entry = &table[(((from / nfpc) + k) % cop) as usize];
-                write_entry(entry, first, mono, real, meta.flags, nfpc as u32);
+                let slot = (((from / nfpc) + k) % cop) as usize;
+                let stamp = Stamp { mono, real, meta: &meta };
+                write_entry(&table[slot], ext.map(|x| &x[slot]), first, stamp, nfpc as u32);
             }
         });
         h.chunks_published.fetch_add(cop, Relaxed);
