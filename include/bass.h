@@ -79,6 +79,9 @@
 // Chunk flag: delivered late, in a catch-up burst after the capture fell behind.
 #define BASS_CHUNK_LATE 8
 
+// `bass_chunk_ext.bound_ns` of a chunk whose timestamps have no known bound.
+#define BASS_BOUND_UNKNOWN UINT64_MAX
+
 // Wait forever (for `bass_port_wait`).
 #define BASS_WAIT_FOREVER UINT32_MAX
 
@@ -302,6 +305,21 @@ typedef struct {
   // `BASS_CHUNK_*` flags.
   uint32_t flags;
 } bass_chunk_info;
+
+// What port format 2.4's chunk extension table says of one chunk (`bass_port_chunk_ext`).
+typedef struct {
+  // First frame of the chunk.
+  uint64_t first_frame;
+  // Bound (ns) of the chunk's timestamps: the first frame's true capture time lies within
+  // `mono_ns ± bound_ns` of `bass_chunk_info`; `BASS_BOUND_UNKNOWN` if no bound is known
+  // (also for every chunk of a port written before format 2.4).
+  uint64_t bound_ns;
+  // Bit c set: channel c's frames in this chunk are zero-filled because the device feeding
+  // it lost them (a follower device of a multi-device acquisition); the chunk is no GAP.
+  uint64_t missing_channels;
+  // Bit c set: channel c comes from a follower device not yet aligned within its bound.
+  uint64_t unaligned_channels;
+} bass_chunk_ext;
 
 // Frames to be read in place in the port mapping (zero-copy). Each channel's frames are
 // `seg_frames[0]` samples at segment 0 followed by `seg_frames[1]` at segment 1.
@@ -559,6 +577,14 @@ bass_result bass_port_wait(const bass_port *port,
 // # Safety
 // `out_info` must be NULL or valid for a write.
 bass_result bass_port_chunk_info(const bass_port *port, uint64_t frame, bass_chunk_info *out_info);
+
+// The timestamp bound and channel masks of the chunk that holds `frame` (port format 2.4's
+// chunk extension table; see `bass_chunk_ext`), with the errors of `bass_port_chunk_info`.
+// A port without the table (an older writer) gives `BASS_BOUND_UNKNOWN` and empty masks.
+//
+// # Safety
+// `out_ext` must be NULL or valid for a write.
+bass_result bass_port_chunk_ext(const bass_port *port, uint64_t frame, bass_chunk_ext *out_ext);
 
 // Zero-copy read: like `bass_get_audio_data`, but instead of copying, describes where the
 // frames lie in the port mapping (`*out_view`) and advances `*nfr` past them. Read them in

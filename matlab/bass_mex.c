@@ -311,13 +311,20 @@ static mxArray *mapped_struct(const void *base, const struct field_map *fields, 
 
 static mxArray *info_struct(const bass_port_info *i) { return mapped_struct(i, INFO_FIELDS, COUNT(INFO_FIELDS), NULL, 0); }
 
-/* The chunk's members, then one logical per BASS_CHUNK_* flag (gap, late, ...). */
-static mxArray *chunk_struct(const bass_chunk_info *c) {
-    const char *names[COUNT(CHUNK_FLAGS)];
+/* The chunk's members, one logical per BASS_CHUNK_* flag (gap, late, ...), then what format
+ * 2.4's extension row adds: boundNs (double, NaN if not known) and the channel masks. */
+static mxArray *chunk_struct(const bass_chunk_info *c, const bass_chunk_ext *x) {
+    static const char *const ext[] = {"boundNs", "missingChannels", "unalignedChannels"};
+    const char *names[COUNT(CHUNK_FLAGS) + COUNT(ext)];
     for (size_t k = 0; k < COUNT(CHUNK_FLAGS); k++) names[k] = CHUNK_FLAGS[k].name;
-    mxArray *s = mapped_struct(c, CHUNK_FIELDS, COUNT(CHUNK_FIELDS), names, COUNT(CHUNK_FLAGS));
+    for (size_t k = 0; k < COUNT(ext); k++) names[COUNT(CHUNK_FLAGS) + k] = ext[k];
+    mxArray *s = mapped_struct(c, CHUNK_FIELDS, COUNT(CHUNK_FIELDS), names, COUNT(names));
     for (size_t k = 0; k < COUNT(CHUNK_FLAGS); k++)
         mxSetField(s, 0, CHUNK_FLAGS[k].name, mxCreateLogicalScalar((c->flags & CHUNK_FLAGS[k].bit) != 0));
+    double bound = x->bound_ns == BASS_BOUND_UNKNOWN ? mxGetNaN() : (double)x->bound_ns;
+    mxSetField(s, 0, "boundNs", mxCreateDoubleScalar(bound));
+    mxSetField(s, 0, "missingChannels", u64_scalar(x->missing_channels));
+    mxSetField(s, 0, "unalignedChannels", u64_scalar(x->unaligned_channels));
     return s;
 }
 
@@ -527,8 +534,11 @@ void mexFunction(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
         if (nrhs < 3) usage("ChunkInfo needs a port handle and a frame index");
         uint64_t frame = arg_u64(prhs[2], "frame");
         bass_chunk_info ci;
-        check("ChunkInfo", bass_port_chunk_info(port_arg(nrhs, prhs, 1), frame, &ci));
-        plhs[0] = chunk_struct(&ci);
+        bass_chunk_ext ce;
+        const bass_port *p = port_arg(nrhs, prhs, 1);
+        check("ChunkInfo", bass_port_chunk_info(p, frame, &ci));
+        check("ChunkInfo", bass_port_chunk_ext(p, frame, &ce));
+        plhs[0] = chunk_struct(&ci, &ce);
     } else if (!strcmp(cmd, "GetAudioData")) {
         cmd_get_audio_data(nlhs, plhs, nrhs, prhs);
     } else if (!strcmp(cmd, "GetAudioDataMulti")) {

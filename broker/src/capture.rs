@@ -353,7 +353,13 @@ impl Assembler<'_> {
             self.discontinuity = false;
         }
         let bound_ns = Some(self.stamp_bound_ns(mono));
-        let meta = ChunkMeta { mono_ns: mono.max(1), realtime_ns: realtime.max(1), flags, bound_ns, ..ChunkMeta::default() };
+        let meta = ChunkMeta {
+            mono_ns: mono.max(1),
+            realtime_ns: realtime.max(1),
+            flags,
+            bound_ns,
+            ..ChunkMeta::default()
+        };
         let src = if all_zero { Source::Zeros } else { Source::Interleaved(&self.chunk) };
         {
             let mut w = self.shared.writer();

@@ -138,6 +138,8 @@ pub const BASS_CHUNK_DISCONTINUITY: u32 = 2;
 pub const BASS_CHUNK_TIME_ESTIMATED: u32 = 4;
 /// Chunk flag: delivered late, in a catch-up burst after the capture fell behind.
 pub const BASS_CHUNK_LATE: u32 = 8;
+/// `bass_chunk_ext.bound_ns` of a chunk whose timestamps have no known bound.
+pub const BASS_BOUND_UNKNOWN: u64 = u64::MAX;
 /// Wait forever (for `bass_port_wait`).
 pub const BASS_WAIT_FOREVER: u32 = u32::MAX;
 
@@ -161,6 +163,7 @@ const _: () = assert!(
         && BASS_CHUNK_DISCONTINUITY == chunk_flags::DISCONTINUITY
         && BASS_CHUNK_TIME_ESTIMATED == chunk_flags::TIME_ESTIMATED
         && BASS_CHUNK_LATE == chunk_flags::LATE
+        && BASS_BOUND_UNKNOWN == format::BOUND_UNKNOWN
 );
 
 /// What went wrong inside an export.

@@ -81,6 +81,22 @@ pub struct bass_chunk_info {
     pub flags: u32,
 }
 
+/// What port format 2.4's chunk extension table says of one chunk (`bass_port_chunk_ext`).
+#[repr(C)]
+pub struct bass_chunk_ext {
+    /// First frame of the chunk.
+    pub first_frame: u64,
+    /// Bound (ns) of the chunk's timestamps: the first frame's true capture time lies within
+    /// `mono_ns ± bound_ns` of `bass_chunk_info`; `BASS_BOUND_UNKNOWN` if no bound is known
+    /// (also for every chunk of a port written before format 2.4).
+    pub bound_ns: u64,
+    /// Bit c set: channel c's frames in this chunk are zero-filled because the device feeding
+    /// it lost them (a follower device of a multi-device acquisition); the chunk is no GAP.
+    pub missing_channels: u64,
+    /// Bit c set: channel c comes from a follower device not yet aligned within its bound.
+    pub unaligned_channels: u64,
+}
+
 /// Frames to be read in place in the port mapping (zero-copy). Each channel's frames are
 /// `seg_frames[0]` samples at segment 0 followed by `seg_frames[1]` at segment 1.
 #[repr(C)]
@@ -407,6 +423,34 @@ pub unsafe extern "C" fn bass_port_chunk_info(
         let ChunkInfo { first_frame, frames, mono_ns, realtime_ns, flags, .. } = p.chunk_info(frame)?;
         // SAFETY: checked non-null; caller guarantees validity.
         unsafe { put(out, bass_chunk_info { first_frame, mono_ns, realtime_ns, frames, flags }) };
+        Ok(())
+    })
+}
+
+/// The timestamp bound and channel masks of the chunk that holds `frame` (port format 2.4's
+/// chunk extension table; see `bass_chunk_ext`), with the errors of `bass_port_chunk_info`.
+/// A port without the table (an older writer) gives `BASS_BOUND_UNKNOWN` and empty masks.
+///
+/// # Safety
+/// `out_ext` must be NULL or valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn bass_port_chunk_ext(
+    port: *const bass_port,
+    frame: u64,
+    out_ext: *mut bass_chunk_ext,
+) -> bass_result {
+    boundary("bass_port_chunk_ext", || {
+        let p = self::port(port)?;
+        let out = nonnull_mut(out_ext, "out_ext")?;
+        let c = p.chunk_info(frame)?;
+        let ext = bass_chunk_ext {
+            first_frame: c.first_frame,
+            bound_ns: c.bound_ns,
+            missing_channels: c.missing_channels,
+            unaligned_channels: c.unaligned_channels,
+        };
+        // SAFETY: checked non-null; caller guarantees validity.
+        unsafe { put(out, ext) };
         Ok(())
     })
 }

@@ -94,7 +94,9 @@ fn the_c_examples_use_only_declared_constants() {
 
 use std::mem::{offset_of, size_of};
 
-use bassport::format::{chunk_flags, ChunkEntry, Header, CHUNK_ENTRY_SIZE, HEADER_SIZE};
+use bassport::format::{
+    chunk_flags, ChunkEntry, ChunkExt, Header, CHUNK_ENTRY_SIZE, CHUNK_EXT_SIZE, HEADER_SIZE,
+};
 
 /// The size of the field a projection `|h| &h.field` reaches (`size_of_val` needs a value).
 fn field_size<S, T>(_: fn(&S) -> &T) -> usize {
@@ -148,7 +150,7 @@ fn owned(v: Vec<(&str, usize, usize)>) -> Vec<(String, usize, usize)> {
 fn the_docs_header_table_has_every_field_of_format_rs_at_its_offset_and_size() {
     let layout = fields![Header: magic, version_major, version_minor, header_size, channels, sample_format,
         sample_rate, frames_per_chunk, chunks_on_port, chunk_table_offset, samples_offset, total_size, epoch,
-        writer_pid, state, writer_start_time, created_realtime_ns, error_code, futex, restart_grace_ms, writer_pid_ns, last_frame_index,
+        writer_pid, state, writer_start_time, created_realtime_ns, error_code, futex, restart_grace_ms, writer_pid_ns, ext_table_offset, last_frame_index,
         write_intent, heartbeat_mono_ns, xruns, gap_frames, chunks_published, rate_estimate_mhz,
         started_mono_ns, lost_upstream_frames, message, device];
     // The list above is complete: a field added to format.rs fails here until it is listed.
@@ -168,6 +170,16 @@ fn the_docs_chunk_entry_table_has_every_field_of_format_rs_at_its_offset_and_siz
     let docs = read("docs/port-format.md");
     assert!(docs.contains(&format!("### Chunk table entry ({CHUNK_ENTRY_SIZE} bytes)")));
     assert_eq!(docs_table(&docs, "### Chunk table entry"), owned(layout));
+}
+
+#[test]
+fn the_docs_chunk_extension_table_has_every_field_of_format_rs_at_its_offset_and_size() {
+    let layout = fields![ChunkExt: first_frame, bound_ns, missing_channels, unaligned_channels];
+    let names: Vec<&str> = layout.iter().map(|f| f.0).collect();
+    assert_eq!(names, pub_fields(&read("port/src/format.rs"), "ChunkExt"));
+    let docs = read("docs/port-format.md");
+    assert!(docs.contains(&format!("### Chunk extension table entry ({CHUNK_EXT_SIZE} bytes)")));
+    assert_eq!(docs_table(&docs, "### Chunk extension table entry"), owned(layout));
 }
 
 // ---- docs/network.md's wire diagram against bridge/src/wire.rs (read as text: building

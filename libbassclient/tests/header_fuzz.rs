@@ -104,6 +104,7 @@ fn random_header(header: &[u8], keep: u8) -> Vec<u8> {
     }
     if keep >= KEEP_LAYOUT {
         restore(&mut bytes, 40..64); // chunk table, samples, total size
+        restore(&mut bytes, 120..128); // the extension table (format 2.4)
     }
     bytes
 }
@@ -117,6 +118,7 @@ fn refused_by(outcome: &Result<(), Error>, keep: u8) -> &'static str {
         Err(Error::Corrupt(m)) if m.starts_with("sample_format") => "sample_format",
         Err(Error::Corrupt(m)) if m.starts_with("geometry") => "geometry",
         Err(Error::Corrupt(m)) if m.starts_with("offsets") => "offsets",
+        Err(Error::Corrupt(m)) if m.starts_with("ext_table_offset") => "ext_table_offset",
         Err(Error::Corrupt(m)) if m.contains("truncated") => "file length",
         Err(
             e @ (Error::Incompatible { .. }
@@ -216,4 +218,44 @@ fn random_headers_reach_every_check_past_the_version() {
     let mut short = random_header(&[], KEEP_LAYOUT);
     short.truncate(short.len() - 4096);
     assert_eq!(refused_by(&exercise(&short), KEEP_LAYOUT), "file length");
+}
+
+/// Format 2.4's extension table: a port of an older writer (minor 3, offset 120 zero) opens
+/// and its chunks have no bound; a 2.4 header whose table offset is neither the geometry's
+/// nor 0 is refused, naming the field; a file cut inside the table is refused as truncated.
+#[test]
+fn the_extension_table_offset_is_checked_and_an_older_port_reads_without_it() {
+    let valid = valid_port_bytes_cached();
+    let path = common::temp_port_path("ext");
+    let with = |minor: u32, ext: u64, cut: usize| {
+        let mut b = valid.clone();
+        b[12..16].copy_from_slice(&minor.to_ne_bytes());
+        b[120..128].copy_from_slice(&ext.to_ne_bytes());
+        b.truncate(b.len() - cut);
+        std::fs::write(&path, &b).unwrap();
+        Port::open_path(&path)
+    };
+    let real = u64::from_ne_bytes(valid[120..128].try_into().unwrap());
+    assert!(real > 0 && real % 64 == 0, "a 2.4 writer records its table: {real}");
+    // The table itself: the valid port's chunks carry the writer's rows (no bound given).
+    let port = with(VERSION_MINOR, real, 0).expect("the valid port opens");
+    let c = port.chunk_info(port.info().unwrap().last_frame_index).unwrap();
+    assert_eq!((c.bound(), c.missing_channels), (None, 0));
+    drop(port);
+    // An older writer's port: no table, even cut to total_size.
+    let table = valid.len() - real as usize;
+    let old = with(3, 0, table).expect("a minor-3 port without the table opens");
+    assert_eq!(old.chunk_info(old.info().unwrap().last_frame_index).unwrap().bound(), None);
+    drop(old);
+    // A minor-3 port whose word 120 holds garbage is read as minor 3 (the word was padding).
+    assert!(with(3, 12345, 0).is_ok());
+    match with(VERSION_MINOR, real + 64, 0) {
+        Err(Error::Corrupt(m)) => assert!(m.starts_with("ext_table_offset = "), "{m}"),
+        other => panic!("a wrong table offset must be refused: {:?}", other.map(drop)),
+    }
+    match with(VERSION_MINOR, real, 8) {
+        Err(Error::Corrupt(m)) => assert!(m.contains("truncated"), "{m}"),
+        other => panic!("a file cut inside the table must be refused: {:?}", other.map(drop)),
+    }
+    std::fs::remove_file(&path).unwrap();
 }

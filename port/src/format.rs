@@ -370,7 +370,14 @@ impl Geometry {
         if mapped_size > MAX_TOTAL_SIZE || usize::try_from(mapped_size).is_err() {
             return Err(too_big());
         }
-        Ok(Layout { frames_on_port, chunk_table_offset, samples_offset, total_size, ext_table_offset, mapped_size })
+        Ok(Layout {
+            frames_on_port,
+            chunk_table_offset,
+            samples_offset,
+            total_size,
+            ext_table_offset,
+            mapped_size,
+        })
     }
 }
 
@@ -429,6 +436,14 @@ pub fn validate(h: &Header, file_len: u64) -> Result<Validated, Error> {
         chunks_on_port: h.chunks_on_port.load(Relaxed),
     };
     let full = geometry.layout().map_err(|e| corrupt(format!("geometry: {e}")))?;
+    let stored =
+        (h.chunk_table_offset.load(Relaxed), h.samples_offset.load(Relaxed), h.total_size.load(Relaxed));
+    if stored != (full.chunk_table_offset, full.samples_offset, full.total_size) {
+        return Err(corrupt(format!(
+            "offsets (table {}, samples {}, total {}) disagree with the geometry (table {}, samples {}, total {})",
+            stored.0, stored.1, stored.2, full.chunk_table_offset, full.samples_offset, full.total_size
+        )));
+    }
     let minor = h.version_minor.load(Relaxed);
     // Minor 4 added the extension table; an older writer left the word zero.
     let ext = if minor >= 4 { h.ext_table_offset.load(Relaxed) } else { 0 };
@@ -442,14 +457,6 @@ pub fn validate(h: &Header, file_len: u64) -> Result<Validated, Error> {
             )))
         }
     };
-    let stored =
-        (h.chunk_table_offset.load(Relaxed), h.samples_offset.load(Relaxed), h.total_size.load(Relaxed));
-    if stored != (layout.chunk_table_offset, layout.samples_offset, layout.total_size) {
-        return Err(corrupt(format!(
-            "offsets (table {}, samples {}, total {}) disagree with the geometry (table {}, samples {}, total {})",
-            stored.0, stored.1, stored.2, layout.chunk_table_offset, layout.samples_offset, layout.total_size
-        )));
-    }
     if layout.mapped_size > file_len {
         return Err(corrupt(format!(
             "file is {file_len} bytes but the header describes {} bytes (truncated?)",

@@ -93,7 +93,10 @@ impl Mapping {
         }
         let start = layout.ext_table_offset as usize;
         let count = chunks as usize;
-        assert!(start % 8 == 0 && start + count * CHUNK_EXT_SIZE <= self.len, "layout checked against mapping");
+        assert!(
+            start % 8 == 0 && start + count * CHUNK_EXT_SIZE <= self.len,
+            "layout checked against mapping"
+        );
         // SAFETY: bounds and alignment asserted above; ChunkExt is atomics only, valid for any
         // bit pattern; the memory lives as long as `self`.
         Some(unsafe { std::slice::from_raw_parts(self.raw.as_ptr().add(start) as *const ChunkExt, count) })

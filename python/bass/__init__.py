@@ -132,9 +132,15 @@ Block.__doc__ = ("A complete block: int32 arrays, the index of its first frame, 
                  "the frames lost while it was assembled (0: the block follows the previous one exactly).")
 
 
-class ChunkInfo(collections.namedtuple("ChunkInfo", "first_frame frames mono_ns realtime_ns flags")):
+class ChunkInfo(collections.namedtuple(
+        "ChunkInfo", "first_frame frames mono_ns realtime_ns flags bound_ns missing_channels unaligned_channels",
+        defaults=(None, 0, 0))):
     """Timestamps and flags of one chunk (bass_chunk_info): its first frame, its frames, the
-    CLOCK_MONOTONIC and CLOCK_REALTIME (ns) of its first frame, and its BASS_CHUNK_* flags."""
+    CLOCK_MONOTONIC and CLOCK_REALTIME (ns) of its first frame, and its BASS_CHUNK_* flags;
+    then what port format 2.4 adds (bass_chunk_ext): the timestamps' bound in ns (the true
+    capture time of the first frame lies within mono_ns +- bound_ns; None if not known), and
+    the masks of channels whose frames are not real (missing_channels) or not yet aligned
+    (unaligned_channels), bit c for channel c."""
 
     __slots__ = ()
 
@@ -211,7 +217,12 @@ class Port:
         frame = _uint(frame, "frame")
         c = _lib.ChunkInfo()
         _check("bass_port_chunk_info", lib.bass_port_chunk_info(self._handle(), frame, ctypes.byref(c)))
-        return ChunkInfo(c.first_frame, c.frames, c.mono_ns, c.realtime_ns, c.flags)
+        x = _lib.ChunkExt()
+        _check("bass_port_chunk_ext", lib.bass_port_chunk_ext(self._handle(), frame, ctypes.byref(x)))
+        # Both calls check that the frame is still in the window: the rows are the same chunk's.
+        bound = None if x.bound_ns == _lib.BASS_BOUND_UNKNOWN else x.bound_ns
+        return ChunkInfo(c.first_frame, c.frames, c.mono_ns, c.realtime_ns, c.flags, bound,
+                         x.missing_channels, x.unaligned_channels)
 
     def get_audio_data(self, n_frames, nfr):
         """The formal getAudioData: up to `n_frames` frames from `nfr` (never blocks)."""

@@ -25,6 +25,7 @@ BASS_CHUNK_GAP = 1
 BASS_CHUNK_DISCONTINUITY = 2
 BASS_CHUNK_TIME_ESTIMATED = 4
 BASS_CHUNK_LATE = 8
+BASS_BOUND_UNKNOWN = 18446744073709551615
 BASS_WAIT_FOREVER = 4294967295
 BASS_START_OLDEST = 0
 BASS_START_NOW = 1
@@ -80,6 +81,17 @@ class ChunkInfo(ctypes.Structure):
         ("realtime_ns", c_uint64),
         ("frames", c_uint32),
         ("flags", c_uint32),
+    ]
+
+
+class ChunkExt(ctypes.Structure):
+    """bass_chunk_ext (port format 2.4: timestamp bound, channel masks)."""
+
+    _fields_ = [
+        ("first_frame", c_uint64),
+        ("bound_ns", c_uint64),
+        ("missing_channels", c_uint64),
+        ("unaligned_channels", c_uint64),
     ]
 
 
@@ -210,6 +222,7 @@ SIGNATURES = {
     "bass_port_get_info": (c_int, [c_void_p, POINTER(PortInfo)]),
     "bass_port_wait": (c_int, [c_void_p, c_uint64, c_uint32, POINTER(c_uint64)]),
     "bass_port_chunk_info": (c_int, [c_void_p, c_uint64, POINTER(ChunkInfo)]),
+    "bass_port_chunk_ext": (c_int, [c_void_p, c_uint64, POINTER(ChunkExt)]),
     "bass_port_view": (c_int, [c_void_p, c_size_t, POINTER(c_uint64), POINTER(View)]),
     "bass_port_view_channel": (c_int, [c_void_p, POINTER(View), c_uint32, POINTER(POINTER(c_int32)), POINTER(POINTER(c_int32))]),
     "bass_port_view_check": (c_int, [c_void_p, POINTER(View), POINTER(c_uint64)]),

@@ -19,6 +19,7 @@ import subprocess
 
 # The constants and structs of include/bass.h, generated from the library's sources.
 from ._abi import (  # noqa: F401  (re-exported: the package and its tests use _lib's names)
+    BASS_BOUND_UNKNOWN,
     BASS_DEVICE_LEN,
     BASS_MESSAGE_LEN,
     BASS_SOURCE_STATE_LEN,
@@ -28,6 +29,7 @@ from ._abi import (  # noqa: F401  (re-exported: the package and its tests use _
     EVENT_FN,
     SIGNATURES,
     Block,
+    ChunkExt,
     ChunkInfo,
     ChunkMeta,
     PortInfo,

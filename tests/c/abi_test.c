@@ -87,6 +87,9 @@ static void test_null_arguments(bass_port *port, bass_writer *w) {
     EXPECT(bass_port_wait(NULL, 1, 0, &lfi), BASS_ERR_NULL_ARGUMENT);
     EXPECT(bass_port_chunk_info(port, 1, NULL), BASS_ERR_NULL_ARGUMENT);
     EXPECT(bass_port_chunk_info(NULL, 1, &ci), BASS_ERR_NULL_ARGUMENT);
+    bass_chunk_ext ce;
+    EXPECT(bass_port_chunk_ext(port, 1, NULL), BASS_ERR_NULL_ARGUMENT);
+    EXPECT(bass_port_chunk_ext(NULL, 1, &ce), BASS_ERR_NULL_ARGUMENT);
     EXPECT(bass_port_view(port, 4, NULL, &view), BASS_ERR_NULL_ARGUMENT);
     EXPECT(bass_port_view(port, 4, &nfr, NULL), BASS_ERR_NULL_ARGUMENT);
     EXPECT(bass_port_view_channel(port, NULL, 0, &s0, &s1), BASS_ERR_NULL_ARGUMENT);
@@ -199,6 +202,13 @@ static void test_reads(bass_port *port, bass_writer *w) {
     EXPECT(bass_port_chunk_info(port, 8, &ci), BASS_ERR_FRAME_LOST);
     EXPECT(bass_port_chunk_info(port, 0, &ci), BASS_ERR_FRAME_LOST);
     EXPECT(bass_port_chunk_info(port, 21, &ci), BASS_ERR_FRAME_NOT_YET);
+    /* Format 2.4's extension row: a C writer's chunks carry no bound and no channel masks. */
+    bass_chunk_ext ce;
+    EXPECT(bass_port_chunk_ext(port, 14, &ce), BASS_OK);
+    CHECK(ce.first_frame == 13 && ce.bound_ns == BASS_BOUND_UNKNOWN && ce.missing_channels == 0 &&
+          ce.unaligned_channels == 0);
+    EXPECT(bass_port_chunk_ext(port, 8, &ce), BASS_ERR_FRAME_LOST);
+    EXPECT(bass_port_chunk_ext(port, 21, &ce), BASS_ERR_FRAME_NOT_YET);
 
     /* Zero-copy view: frames 11..20 wrap around the end of the ring. */
     bass_view v;

@@ -104,6 +104,10 @@ def test_python_sees_the_gap_of_a_device_overrun_in_chunk_info_and_info(broker):
         assert after.first_frame == 4401 and "DISCONTINUITY" in after.flag_names and "GAP" not in after.flag_names
         # Timestamps are the frames' due times: 100 frames at 8000 Hz = 12.5 ms per chunk.
         assert gaps[0].mono_ns - before.mono_ns == 12_500_000
+        # An overrun every half second restarts the rate loop before its 1 s window fills: every
+        # chunk has the a-priori bound, one chunk's duration (12.5 ms, more than 1 ms).
+        assert {c.bound_ns for c in [before, *gaps, after]} == {12_500_000}
+        assert (before.missing_channels, before.unaligned_channels) == (0, 0)
         assert after.realtime_ns > gaps[-1].realtime_ns > 0
         i = port.info()
         assert set(i) >= {name for name, _ in bass._lib.PortInfo._fields_}
@@ -111,6 +115,19 @@ def test_python_sees_the_gap_of_a_device_overrun_in_chunk_info_and_info(broker):
         assert 0 < i["started_mono_ns"] <= before.mono_ns <= i["heartbeat_mono_ns"]
         d = port.get_audio_data(400, 4001)
         assert d.n == 400 and not d.left.any() and not d.right.any()  # GAP frames are zeros
+    bass.stop(broker=broker)
+
+
+def test_python_chunks_of_a_settled_device_carry_a_bound_narrower_than_the_a_priori_one(broker):
+    """sim:pattern at 8000 Hz, 100-frame chunks: the first second's chunks carry the a-priori
+    bound (12.5 ms); once the rate loop's window has filled, the bound comes from the stamps'
+    lower envelope: positive, and below the a-priori one."""
+    bass.acquire("sim:pattern", 8000, 100, 400, broker=broker)  # a 5 s window
+    with bass.Port(broker) as port:
+        port.wait(8000 * 3, timeout=10)
+        first, late = port.chunk_info(1), port.chunk_info(8000 * 3)
+        assert first.bound_ns == 12_500_000
+        assert late.bound_ns is not None and 0 < late.bound_ns < 12_500_000, late
     bass.stop(broker=broker)
 
 

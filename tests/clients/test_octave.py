@@ -283,7 +283,8 @@ def test_octave_info_has_every_field_and_chunk_info_shows_late_gap_and_upstream_
         assert(i.gapFrames == 12 && i.lastFrameIndex == 24 && strcmp(i.state, 'capturing'));
         assert(i.startedMonoNs > 0 && i.heartbeatMonoNs >= i.startedMonoNs && isa(i.heartbeatMonoNs, 'uint64'));
         c = bass_mex('ChunkInfo', h, 10);
-        assert(numel(fieldnames(c)) == {n_chunk} + {n_flags});
+        assert(numel(fieldnames(c)) == {n_chunk} + {n_flags} + 3);
+        assert(isnan(c.boundNs) && c.missingChannels == 0 && isa(c.unalignedChannels, 'uint64'));
         assert(c.firstFrame == 9 && c.frames == 4 && c.late && ~c.gap && ~c.discontinuity && ~c.timeEstimated);
         assert(c.monoNs == uint64(5000000123) && c.realtimeNs == uint64(2)^62 + 7 && isa(c.realtimeNs, 'uint64'));
         c = bass_mex('ChunkInfo', h, uint64(20));

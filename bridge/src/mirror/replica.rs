@@ -57,7 +57,12 @@ pub fn publish(
         let from_source = h.source_lost.saturating_sub(r.last_source_lost).min(missing);
         r.writer.publish_lost(
             missing,
-            ChunkMeta { mono_ns: 0, realtime_ns: 0, flags: chunk_flags::TIME_ESTIMATED, ..ChunkMeta::default() },
+            ChunkMeta {
+                mono_ns: 0,
+                realtime_ns: 0,
+                flags: chunk_flags::TIME_ESTIMATED,
+                ..ChunkMeta::default()
+            },
         )?;
         st.gap_frames_lost += missing;
         st.gap_frames_source += from_source;

@@ -532,7 +532,12 @@ impl FileDevice {
             let at = i128::from(self.stamp_ns(p0));
             let off = *self.mono_offset.get_or_insert(at - i128::from(row.mono_ns));
             let mono = (i128::from(row.mono_ns) + off).clamp(1, i128::from(u64::MAX)) as u64;
-            let meta = ChunkMeta { mono_ns: mono, realtime_ns: row.realtime_ns.max(1), flags: row.flags, ..ChunkMeta::default() };
+            let meta = ChunkMeta {
+                mono_ns: mono,
+                realtime_ns: row.realtime_ns.max(1),
+                flags: row.flags,
+                ..ChunkMeta::default()
+            };
             return (meta, is_gap(row.flags));
         }
         let zeros = counts.gap > 0 && counts.data == 0;
@@ -551,7 +556,10 @@ impl FileDevice {
         }
         let mono = self.stamp_ns(p0);
         let realtime = realtime_ns().wrapping_add(mono).wrapping_sub(monotonic_ns());
-        (ChunkMeta { mono_ns: mono.max(1), realtime_ns: realtime.max(1), flags, ..ChunkMeta::default() }, zeros)
+        (
+            ChunkMeta { mono_ns: mono.max(1), realtime_ns: realtime.max(1), flags, ..ChunkMeta::default() },
+            zeros,
+        )
     }
 }
 

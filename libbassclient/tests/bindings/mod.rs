@@ -98,7 +98,7 @@ fn is_repr_c(a: &syn::Attribute) -> bool {
     a.path().is_ident("repr") && a.parse_args::<syn::Ident>().is_ok_and(|i| i == "C")
 }
 
-/// A constant's value as Python and C both read it: an integer literal, or `u32::MAX`.
+/// A constant's value as Python and C both read it: an integer literal, `u32::MAX` or `u64::MAX`.
 fn value_text(e: &Expr) -> String {
     match e {
         Expr::Lit(l) => match &l.lit {
@@ -106,6 +106,7 @@ fn value_text(e: &Expr) -> String {
             other => panic!("constant value {} is not an integer", quote::quote!(#other)),
         },
         Expr::Path(p) if quote::quote!(#p).to_string().replace(' ', "") == "u32::MAX" => u32::MAX.to_string(),
+        Expr::Path(p) if quote::quote!(#p).to_string().replace(' ', "") == "u64::MAX" => u64::MAX.to_string(),
         other => panic!("constant value `{}`: teach bindings/mod.rs to read it", quote::quote!(#other)),
     }
 }
@@ -184,9 +185,10 @@ fn type_len(e: &Expr) -> String {
 const OPAQUE: [&str; 3] = ["bass_port", "bass_writer", "bass_stream"];
 
 /// The structs the Python package mirrors: (C name, Python class, what the class is).
-const PY_STRUCTS: [(&str, &str, &str); 9] = [
+const PY_STRUCTS: [(&str, &str, &str); 10] = [
     ("bass_port_info", "PortInfo", "bass_port_info."),
     ("bass_chunk_info", "ChunkInfo", "bass_chunk_info."),
+    ("bass_chunk_ext", "ChunkExt", "bass_chunk_ext (port format 2.4: timestamp bound, channel masks)."),
     ("bass_chunk_meta", "ChunkMeta", "bass_chunk_meta."),
     ("bass_broker_status", "Status", "bass_broker_status (the broker's answer to Status)."),
     (
