@@ -6,7 +6,8 @@
 //! the PipeWire seed smooths its rate correction, so one odd round cannot swing it.
 //!
 //! offset = source_clock - local_clock at the same instant; a source timestamp `t_s` maps to
-//! the local clock as `t_s - offset`. Uncertainty: half the best round trip of the window.
+//! the local clock as `t_s - offset`. Uncertainty: half the best round trip of the window,
+//! plus the drift's possible error times the age of that round.
 //!
 //! Answers are not trusted (any peer may answer the query, beside the real `serve`):
 //! - an answer that is not 8 bytes is ignored; answers to one probe that disagree (the
@@ -43,12 +44,26 @@ pub const RESET_ROUNDS: usize = 5;
 const TOLERANCE_NS: f64 = 1_000_000.0;
 /// Drift assumed at most while comparing with an older round (parts per unit).
 const MAX_DRIFT: f64 = 200e-6;
+/// Drift allowed for in the uncertainty before the fit has one (parts per unit): two hosts'
+/// crystals of ±50 ppm each. docs/time.md, "Bounds".
+const UNFIT_DRIFT: f64 = 100e-6;
 /// Chunk stamps older than this leave the bound.
 const CHUNK_WINDOW_NS: u64 = 10_000_000_000;
 /// How much more than the least-delayed chunk's bound the offset may be (a chunk's delay
 /// from queueing at the source to arrival, in the best case of the window: batching with
 /// `serve --chunks-per-message` adds up to 63 chunk periods).
 const CHUNK_SLACK_NS: i64 = 10_000_000_000;
+
+/// The clock map at one instant: source − local offset and its uncertainty (ns), from
+/// [`ClockEstimator::map`]; a source stamp `t_s` maps to `t_s − offset_ns`, within
+/// `± uncertainty_ns` of where the source's clock put it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ClockMap {
+    /// Source minus local (ns).
+    pub offset_ns: i64,
+    /// Bound of the offset's error (ns).
+    pub uncertainty_ns: u64,
+}
 
 /// One round: the local mid-point, the offset seen and the round trip.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -191,6 +206,11 @@ impl Fit {
 
     /// Least-squares slope of offset over local time (ns/ns), once the window spans 5 s.
     fn slope(&self) -> Option<f64> {
+        self.slope_fit().map(|(b, _)| b)
+    }
+
+    /// The slope and its standard error (both ns/ns), once the window spans 5 s.
+    fn slope_fit(&self) -> Option<(f64, f64)> {
         let (first, last) = (self.rounds.front()?, self.rounds.back()?);
         if self.rounds.len() < 3 || last.local_ns - first.local_ns < 5_000_000_000 {
             return None;
@@ -208,19 +228,50 @@ impl Fit {
             sto += t * o;
         }
         let den = n * stt - st * st;
-        (den.abs() > f64::EPSILON).then(|| (n * sto - st * so) / den)
+        if den.abs() <= f64::EPSILON {
+            return None;
+        }
+        let b = (n * sto - st * so) / den;
+        let a = (so - b * st) / n;
+        let ss: f64 = self
+            .rounds
+            .iter()
+            .map(|r| {
+                let (t, o) = (r.local_ns as f64 - t0, r.offset_ns as f64 - o0);
+                (o - a - b * t).powi(2)
+            })
+            .sum();
+        // Standard error of the slope: residual variance over the spread of the times.
+        let sxx = stt - st * st / n;
+        let se = if n > 2.0 && sxx > 0.0 { (ss / (n - 2.0) / sxx).sqrt() } else { f64::INFINITY };
+        Some((b, se))
     }
 
-    /// The offset at local time `now` and its uncertainty: the best round of the window,
-    /// carried to `now` with the smoothed drift.
+    /// How wrong the drift used by [`Fit::at`] may be (ns/ns): before the fit spans 5 s, the
+    /// drift two hosts' crystals may have ([`UNFIT_DRIFT`]); then three standard errors of the
+    /// fitted slope plus how far the smoothed drift lags it.
+    fn drift_error(&self) -> f64 {
+        match (self.slope_fit(), self.drift) {
+            (Some((b, se)), Some(d)) if se.is_finite() => ((d - b).abs() + 3.0 * se).min(MAX_DRIFT),
+            _ => UNFIT_DRIFT,
+        }
+    }
+
+    /// The offset at local time `now` and its uncertainty: a round of the window carried to
+    /// `now` with the smoothed drift; its uncertainty is half its round trip plus the drift's
+    /// possible error over the time since it ([`Fit::drift_error`]), and the round taken is
+    /// the one whose uncertainty is least.
     pub fn at(&self, now: u64) -> Option<(i64, u64)> {
         if self.rounds.len() < MIN_ROUNDS {
             return None;
         }
-        let best = self.best()?;
+        // The round whose carried uncertainty is least: a small round trip, not too old.
+        let err = self.drift_error();
+        let unc = |r: &Round| r.rtt_ns / 2 + (err * (now as f64 - r.local_ns as f64).abs()).ceil() as u64;
+        let best = self.rounds.iter().min_by_key(|r| unc(r))?;
         let drift = self.drift.unwrap_or(0.0);
         let dt = now as f64 - best.local_ns as f64;
-        Some(((best.offset_ns as f64 + drift * dt).round() as i64, best.rtt_ns / 2))
+        Some(((best.offset_ns as f64 + drift * dt).round() as i64, unc(best)))
     }
 
     /// Smoothed drift in parts per million.
@@ -318,6 +369,12 @@ impl ClockEstimator {
             Some((o, u)) => (Some(o), Some(u)),
             None => (None, None),
         }
+    }
+
+    /// The clock map now, once there is an estimate.
+    pub fn map(&self) -> Option<ClockMap> {
+        let (o, u) = self.fit().at(bassport::sys::monotonic_ns())?;
+        Some(ClockMap { offset_ns: o, uncertainty_ns: u })
     }
 
     /// Smoothed drift (ppm).

@@ -6,7 +6,8 @@
 //!  offset  size  field            (all integers little-endian)
 //!  0       8     magic            b"BASSNET\0"
 //!  8       2     version          2 (a decoder refuses any other)
-//!  10      2     header_len       96; samples start here (a later version may grow it)
+//!  10      2     header_len       120; samples start here (96 before 2026-12-03, without
+//!                                 the three fields at 96..120; a later version may grow it)
 //!  12      4     flags            the port's chunk flags, same bits (GAP 1, DISCONTINUITY 2,
 //!                                 TIME_ESTIMATED 4, LATE 8), and the bridge's SOURCE_LOSS 16
 //!  16      8     instance         random id of the sending `serve` process
@@ -23,7 +24,11 @@
 //!  72      8     realtime_ns      source CLOCK_REALTIME of the first frame
 //!  80      8     send_mono_ns     source CLOCK_MONOTONIC when the message was queued
 //!  88      8     source_lost      frames this instance could not send so far (cumulative)
-//!  96      4*frames*channels      samples, planar i32: channel 0's frames, then channel
+//!  96      8     bound_ns         the source chunk's timestamp bound (port format 2.4);
+//!                                 u64::MAX = not known (and for a 96-byte header)
+//!  104     8     missing_channels the source chunk's channels not real (bit c: channel c)
+//!  112     8     unaligned_channels the source chunk's channels not yet aligned
+//!  120     4*frames*channels      samples, planar i32: channel 0's frames, then channel
 //!                                 1's, ... (the port's own layout); empty when GAP is set
 //! ```
 //!
@@ -43,8 +48,11 @@ use bassport::format::chunk_flags;
 pub const MAGIC: [u8; 8] = *b"BASSNET\0";
 /// Wire format version.
 pub const VERSION: u16 = 2;
-/// Bytes of the header.
-pub const HEADER_LEN: usize = 96;
+/// Bytes of the header this version writes.
+pub const HEADER_LEN: usize = 120;
+/// Bytes of the shortest header a decoder accepts: the header of version 2 before the
+/// timestamp bound and the channel masks (2026-12-03), which then read as unknown and empty.
+pub const MIN_HEADER_LEN: usize = 96;
 /// Sample format code: signed 32-bit.
 pub const SAMPLE_FORMAT_S32: u16 = 1;
 /// Most frames a chunk may carry (a larger value is a corrupt or hostile message).
@@ -132,6 +140,12 @@ pub struct Header {
     pub send_mono_ns: u64,
     /// Frames this instance could not send so far.
     pub source_lost: u64,
+    /// The source chunk's timestamp bound (ns; `BOUND_UNKNOWN` = not known).
+    pub bound_ns: u64,
+    /// The source chunk's channels whose frames are not real (bit c: channel c).
+    pub missing_channels: u64,
+    /// The source chunk's channels not yet aligned (bit c: channel c).
+    pub unaligned_channels: u64,
 }
 
 const _: () = assert!(size_of::<Header>() == HEADER_LEN);
@@ -151,12 +165,16 @@ const _: () = assert!(offset_of!(Header, mono_ns) == 64);
 const _: () = assert!(offset_of!(Header, realtime_ns) == 72);
 const _: () = assert!(offset_of!(Header, send_mono_ns) == 80);
 const _: () = assert!(offset_of!(Header, source_lost) == 88);
+const _: () = assert!(offset_of!(Header, bound_ns) == 96);
+const _: () = assert!(MIN_HEADER_LEN == 96);
+const _: () = assert!(offset_of!(Header, missing_channels) == 104);
+const _: () = assert!(offset_of!(Header, unaligned_channels) == 112);
 
 /// Why a message was refused.
 #[derive(Debug, PartialEq, Eq, thiserror::Error)]
 pub enum DecodeError {
     /// Shorter than a header.
-    #[error("message of {0} bytes is shorter than the {HEADER_LEN}-byte header")]
+    #[error("message of {0} bytes is shorter than the {MIN_HEADER_LEN}-byte header")]
     Short(usize),
     /// Not a bass chunk message.
     #[error("bad magic {0:02x?}")]
@@ -250,6 +268,9 @@ pub fn encode_into(out: &mut Vec<u8>, h: &Header, planar: &[i32]) {
     put(head, offset_of!(Header, realtime_ns), h.realtime_ns.to_le_bytes());
     put(head, offset_of!(Header, send_mono_ns), h.send_mono_ns.to_le_bytes());
     put(head, offset_of!(Header, source_lost), h.source_lost.to_le_bytes());
+    put(head, offset_of!(Header, bound_ns), h.bound_ns.to_le_bytes());
+    put(head, offset_of!(Header, missing_channels), h.missing_channels.to_le_bytes());
+    put(head, offset_of!(Header, unaligned_channels), h.unaligned_channels.to_le_bytes());
     out.reserve(planar.len() * 4);
     for s in planar {
         out.extend_from_slice(&s.to_le_bytes());
@@ -265,7 +286,7 @@ pub fn encode(h: &Header, planar: &[i32]) -> Vec<u8> {
 
 /// Decodes and validates one message. Never panics, whatever the bytes.
 pub fn decode(b: &[u8]) -> Result<Chunk<'_>, DecodeError> {
-    if b.len() < HEADER_LEN {
+    if b.len() < MIN_HEADER_LEN {
         return Err(DecodeError::Short(b.len()));
     }
     let magic: [u8; 8] = get(b, 0);
@@ -297,12 +318,26 @@ pub fn decode(b: &[u8]) -> Result<Chunk<'_>, DecodeError> {
         realtime_ns: u64_at(offset_of!(Header, realtime_ns)),
         send_mono_ns: u64_at(offset_of!(Header, send_mono_ns)),
         source_lost: u64_at(offset_of!(Header, source_lost)),
+        bound_ns: bassport::format::BOUND_UNKNOWN,
+        missing_channels: 0,
+        unaligned_channels: 0,
     };
     let field = |field, value: u64| Err(DecodeError::Field { field, value });
     let hl = usize::from(h.header_len);
-    if hl < HEADER_LEN || hl > b.len() {
+    if hl < MIN_HEADER_LEN || hl > b.len() {
         return field("header_len", hl as u64);
     }
+    // Read only when the header holds them (not a 96-byte header of before 2026-12-03).
+    let h = if hl >= HEADER_LEN {
+        Header {
+            bound_ns: u64_at(offset_of!(Header, bound_ns)),
+            missing_channels: u64_at(offset_of!(Header, missing_channels)),
+            unaligned_channels: u64_at(offset_of!(Header, unaligned_channels)),
+            ..h
+        }
+    } else {
+        h
+    };
     if h.flags & !flags::ALL != 0 {
         return field("flags", h.flags.into());
     }
@@ -323,6 +358,14 @@ pub fn decode(b: &[u8]) -> Result<Chunk<'_>, DecodeError> {
     }
     if h.epoch == 0 {
         return field("epoch", 0);
+    }
+    // A mask bit past the channels names no channel.
+    let channel_bits = if h.channels >= 64 { u64::MAX } else { (1u64 << h.channels) - 1 };
+    if h.missing_channels & !channel_bits != 0 {
+        return field("missing_channels", h.missing_channels);
+    }
+    if h.unaligned_channels & !channel_bits != 0 {
+        return field("unaligned_channels", h.unaligned_channels);
     }
     // Frames are numbered from 1 and a source chunk starts at a multiple of its size plus 1.
     let max_frame = bassport::format::MAX_FRAME_INDEX;
@@ -389,7 +432,7 @@ impl ExactSizeIterator for Chunks<'_> {}
 /// The length of the chunk message at the start of `b`, from its header (header length,
 /// frames, channels, GAP), checked against what `b` holds.
 fn message_len(b: &[u8]) -> Result<usize, DecodeError> {
-    if b.len() < HEADER_LEN {
+    if b.len() < MIN_HEADER_LEN {
         return Err(DecodeError::Short(b.len()));
     }
     let hl = usize::from(u16::from_le_bytes(get(b, offset_of!(Header, header_len))));
@@ -402,7 +445,7 @@ fn message_len(b: &[u8]) -> Result<usize, DecodeError> {
     } else {
         frames.min(MAX_FRAMES) as usize * usize::from(channels.min(MAX_CHANNELS)) * 4
     };
-    let len = hl.max(HEADER_LEN) + payload;
+    let len = hl.max(MIN_HEADER_LEN) + payload;
     if len > b.len() {
         return Err(DecodeError::Payload { found: b.len().saturating_sub(hl), expected: payload });
     }

@@ -34,6 +34,7 @@ use super::bounds::Bounds;
 use super::replica::Replica;
 use super::status::held;
 pub use super::status::{LogLimit, MirrorStatus, LOG_EVERY_NS};
+use crate::clock::ClockMap;
 use crate::net::{BridgeState, SourceState};
 use crate::text::escape;
 use crate::wire;
@@ -223,14 +224,14 @@ impl Core {
         }
     }
 
-    /// One Zenoh message of chunks; `offset` is the clock estimate (source - local, ns).
+    /// One Zenoh message of chunks; `clock` is the clock estimate (source - local offset and its uncertainty).
     /// Returns what was done with each chunk (one [`Outcome::Invalid`] for a refused
     /// message); nothing is allocated once the buffers have grown.
-    pub fn on_message(&mut self, bytes: &[u8], now: u64, offset: Option<i64>) -> &[Outcome] {
+    pub fn on_message(&mut self, bytes: &[u8], now: u64, clock: Option<ClockMap>) -> &[Outcome] {
         let mut outcomes = std::mem::take(&mut self.outcomes);
         outcomes.clear();
         match wire::decode_batch(bytes) {
-            Ok(chunks) => outcomes.extend(chunks.map(|c| self.on_chunk(&c, now, offset))),
+            Ok(chunks) => outcomes.extend(chunks.map(|c| self.on_chunk(&c, now, clock))),
             Err(e) => {
                 self.st.invalid_messages += 1;
                 if let Some(n) = self.logs.invalid.allow(now) {

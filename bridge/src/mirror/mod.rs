@@ -217,7 +217,7 @@ fn subscribe_chunks(
     session
         .declare_subscriber(chunk_key.clone())
         .callback(move |s| {
-            let (offset, _) = chunk_clock.estimate();
+            let clock = chunk_clock.map();
             let bytes = s.payload().to_bytes();
             if let Some(id) = &chunk_id {
                 let sig = s.attachment().map(|a| a.to_bytes()).unwrap_or_default();
@@ -227,7 +227,7 @@ fn subscribe_chunks(
                 }
             }
             let mut c = lock(&chunk_core);
-            c.on_message(&bytes, monotonic_ns(), offset);
+            c.on_message(&bytes, monotonic_ns(), clock);
             if let Some((source, local)) = c.take_stamp() {
                 chunk_clock.observe_chunk(source, local);
             }

@@ -7,6 +7,7 @@ use bassport::format::chunk_flags;
 use bassport::{ChunkMeta, Geometry, Source, Writer};
 
 use super::status::MirrorStatus;
+use crate::clock::ClockMap;
 use crate::wire;
 
 const SEC: u64 = 1_000_000_000;
@@ -44,12 +45,20 @@ pub fn publish(
     c: &wire::Chunk,
     samples: &mut Vec<i32>,
     now: u64,
-    offset: Option<i64>,
+    clock: Option<ClockMap>,
 ) -> bassport::Result<u64> {
     let h = c.header;
-    let mono = match offset {
-        Some(off) if h.mono_ns != 0 => (h.mono_ns as i64).saturating_sub(off).max(1) as u64,
+    let mono = match clock {
+        Some(m) if h.mono_ns != 0 => (h.mono_ns as i64).saturating_sub(m.offset_ns).max(1) as u64,
         _ => 0,
+    };
+    // The mapped stamp is as good as the source's stamp and the map together; without a map
+    // (the arrival time) or a source bound, nothing bounds it.
+    let bound_ns = match clock {
+        Some(m) if mono != 0 && h.bound_ns != bassport::format::BOUND_UNKNOWN => {
+            Some(h.bound_ns.saturating_add(m.uncertainty_ns).min(bassport::format::BOUND_UNKNOWN - 1))
+        }
+        _ => None,
     };
     let missing = h.first_frame - r.expected;
     if missing > 0 {
@@ -69,7 +78,14 @@ pub fn publish(
     }
     r.last_source_lost = h.source_lost;
     let flags = wire::port_flags(h.flags) | chunk_flags::TIME_ESTIMATED;
-    let meta = ChunkMeta { mono_ns: mono, realtime_ns: h.realtime_ns, flags, ..ChunkMeta::default() };
+    let meta = ChunkMeta {
+        mono_ns: mono,
+        realtime_ns: h.realtime_ns,
+        flags,
+        bound_ns,
+        missing_channels: h.missing_channels,
+        unaligned_channels: h.unaligned_channels,
+    };
     if c.is_gap() {
         r.writer.publish(Source::Zeros, meta)?;
     } else {

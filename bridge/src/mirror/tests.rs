@@ -14,6 +14,7 @@ use super::bounds::Bounds;
 use super::core::{
     Core, MirrorStatus, Outcome, GONE_SILENCE_NS, INSTANCE_SILENCE_NS, RETRY_NS, STATE_CONFIRM_NS,
 };
+use crate::clock::ClockMap;
 use crate::wire::{self, Header};
 
 const RATE: u32 = 48_000;
@@ -41,6 +42,9 @@ fn header(instance: u64, epoch: u64, first_frame: u64) -> Header {
         realtime_ns: 0,
         send_mono_ns: 0,
         source_lost: 0,
+        bound_ns: bassport::format::BOUND_UNKNOWN,
+        missing_channels: 0,
+        unaligned_channels: 0,
     }
 }
 
@@ -102,7 +106,7 @@ fn applied(o: Outcome) -> bool {
 #[test]
 fn a_1_tib_geometry_is_refused_and_nothing_is_allocated() {
     let mut r = Rig::new("huge");
-    // 96 bytes asking for 64 channels x 2^20 frames x 4095 chunks (~1 TiB): a GAP chunk, so
+    // A header asking for 64 channels x 2^20 frames x 4095 chunks (~1 TiB): a GAP chunk, so
     // the decoder takes it; the format's own size limit refuses it (before the operator's
     // bounds, as in bassd: no option could widen it).
     let h = Header {
@@ -113,7 +117,7 @@ fn a_1_tib_geometry_is_refused_and_nothing_is_allocated() {
         ..header(1, 1, 1)
     };
     let msg = wire::encode(&h, &[]);
-    assert_eq!(msg.len(), 96);
+    assert_eq!(msg.len(), wire::HEADER_LEN);
     assert_eq!(r.send(&msg, T0), Outcome::Invalid);
     assert_eq!(r.core.st.invalid_messages, 1);
     assert!(r.dir.entries().is_empty(), "nothing made: {:?}", r.dir.entries());
@@ -538,8 +542,8 @@ fn a_fresh_chunk_after_a_backlog_of_late_ones_is_taken_when_the_clock_says_it_is
     // between, and the next one sent is 4.8 s ahead, arriving right after the backlog.
     let mut r = Rig::new("backlog");
     let n = u64::from(NFPC);
-    let offset = Some(-7 * SEC as i64); // source clock = local - 7 s
-                                        // The last chunk of the backlog (frame `late`) was captured 5 s before it arrived at T0.
+    let offset = Some(ClockMap { offset_ns: -7 * SEC as i64, uncertainty_ns: 0 }); // source clock = local - 7 s
+                                                                                   // The last chunk of the backlog (frame `late`) was captured 5 s before it arrived at T0.
     let late = 1 + 10 * n;
     let stamp = |frame: u64| (T0 - 12 * SEC) + (frame - late) * SEC / u64::from(RATE);
     let msg = |frame: u64| {
@@ -600,4 +604,34 @@ fn the_status_says_why_the_replica_is_in_error_and_forgets_it_when_data_comes_ba
     r.core.refresh();
     assert_eq!(r.core.st.state, crate::net::BridgeState::Error);
     assert_eq!(r.core.st.error.as_deref(), Some("source: unplugged"));
+}
+
+/// Format 2.4 across the network: a replica chunk's bound is the source's plus the clock
+/// map's uncertainty, its channel masks are the source's; without a map (arrival-time
+/// stamps) or without a source bound, the replica claims none.
+#[test]
+fn a_replica_chunk_carries_the_source_bound_plus_the_map_uncertainty_and_the_masks() {
+    let mut r = Rig::new("bound");
+    let n = u64::from(NFPC);
+    let map = Some(ClockMap { offset_ns: -7 * SEC as i64, uncertainty_ns: 25_000 });
+    let h = |k: u64, bound_ns: u64| Header {
+        mono_ns: 5 * SEC + k * SEC / 100,
+        bound_ns,
+        missing_channels: 0b10,
+        unaligned_channels: 0b01,
+        ..header(1, 1, 1 + k * n)
+    };
+    let send = |r: &mut Rig, k: u64, bound: u64, clock: Option<ClockMap>| {
+        let msg = wire::encode(&h(k, bound), &signature(1, 1, 1 + k * n));
+        assert!(applied(r.core.on_message(&msg, T0 + k, clock)[0]));
+    };
+    send(&mut r, 0, 40_000, map);
+    send(&mut r, 1, 40_000, None);
+    send(&mut r, 2, bassport::format::BOUND_UNKNOWN, map);
+    let port = Port::open_path(&r.port_path()).unwrap();
+    let c = port.chunk_info(1).unwrap();
+    assert_eq!((c.mono_ns, c.bound()), (12 * SEC, Some(65_000)));
+    assert_eq!((c.missing_channels, c.unaligned_channels), (0b10, 0b01));
+    assert_eq!(port.chunk_info(1 + n).unwrap().bound(), None, "no map: arrival-time stamps");
+    assert_eq!(port.chunk_info(1 + 2 * n).unwrap().bound(), None, "no source bound");
 }

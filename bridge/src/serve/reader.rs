@@ -253,6 +253,9 @@ impl<'a> Reader<'a> {
             realtime_ns: ci.map_or(0, |c| c.realtime_ns),
             send_mono_ns: bassport::sys::monotonic_ns(),
             source_lost: self.lost_frames,
+            bound_ns: ci.map_or(bassport::format::BOUND_UNKNOWN, |c| c.bound_ns),
+            missing_channels: ci.map_or(0, |c| c.missing_channels),
+            unaligned_channels: ci.map_or(0, |c| c.unaligned_channels),
             ..Default::default()
         };
         if let Some(x) = iox {

@@ -23,6 +23,9 @@ fn sample_header() -> Header {
         realtime_ns: 2,
         send_mono_ns: 3,
         source_lost: 128,
+        bound_ns: 40_000,
+        missing_channels: 0b10,
+        unaligned_channels: 0b01,
     }
 }
 
@@ -39,13 +42,15 @@ fn a_chunk_round_trips_and_its_bytes_sit_at_the_documented_offsets() {
     let h = sample_header();
     let samples: Vec<i32> = (0..128).map(|i| i * 1000 - 7).collect();
     let bytes = encode(&h, &samples);
-    assert_eq!(bytes.len(), 96 + 512);
+    assert_eq!(bytes.len(), 120 + 512);
     assert_eq!(&bytes[0..8], b"BASSNET\0");
     assert_eq!(u16::from_le_bytes(bytes[8..10].try_into().unwrap()), 2);
     assert_eq!(u64::from_le_bytes(bytes[40..48].try_into().unwrap()), 321);
+    assert_eq!(u64::from_le_bytes(bytes[96..104].try_into().unwrap()), 40_000);
+    assert_eq!(u64::from_le_bytes(bytes[104..112].try_into().unwrap()), 0b10);
     // Planar: channel 0's 64 frames, then channel 1's.
-    assert_eq!(i32::from_le_bytes(bytes[96..100].try_into().unwrap()), -7);
-    assert_eq!(i32::from_le_bytes(bytes[96 + 256..100 + 256].try_into().unwrap()), 64 * 1000 - 7);
+    assert_eq!(i32::from_le_bytes(bytes[120..124].try_into().unwrap()), -7);
+    assert_eq!(i32::from_le_bytes(bytes[120 + 256..124 + 256].try_into().unwrap()), 64 * 1000 - 7);
     let c = decode(&bytes).unwrap();
     assert_eq!(c.header, h);
     assert_eq!(c.planar(), samples);
@@ -53,6 +58,45 @@ fn a_chunk_round_trips_and_its_bytes_sit_at_the_documented_offsets() {
     let mut shifted = vec![0u8];
     shifted.extend(&bytes);
     assert_eq!(decode(&shifted[1..]).unwrap().planar(), samples);
+}
+
+/// A message of a serve from before the bound (its header 96 bytes, samples right after) is
+/// read: no bound, no masks; batched with new ones too.
+#[test]
+fn a_96_byte_header_of_before_the_bound_decodes_with_no_bound_and_no_masks() {
+    let h = sample_header();
+    let samples: Vec<i32> = (0..128).collect();
+    let new = encode(&h, &samples);
+    let mut old = new[..96].to_vec();
+    old[10..12].copy_from_slice(&96u16.to_le_bytes());
+    old.extend_from_slice(&new[120..]);
+    let c = decode(&old).unwrap();
+    assert_eq!((c.header.bound_ns, c.header.missing_channels, c.header.unaligned_channels), (u64::MAX, 0, 0));
+    assert_eq!((c.header.first_frame, c.planar()), (321, samples));
+    let both: Vec<u8> = old.iter().chain(new.iter()).copied().collect();
+    let got: Vec<u64> = decode_batch(&both).unwrap().map(|c| c.header.bound_ns).collect();
+    assert_eq!(got, [u64::MAX, 40_000]);
+    let mut short = old.clone();
+    short[10..12].copy_from_slice(&95u16.to_le_bytes());
+    assert_eq!(decode(&short), Err(DecodeError::Field { field: "header_len", value: 95 }));
+}
+
+/// A channel mask with a bit past the chunk's channels is refused, naming the mask.
+#[test]
+fn a_channel_mask_naming_a_channel_the_chunk_lacks_is_refused() {
+    let samples = vec![0; 128];
+    let h = Header { missing_channels: 0b100, ..sample_header() };
+    assert_eq!(
+        decode(&encode(&h, &samples)),
+        Err(DecodeError::Field { field: "missing_channels", value: 4 })
+    );
+    let h = Header { unaligned_channels: 1 << 63, ..sample_header() };
+    assert_eq!(
+        decode(&encode(&h, &samples)),
+        Err(DecodeError::Field { field: "unaligned_channels", value: 1 << 63 })
+    );
+    let h = Header { channels: 64, missing_channels: u64::MAX, ..sample_header() };
+    assert!(decode(&encode(&h, &vec![0; 64 * 64])).is_ok());
 }
 
 #[test]
@@ -86,13 +130,13 @@ fn a_batch_decodes_chunk_by_chunk_and_a_truncated_batch_is_refused_whole() {
     // One message is a batch of one.
     assert_eq!(decode_batch(&encode(&sample_header(), &samples)).unwrap().count(), 1);
     // Cut inside the second chunk: nothing of the message is taken.
-    assert!(matches!(decode_batch(&batch[..96 + 512 + 100]), Err(DecodeError::Payload { .. })));
+    assert!(matches!(decode_batch(&batch[..HEADER_LEN + 512 + 100]), Err(DecodeError::Payload { .. })));
     assert_eq!(decode_batch(&[]).unwrap_err(), DecodeError::Short(0));
     // A full batch is taken once, with its counts.
     let mut b = Batch::new(2);
     assert!(!b.push(&parts[0].0, &samples) && b.push(&parts[1].0, &samples));
     let t = b.take().unwrap();
-    assert_eq!((t.first_sequence, t.chunks, t.frames, t.bytes.len()), (7, 2, 128, 2 * 608));
+    assert_eq!((t.first_sequence, t.chunks, t.frames, t.bytes.len()), (7, 2, 128, 2 * (HEADER_LEN + 512)));
     assert!(b.take().is_none());
 }
 
@@ -171,7 +215,8 @@ proptest! {
         per_message in 1usize..5,
     ) {
         let h = Header { flags, instance, epoch, sequence: seq, first_frame: chunk * u64::from(frames) + 1,
-            frames, channels, sample_rate: rate, ..sample_header() };
+            frames, channels, sample_rate: rate, missing_channels: 1 << (channels - 1), unaligned_channels: 1,
+            ..sample_header() };
         let n = if flags & flags::GAP != 0 { 0 } else { frames as usize * channels as usize };
         let samples: Vec<i32> = (0..n as i32).map(|i| i.wrapping_mul(-7_654_321)).collect();
         let bytes = encode(&h, &samples);

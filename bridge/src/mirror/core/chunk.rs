@@ -7,6 +7,7 @@ use bassport::{Geometry, PortParams, State, Writer};
 use super::{
     held, Core, Outcome, AHEAD_MARGIN_NS, RECREATIONS_PER_MINUTE, RECREATION_INTERVAL_NS, RETRY_NS, SEC,
 };
+use crate::clock::ClockMap;
 use crate::mirror::bounds::Holder;
 use crate::mirror::replica::{publish, Replica};
 use crate::text::escape;
@@ -14,7 +15,7 @@ use crate::wire;
 
 impl Core {
     /// One chunk.
-    pub fn on_chunk(&mut self, c: &wire::Chunk, now: u64, offset: Option<i64>) -> Outcome {
+    pub fn on_chunk(&mut self, c: &wire::Chunk, now: u64, clock: Option<ClockMap>) -> Outcome {
         let h = c.header;
         let geometry = match self.check_bounds(&h, now) {
             Ok(g) => g,
@@ -33,12 +34,12 @@ impl Core {
             self.follow(h.instance, now);
             return Outcome::LateOrDuplicate;
         }
-        if !new_replica && self.too_far_ahead(&h, now, offset) {
+        if !new_replica && self.too_far_ahead(&h, now, clock) {
             return Outcome::FarFrame;
         }
         self.follow(h.instance, now);
         self.refuse_pending_state(now);
-        self.write_chunk(c, now, offset, new_replica)
+        self.write_chunk(c, now, clock, new_replica)
     }
 
     /// The chunk's geometry, or [`Outcome::Invalid`] (counted, logged) if it is outside the
@@ -117,14 +118,14 @@ impl Core {
     /// where the source's clock is now — since the last chunk's first frame was captured (a
     /// backlog of late chunks on a congested link must not make the next fresh one look too
     /// far ahead).
-    fn too_far_ahead(&mut self, h: &wire::Header, now: u64, offset: Option<i64>) -> bool {
+    fn too_far_ahead(&mut self, h: &wire::Header, now: u64, clock: Option<ClockMap>) -> bool {
         let Some(r) = self.replica.as_ref() else { return false };
         let rate = u128::from(r.geometry.sample_rate);
         let margin = u128::from(AHEAD_MARGIN_NS) * rate / u128::from(SEC)
             + u128::from(r.writer.layout().frames_on_port);
         let elapsed = now.saturating_sub(r.last_chunk_ns);
         let by_arrival = u128::from(elapsed) * rate / u128::from(SEC);
-        let by_clock = match offset {
+        let by_clock = match clock.map(|m| m.offset_ns) {
             Some(off) if r.last_mono_ns != 0 => {
                 let source_now = i128::from(now) + i128::from(off);
                 let since = (source_now - i128::from(r.last_mono_ns)).max(0) as u128;
@@ -168,10 +169,16 @@ impl Core {
 
     /// Publishes the chunk into the replica; a replica that cannot be written is dropped (made
     /// again on a later chunk).
-    fn write_chunk(&mut self, c: &wire::Chunk, now: u64, offset: Option<i64>, new_replica: bool) -> Outcome {
+    fn write_chunk(
+        &mut self,
+        c: &wire::Chunk,
+        now: u64,
+        clock: Option<ClockMap>,
+        new_replica: bool,
+    ) -> Outcome {
         let h = c.header;
         let Some(r) = self.replica.as_mut() else { return Outcome::Failed };
-        match publish(r, &mut self.st, c, &mut self.samples, now, offset) {
+        match publish(r, &mut self.st, c, &mut self.samples, now, clock) {
             Ok(gap) => {
                 // When it was queued (not its first frame's time, a chunk earlier or more).
                 self.last_stamp = (h.send_mono_ns != 0).then_some((h.send_mono_ns, now));
