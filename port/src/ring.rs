@@ -95,18 +95,21 @@ pub enum CopyPath {
     /// `rep movsb` in inline assembly for runs of at least 2 KiB, the 16-byte loads below
     /// (x86-64 with fast strings, ERMS).
     RepMovsb = 2,
+    /// Aligned 32-byte AVX2 loads in inline assembly (x86-64 with AVX2).
+    Avx2 = 3,
 }
 
 impl CopyPath {
     /// Every path, in the order above.
-    pub const ALL: [CopyPath; 3] = [CopyPath::Portable, CopyPath::Sse2, CopyPath::RepMovsb];
+    pub const ALL: [CopyPath; 4] = [CopyPath::Portable, CopyPath::Sse2, CopyPath::RepMovsb, CopyPath::Avx2];
 
-    /// Its name (`portable`, `sse2`, `movsb`), as `$BASS_COPY_PATH` spells it.
+    /// Its name (`portable`, `sse2`, `movsb`, `avx2`), as `$BASS_COPY_PATH` spells it.
     pub fn name(self) -> &'static str {
         match self {
             CopyPath::Portable => "portable",
             CopyPath::Sse2 => "sse2",
             CopyPath::RepMovsb => "movsb",
+            CopyPath::Avx2 => "avx2",
         }
     }
 
@@ -136,11 +139,11 @@ pub fn set_copy_path(p: CopyPath) -> Result<(), String> {
 
 /// Loads the samples at positions `g0..g0 + dst.len()` of `words` into `dst`.
 ///
-/// On x86-64 the copy is made in inline assembly ([`wide::load_run`]): `rep movsb` for long
-/// runs on a CPU with fast strings, else aligned 16-byte SSE2 loads and aligned 16-byte
-/// stores. The compiler never vectorises atomic loads, and a loop of `AtomicU64` loads (the
-/// portable path, [`load_run_portable`]) runs at about 0.5–0.6× memcpy. The loom model and
-/// Miri run the portable path.
+/// On x86-64 the copy is made in inline assembly ([`wide::load_run`]): aligned 32-byte AVX2
+/// loads, `rep movsb` for long runs, or aligned 16-byte SSE2 loads, with aligned stores (which
+/// one per CPU: [`wide::copy_path`]). The compiler never vectorises atomic loads, and a loop
+/// of `AtomicU64` loads (the portable path, [`load_run_portable`]) runs at about 0.5–0.6×
+/// memcpy. The loom model and Miri run the portable path.
 #[inline(always)]
 fn load_run(words: &[AtomicU64], g0: usize, dst: &mut [i32]) {
     #[cfg(all(target_arch = "x86_64", not(loom), not(miri)))]
