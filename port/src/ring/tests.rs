@@ -1,5 +1,5 @@
-//! Unit tests of the ring's word copies: every alignment and length, and never a read past
-//! the sample words.
+//! Unit tests of the ring's word copies (every alignment and length, and never a read past
+//! the sample words) and of its slot arithmetic.
 
 use super::*;
 
@@ -74,4 +74,17 @@ fn copy_never_reads_past_the_words() {
     let rc = unsafe { libc::mprotect(base.add(PAGE).cast(), PAGE, libc::PROT_READ | libc::PROT_WRITE) };
     assert_eq!(rc, 0, "mprotect");
     drop(map);
+}
+
+/// The slot of a frame is `(frame mod nFOP + nFOP - 1) mod nFOP` (frame 0 in the last slot) for
+/// every window size and at the ends of the frame range, computed with one division.
+#[test]
+fn slot_is_the_frame_one_back_modulo_the_window() {
+    for n in [1u64, 2, 3, 7, 441, 441_441, (1 << 32) + 1, u64::MAX / 2] {
+        let frames = (0..3 * n.min(50)).chain([n - 1, n, n + 1, 2 * n, u64::MAX - 1, u64::MAX]);
+        for f in frames {
+            let expect = ((f % n) as u128 + n as u128 - 1) % n as u128;
+            assert_eq!(slot(f, n) as u128, expect, "frame {f}, nFOP {n}");
+        }
+    }
 }

@@ -96,23 +96,28 @@ fn default_path() -> CopyPath {
 /// `avx2`, `portable`; anything else, or a path this CPU lacks, is ignored), else the one
 /// measured best on this kind of CPU (`avx2` on AMD, `movsb` on Intel: [`default_path`]).
 /// Chosen once per process.
+#[inline]
 pub fn copy_path() -> CopyPath {
     match PATH.load(Ordering::Relaxed) {
         0 => CopyPath::Portable,
         1 => CopyPath::Sse2,
         2 => CopyPath::RepMovsb,
         3 => CopyPath::Avx2,
-        _ => {
-            let wanted = std::env::var("BASS_COPY_PATH").ok().and_then(|v| CopyPath::parse(&v));
-            let p = match wanted {
-                Some(p) if supported(p) => p,
-                _ => default_path(),
-            };
-            // A racing first call stores the same choice.
-            PATH.store(p as u8, Ordering::Relaxed);
-            p
-        }
+        _ => choose_path(),
     }
+}
+
+/// The first call of [`copy_path`]: chooses the path and keeps it.
+#[cold]
+fn choose_path() -> CopyPath {
+    let wanted = std::env::var("BASS_COPY_PATH").ok().and_then(|v| CopyPath::parse(&v));
+    let p = match wanted {
+        Some(p) if supported(p) => p,
+        _ => default_path(),
+    };
+    // A racing first call stores the same choice.
+    PATH.store(p as u8, Ordering::Relaxed);
+    p
 }
 
 /// Whether this CPU can run path `p`.
