@@ -74,7 +74,7 @@ fn main() {
     let reps = |full: usize| if opts.quick { 2.min(full) } else { full };
     if opts.parts.contains(&1) {
         println!("part 1: read throughput vs memcpy");
-        let runs = read::run(reps(7));
+        let runs = read::run(reps(15));
         results.read = runs.chosen_rows().to_vec();
         results.read_paths = Some(runs);
         results.copy_loops = Some(read::copy_loops(reps(7)));

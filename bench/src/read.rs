@@ -3,7 +3,9 @@
 //! One port of 44.1 kHz stereo holding a little more than 10 s, filled once. For each
 //! block size the newest N frames are read again and again, alternating, in the same run:
 //! (a) the C ABI `bass_get_audio_data`, (b) the Rust `Port::get_audio_data`,
-//! (c) `memcpy` of exactly the same ring segments into the same buffers.
+//! (c) `memcpy` of exactly the same ring segments into the same buffers; (a) and (c) in the
+//! order a c c a over the two halves of a sample's blocks, which cancels what the call before
+//! leaves behind (a cache or frequency state) and a drift during the sample.
 //! No writer runs during the measurement, so the plain memcpy of (c) is race-free here;
 //! (a) and (b) take the race-free path they always take (Relaxed atomic loads + intent re-check).
 
@@ -92,7 +94,8 @@ impl ReadResults {
 
 /// Copy-loop experiment: the same 64 KiB copied by memcpy, by the library's ring copy
 /// (`ChannelRing::copy_to`) on each wide path, and by a loop of Relaxed `AtomicU64` loads
-/// (the portable path, used where there is no wide copy).
+/// (the portable path, used where there is no wide copy); memcpy and the ring copies also with
+/// the destination placed 16 bytes past the source modulo 4 KiB ([`ALIASED`]).
 #[derive(Clone, Debug, Default)]
 pub struct CopyLoops {
     /// Per repetition GB/s: memcpy.
@@ -101,7 +104,18 @@ pub struct CopyLoops {
     pub ring: Vec<(CopyPath, Vec<f64>)>,
     /// Per repetition GB/s: AtomicU64 loop.
     pub atomic64: Vec<f64>,
+    /// Per repetition GB/s: memcpy, destination 4 KiB-aliased with the source.
+    pub aliased_memcpy: Vec<f64>,
+    /// Per wide path, per repetition GB/s: the ring copy, destination 4 KiB-aliased.
+    pub aliased_ring: Vec<(CopyPath, Vec<f64>)>,
 }
+
+/// Distance (bytes, modulo 4 KiB) from the source to the destination in the copy loops: far
+/// apart, and the 4 KiB-aliased case where a fast-string `rep movsb` (glibc's memcpy from
+/// 2 KiB up on CPUs with ERMS) slows down on some CPUs (AMD Zen 3: glibc bug 30994).
+pub const FAR: usize = 2048;
+/// See [`FAR`].
+pub const ALIASED: usize = 16;
 
 fn time_per_iter(iters: usize, mut f: impl FnMut(usize)) -> f64 {
     let t = Instant::now();
@@ -122,7 +136,6 @@ fn segments(first: u64, n: usize, nfop: u64) -> [(usize, usize); 2] {
 pub fn copy_loops(reps: usize) -> CopyLoops {
     let n = 16384; // 64 KiB of i32
     let src64: Vec<AtomicU64> = (0..n as u64 / 2).map(AtomicU64::new).collect();
-    let plain: Vec<i32> = (0..n as i32).collect();
     let (lfi, intent) = (AtomicU64::new(0), AtomicU64::new(0));
     let ring = bassport::ring::Ring {
         last_frame_index: &lfi,
@@ -131,46 +144,61 @@ pub fn copy_loops(reps: usize) -> CopyLoops {
         frames_on_port: n as u64,
     };
     let ring = ring.channel(0);
-    let mut dst = vec![0i32; n];
+    // The destinations: `n` samples at a chosen distance from the source modulo 4 KiB.
+    let mut buf = vec![0i32; n + 2048];
+    let at = |buf: &[i32], distance: usize| {
+        let (src, base) = (src64.as_ptr() as usize, buf.as_ptr() as usize);
+        (src + distance + 4096 - base % 4096) % 4096 / 4
+    };
+    let (far, aliased) = (at(&buf, FAR), at(&buf, ALIASED));
     let mut dst64 = vec![0u64; n / 2];
     let iters = 4000;
     let auto = copy_path();
-    let mut out =
-        CopyLoops { ring: wide_paths().into_iter().map(|p| (p, vec![])).collect(), ..Default::default() };
+    let paths = || wide_paths().into_iter().map(|p| (p, vec![])).collect();
+    let mut out = CopyLoops { ring: paths(), aliased_ring: paths(), ..Default::default() };
     let gbs = |ns: f64| (n * 4) as f64 / ns;
     for _ in 0..reps {
-        let m = time_per_iter(iters, |_| {
-            dst.copy_from_slice(&plain);
-            std::hint::black_box(&dst);
-        });
-        for (path, v) in out.ring.iter_mut() {
-            set_copy_path(*path).expect("a path of this CPU");
-            let a = time_per_iter(iters, |_| {
-                ring.copy_to(0, &mut dst);
+        for (off, memcpy, rings) in
+            [(far, &mut out.memcpy, &mut out.ring), (aliased, &mut out.aliased_memcpy, &mut out.aliased_ring)]
+        {
+            let dst = &mut buf[off..off + n];
+            let m = time_per_iter(iters, |_| {
+                // SAFETY: `src64` holds `n` samples (n / 2 words) and is only read (no thread
+                // writes it); `dst` holds `n` samples; the two do not overlap.
+                unsafe { std::ptr::copy_nonoverlapping(src64.as_ptr() as *const i32, dst.as_mut_ptr(), n) };
                 std::hint::black_box(&dst);
             });
-            v.push(gbs(a));
+            memcpy.push(gbs(m));
+            for (path, v) in rings.iter_mut() {
+                set_copy_path(*path).expect("a path of this CPU");
+                let a = time_per_iter(iters, |_| {
+                    ring.copy_to(0, dst);
+                    std::hint::black_box(&dst);
+                });
+                v.push(gbs(a));
+            }
+            set_copy_path(auto).expect("the chosen path");
         }
-        set_copy_path(auto).expect("the chosen path");
         let b = time_per_iter(iters, |_| {
             for (d, s) in dst64.iter_mut().zip(&src64) {
                 *d = s.load(Ordering::Relaxed);
             }
             std::hint::black_box(&dst64);
         });
-        out.memcpy.push(gbs(m));
         out.atomic64.push(gbs(b));
     }
-    let rings: Vec<String> = out
-        .ring
-        .iter()
-        .map(|(p, v)| format!("{} {} GB/s", p.name(), spread(v, |v| format!("{v:.1}"))))
-        .collect();
+    let rings = |r: &[(CopyPath, Vec<f64>)]| {
+        r.iter()
+            .map(|(p, v)| format!("{} {} GB/s", p.name(), spread(v, |v| format!("{v:.1}"))))
+            .collect::<Vec<_>>()
+    };
     println!(
-        "  copy loops, 64 KiB hot: memcpy {} GB/s, the ring copy {}, Relaxed AtomicU64 loads {} GB/s",
+        "  copy loops, 64 KiB hot: memcpy {} GB/s, the ring copy {}, Relaxed AtomicU64 loads {} GB/s; destination {ALIASED} B past the source mod 4 KiB: memcpy {} GB/s, the ring copy {}",
         spread(&out.memcpy, |v| format!("{v:.1}")),
-        rings.join(", "),
+        rings(&out.ring).join(", "),
         spread(&out.atomic64, |v| format!("{v:.1}")),
+        spread(&out.aliased_memcpy, |v| format!("{v:.1}")),
+        rings(&out.aliased_ring).join(", "),
     );
     out
 }
@@ -282,8 +310,9 @@ fn measure(filled: &Filled, row: &mut ReadRow, left: &mut [i32], right: &mut [i3
     let Filled { port, handle, rings, lfi, nfop, .. } = filled;
     let (handle, lfi, nfop) = (*handle, *lfi, *nfop);
     let n = row.frames;
-    // ~32 MB copied per timing sample, at least 5 calls.
-    let iters = (32_000_000 / row.bytes).clamp(5, 200_000);
+    // ~32 MB copied per timing sample, at least 6 calls (an even count: see below).
+    let iters = (32_000_000 / row.bytes).clamp(6, 200_000) & !1;
+    let half = iters / 2;
     // Hot: always the newest n frames. Streaming: successive blocks through the
     // newest 10 s, as a reader consuming a stream (source mostly not in L1/L2).
     let oldest = lfi - 441_000 + 1;
@@ -291,29 +320,19 @@ fn measure(filled: &Filled, row: &mut ReadRow, left: &mut [i32], right: &mut [i3
     let starts: Vec<u64> = (0..iters as u64).map(|k| oldest + (k * n as u64) % span).collect();
     let hot: Vec<u64> = vec![lfi - n as u64 + 1; iters];
     for (stream, firsts) in [(false, &hot), (true, &starts)] {
+        let (lp, rp) = (left.as_mut_ptr(), right.as_mut_ptr());
         let segs: Vec<[(usize, usize); 2]> = firsts.iter().map(|&f| segments(f, n, nfop)).collect();
-        let mut ffi = |k: usize| {
+        let ffi = |k: usize| {
             let mut nfr = firsts[k];
             let (mut got, mut loss) = (0usize, 0u64);
             // SAFETY: `handle` is open; both buffers hold at least `n` samples; the
             // out-pointers are valid locals.
-            let rc = unsafe {
-                bassclient::bass_get_audio_data(
-                    handle,
-                    n,
-                    &mut nfr,
-                    left.as_mut_ptr(),
-                    right.as_mut_ptr(),
-                    &mut got,
-                    &mut loss,
-                )
-            };
+            let rc =
+                unsafe { bassclient::bass_get_audio_data(handle, n, &mut nfr, lp, rp, &mut got, &mut loss) };
             assert!(rc as i32 == 0 && got == n && loss == 0);
         };
-        ffi(0);
-        let ffi_ns = time_per_iter(iters, &mut ffi);
-        let mut memcpy = |k: usize| {
-            for (c, dst) in [left.as_mut_ptr(), right.as_mut_ptr()].into_iter().enumerate() {
+        let memcpy = |k: usize| {
+            for (c, dst) in [lp, rp].into_iter().enumerate() {
                 let mut done = 0;
                 for &(s, len) in &segs[k] {
                     // SAFETY: the segments lie inside channel c's ring of nFOP samples;
@@ -324,10 +343,17 @@ fn measure(filled: &Filled, row: &mut ReadRow, left: &mut [i32], right: &mut [i3
                     done += len;
                 }
             }
-            std::hint::black_box(&left);
+            std::hint::black_box(lp);
         };
+        ffi(0);
         memcpy(0);
-        let memcpy_ns = time_per_iter(iters, &mut memcpy);
+        // In the order A B B A over the two halves of the blocks, so that neither call has
+        // the place right after the other's (a cache or frequency state left by the one before
+        // counts for both, and a drift during the sample cancels).
+        let ffi_ns = time_per_iter(half, ffi);
+        let memcpy_ns = time_per_iter(half, memcpy) + time_per_iter(half, |k| memcpy(half + k));
+        let ffi_ns = (ffi_ns + time_per_iter(half, |k| ffi(half + k))) / 2.0;
+        let memcpy_ns = memcpy_ns / 2.0;
         let gbs = |ns: f64| row.bytes as f64 / ns;
         if stream {
             row.stream_ffi_gbs.push(gbs(ffi_ns));

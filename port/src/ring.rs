@@ -51,9 +51,16 @@ fn join(a: i32, b: i32) -> u64 {
 /// Frame 0 (the zero frame before any data) maps to the last slot, which stays
 /// zero until frame nFOP is written, when frame 0 has left the window.
 /// Reduced first, so that any `frame` (a caller's nfr may be near 2^64) cannot overflow.
+/// One division: `frame % nFOP + nFOP - 1` is below `2 nFOP`, so the second reduction is a
+/// subtraction (a division costs 10–40 cycles, and every read computes a slot).
 #[inline]
 pub fn slot(frame: u64, frames_on_port: u64) -> u64 {
-    (frame % frames_on_port + frames_on_port - 1) % frames_on_port
+    let s = frame % frames_on_port + frames_on_port - 1;
+    if s >= frames_on_port {
+        s - frames_on_port
+    } else {
+        s
+    }
 }
 
 /// Number of words holding `samples` samples.
@@ -95,18 +102,21 @@ pub enum CopyPath {
     /// `rep movsb` in inline assembly for runs of at least 2 KiB, the 16-byte loads below
     /// (x86-64 with fast strings, ERMS).
     RepMovsb = 2,
+    /// Aligned 32-byte AVX2 loads in inline assembly (x86-64 with AVX2).
+    Avx2 = 3,
 }
 
 impl CopyPath {
     /// Every path, in the order above.
-    pub const ALL: [CopyPath; 3] = [CopyPath::Portable, CopyPath::Sse2, CopyPath::RepMovsb];
+    pub const ALL: [CopyPath; 4] = [CopyPath::Portable, CopyPath::Sse2, CopyPath::RepMovsb, CopyPath::Avx2];
 
-    /// Its name (`portable`, `sse2`, `movsb`), as `$BASS_COPY_PATH` spells it.
+    /// Its name (`portable`, `sse2`, `movsb`, `avx2`), as `$BASS_COPY_PATH` spells it.
     pub fn name(self) -> &'static str {
         match self {
             CopyPath::Portable => "portable",
             CopyPath::Sse2 => "sse2",
             CopyPath::RepMovsb => "movsb",
+            CopyPath::Avx2 => "avx2",
         }
     }
 
@@ -136,11 +146,11 @@ pub fn set_copy_path(p: CopyPath) -> Result<(), String> {
 
 /// Loads the samples at positions `g0..g0 + dst.len()` of `words` into `dst`.
 ///
-/// On x86-64 the copy is made in inline assembly ([`wide::load_run`]): `rep movsb` for long
-/// runs on a CPU with fast strings, else aligned 16-byte SSE2 loads and aligned 16-byte
-/// stores. The compiler never vectorises atomic loads, and a loop of `AtomicU64` loads (the
-/// portable path, [`load_run_portable`]) runs at about 0.5–0.6× memcpy. The loom model and
-/// Miri run the portable path.
+/// On x86-64 the copy is made in inline assembly ([`wide::load_run`]): aligned 32-byte AVX2
+/// loads, `rep movsb` for long runs, or aligned 16-byte SSE2 loads, with aligned stores (which
+/// one per CPU: [`wide::copy_path`]). The compiler never vectorises atomic loads, and a loop
+/// of `AtomicU64` loads (the portable path, [`load_run_portable`]) runs at about 0.5–0.6×
+/// memcpy. The loom model and Miri run the portable path.
 #[inline(always)]
 fn load_run(words: &[AtomicU64], g0: usize, dst: &mut [i32]) {
     #[cfg(all(target_arch = "x86_64", not(loom), not(miri)))]
@@ -449,6 +459,15 @@ impl<'a> Ring<'a> {
         }
     }
 
+    /// The ring segments (start slot, length) of the `frames <= nFOP` frames from `first`: the
+    /// second is empty unless the run wraps around the ring's end.
+    #[inline]
+    fn segments(&self, first: u64, frames: usize) -> [(usize, usize); 2] {
+        let start = self.slot(first);
+        let len0 = frames.min(self.frames_on_port as usize - start);
+        [(start, len0), (0, frames - len0)]
+    }
+
     /// Reads up to `max` frames from `nfr` into `out` (one slice per channel,
     /// channels `0..out.len()`, each at least `min(max, nFOP)` long).
     ///
@@ -479,8 +498,15 @@ impl<'a> Ring<'a> {
         recheck: bool,
     ) -> ReadOutcome {
         let plan = self.plan(lfi, max, nfr);
+        // A plan never exceeds the window, so its frames are at most two segments, the same
+        // in every channel (one slot computation per read, not per channel).
+        let [(s0, l0), (s1, l1)] = self.segments(plan.first, plan.frames);
         for (c, dst) in out.iter_mut().enumerate() {
-            self.copy_channel(c, plan.first, plan.frames, dst);
+            let ring = self.channel(c);
+            ring.copy_to(s0, &mut dst[..l0]);
+            if l1 > 0 {
+                ring.copy_to(s1, &mut dst[l0..l0 + l1]);
+            }
         }
         let end = plan.first + plan.frames as u64;
         let mut outcome = ReadOutcome { frames: plan.frames, next_frame: end, loss: plan.loss };

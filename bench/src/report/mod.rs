@@ -68,7 +68,7 @@ pub fn write(r: &Results, docs: &Path) {
     let _ = writeln!(
         md,
         "- CPU: {} ({}) — {} cores online{}; copy flags: {}; the reader's copy path: **{}** \
-         (`bassport::ring::copy_path`: `movsb` = `rep movsb` on CPUs with ERMS, `sse2` = aligned 16-byte loads)",
+         (`bassport::ring::copy_path`: `avx2` = aligned 32-byte loads, the default on AMD; `movsb` = `rep movsb`, the default on other CPUs with ERMS; `sse2` = aligned 16-byte loads)",
         m.cpu,
         m.vendor,
         m.cores,

@@ -19,8 +19,9 @@ pub(super) fn read_section(r: &Results, md: &mut String) {
     let _ = writeln!(
         md,
         "44.1 kHz stereo, a port holding 10.01 s, filled (the ring has wrapped). Each timing sample copies ~32 MB; \
-         the C ABI call, the Rust call and a plain `memcpy` of exactly the same ring segments into the same buffers \
-         alternate in the same run. *Hot*: the newest block is read again and again (source in L1/L2). \
+         the C ABI call and a plain `memcpy` of exactly the same ring segments into the same buffers \
+         alternate in the same sample, in the order C ABI, memcpy, memcpy, C ABI over the two halves of its blocks (so \
+         that neither always runs right after the other), then the Rust call. *Hot*: the newest block is read again and again (source in L1/L2). \
          *Streaming*: successive blocks through the 10 s window, as a reader consuming the stream. GB/s = 10⁹ bytes/s; \
          median [min–max] of {} repetitions; ratio = memcpy time / `bass_get_audio_data` time.\n",
         r.read[0].ratio.len()
@@ -45,27 +46,34 @@ pub(super) fn read_section(r: &Results, md: &mut String) {
     }
     copy_paths_table(r, md);
     if let Some(c) = &r.copy_loops {
-        let rings: Vec<String> = c
-            .ring
-            .iter()
-            .map(|(p, v)| {
-                format!(
-                    "`{}` {} GB/s = {} of memcpy",
-                    p.name(),
-                    gbs(v),
-                    fmt_ratio(median(v) / median(&c.memcpy))
-                )
-            })
-            .collect();
+        let rings = |r: &[(bassport::ring::CopyPath, Vec<f64>)], memcpy: &[f64]| {
+            r.iter()
+                .map(|(p, v)| {
+                    format!(
+                        "`{}` {} GB/s = {} of memcpy",
+                        p.name(),
+                        gbs(v),
+                        fmt_ratio(median(v) / median(memcpy))
+                    )
+                })
+                .collect::<Vec<_>>()
+                .join("; ")
+        };
         let _ = writeln!(
             md,
-            "\nCopy loops alone, 64 KiB hot, same run: memcpy {} GB/s; the reader's ring copy (`ChannelRing::copy_to`) \
-             by path: {}; a loop of Relaxed `AtomicU64` loads (the portable path of other architectures) {} GB/s = {} of \
-             memcpy.\n",
+            "\nCopy loops alone, 64 KiB hot, same run, the destination {} B past the source modulo 4 KiB: memcpy {} GB/s; \
+             the reader's ring copy (`ChannelRing::copy_to`) by path: {}; a loop of Relaxed `AtomicU64` loads (the \
+             portable path of other architectures) {} GB/s = {} of memcpy. The same with the destination {} B past the \
+             source modulo 4 KiB (4 KiB aliasing, where a fast-string `rep movsb` — glibc's memcpy from ~2 KiB up on \
+             CPUs with ERMS — slows down on some CPUs): memcpy {} GB/s; {}.\n",
+            crate::read::FAR,
             gbs(&c.memcpy),
-            rings.join("; "),
+            rings(&c.ring, &c.memcpy),
             gbs(&c.atomic64),
             fmt_ratio(median(&c.atomic64) / median(&c.memcpy)),
+            crate::read::ALIASED,
+            gbs(&c.aliased_memcpy),
+            rings(&c.aliased_ring, &c.aliased_memcpy),
         );
     }
     if let Some(i) = &r.info_cost {
