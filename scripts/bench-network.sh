@@ -138,8 +138,8 @@ cat "$WORK/table" | tee "$OUT"
 if [ "${BENCH_NET_TIME:-1}" = 1 ]; then
   {
   echo
-  echo "| clock path | mapped-stamp error p50 / p99 / p99.9 / max (us) | chunks | inside the mirror's uncertainty | uncertainty p50 (us) | first uncertainty after (s) |"
-  echo "|---|---:|---:|---:|---:|---:|"
+  echo "| clock path | mapped-stamp error p50 / p99 / p99.9 / max (us) | chunks | truth inside the chunk's bound | bound p50 / p99 (us) | bound p50 / error p99 | first bound / first bound <= 100 us after (s) |"
+  echo "|---|---:|---:|---:|---:|---:|---:|"
   } >>"$OUT"
   for CASE in ${BENCH_NET_TIME_CASES:-clean clock-delay=600}; do
     SERVE_CMD=("$BIN/bass-bridge" serve); [ "$CASE" != clean ] && SERVE_CMD=("$BIN/bass-bridge-faults" --fault "$CASE" serve)
@@ -155,14 +155,15 @@ if [ "${BENCH_NET_TIME:-1}" = 1 ]; then
     python3 - "$CASE" "$R" >>"$OUT" <<'PY'
 import json, sys
 case, r = sys.argv[1], json.loads(sys.argv[2] or "{}")
-e, u = r.get("error_us") or {}, r.get("uncertainty_us") or {}
+e, b = r.get("error_us") or {}, r.get("bound_us") or {}
 f = lambda v: "–" if v is None else f"{v:.1f}"
 n = r.get("chunks") or 0
 cov = f"{100 * r.get('covered', 0) / n:.2f} %" if n else "–"
+ratio = f"{b['p50'] / e['p99']:.2f}×" if b.get("p50") and e.get("p99") else "–"
 label = "bass mirror, clean" if case == "clean" else "bass mirror, clock answers 600 us late (asymmetric)"
-label += f" ({r.get('before_estimate', 0)} chunks before the first estimate, stamped at arrival, left out)"
+label += f" ({r.get('unbounded', 0)} chunks before the first clock map, stamped at arrival with no bound, left out)"
 print(f"| {label} | {f(e.get('p50'))} / {f(e.get('p99'))} / {f(e.get('p999'))} / {f(e.get('max'))} | {n} | {cov} "
-      f"| {f(u.get('p50'))} | {f(r.get('first_uncertainty_s'))} |")
+      f"| {f(b.get('p50'))} / {f(b.get('p99'))} | {ratio} | {f(r.get('first_bound_s'))} / {f(r.get('first_bound_100us_s'))} |")
 PY
     echo "time $CASE: $R" >&2
     stop $MIRROR $SERVE $BASSD

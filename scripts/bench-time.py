@@ -5,10 +5,10 @@
         Follows the replica port REP (runtime directory DIR_B) for SECS seconds and, for every
         chunk that arrives, compares its mapped CLOCK_MONOTONIC stamp with the source port's
         stamp of the same first frame (SRC in DIR_A). The two network namespaces share one
-        CLOCK_MONOTONIC, so the source's stamp is the truth: error = replica - source. Every
-        second it reads the mirror's status file STATUS for the clock uncertainty it gives
-        (half the best round trip), and a chunk counts as covered when |error| is within the
-        uncertainty of that second. Prints one JSON object.
+        CLOCK_MONOTONIC, so the source's stamp is the truth: error = replica - source. A chunk
+        counts as covered when |error| is within the bound the replica chunk itself carries
+        (port format 2.4: source bound + clock-map uncertainty). The status file STATUS gives
+        the mirror's clock uncertainty beside it. Prints one JSON object.
 
     bench-time.py lsl-outlet NAME SECS      (in the source's namespace)
     bench-time.py lsl-inlet NAME SECS       (in the mirror's namespace)
@@ -60,26 +60,26 @@ def live_replica(dir_b, rep_name, wait_s=15.0):
 
 
 def replica(dir_a, src_name, dir_b, rep_name, status_path, secs):
-    """Chunks stamped before the mirror had a clock estimate (stamped at their arrival) are
-    counted apart; the rest are compared with the source and with the uncertainty the status
-    file gave for the second before (it is rewritten once a second)."""
+    """Every replica chunk that carries a bound (port format 2.4; chunks stamped at arrival,
+    before the mirror has a clock map, carry none and are counted apart) is compared with the
+    source's stamp of the same frames, the truth (the source is sim:pattern, whose stamps are
+    its frames' due times, and both namespaces share CLOCK_MONOTONIC): covered when |error|
+    is within the chunk's own bound. The status file's uncertainty is reported beside it."""
+    t0 = time.monotonic()
     src, rep = open_port(dir_a, src_name), live_replica(dir_b, rep_name)
     nfpc = rep.info()["frames_per_chunk"]
-    errors, covered, unc_seen, before_estimate, misses, replaced = [], 0, [], 0, {}, 0
-    first_estimate_s = None
-    t0 = time.monotonic()
-    unc, prev_unc, next_status = None, None, 0.0
+    errors, bounds, clock_parts, covered, unbounded, misses, replaced = [], [], [], 0, 0, {}, 0
+    first_bound_s, first_narrow_s, unc_seen = None, None, []
+    next_status = 0.0
     nxt = rep.last_frame_index + 1
     while time.monotonic() - t0 < secs:
         now = time.monotonic() - t0
         if now >= next_status:
             next_status = now + 1.0
             try:
-                st = json.load(open(status_path))
-                prev_unc, unc = unc, st.get("clock_uncertainty_ns")
+                unc = json.load(open(status_path)).get("clock_uncertainty_ns")
                 if unc is not None:
                     unc_seen.append(unc)
-                    first_estimate_s = first_estimate_s if first_estimate_s is not None else now
             except (OSError, ValueError):
                 pass
             if rep.info()["state_name"] != "capturing":
@@ -99,17 +99,25 @@ def replica(dir_a, src_name, dir_b, rep_name, status_path, secs):
                 continue
             gap = r.flags & 1  # GAP chunks are stamped by the mirror, not mapped
             if not gap and r.first_frame == s.first_frame:
-                e = r.mono_ns - s.mono_ns
-                if unc is None or prev_unc is None:
-                    before_estimate += 1
+                e = abs(r.mono_ns - s.mono_ns)
+                if r.bound_ns is None:
+                    unbounded += 1
                 else:
-                    errors.append(abs(e) / 1e3)
-                    covered += abs(e) <= max(unc, prev_unc)
+                    seen = time.monotonic() - t0
+                    first_bound_s = seen if first_bound_s is None else first_bound_s
+                    if first_narrow_s is None and r.bound_ns <= 100_000:
+                        first_narrow_s = seen
+                    errors.append(e / 1e3)
+                    bounds.append(r.bound_ns / 1e3)
+                    if s.bound_ns is not None:
+                        clock_parts.append((r.bound_ns - s.bound_ns) / 1e3)
+                    covered += e <= r.bound_ns
             nxt = r.first_frame + r.frames
         time.sleep(0.002)
-    out = {"error_us": quantiles(errors), "uncertainty_us": quantiles([u / 1e3 for u in unc_seen]),
-           "covered": covered, "chunks": len(errors), "before_estimate": before_estimate,
-           "first_uncertainty_s": first_estimate_s, "skipped": misses, "replica_replaced": replaced}
+    out = {"error_us": quantiles(errors), "bound_us": quantiles(bounds), "clock_part_us": quantiles(clock_parts),
+           "uncertainty_us": quantiles([u / 1e3 for u in unc_seen]), "covered": covered, "chunks": len(errors),
+           "unbounded": unbounded, "first_bound_s": first_bound_s, "first_bound_100us_s": first_narrow_s,
+           "skipped": misses, "replica_replaced": replaced}
     print(json.dumps(out))
 
 

@@ -65,6 +65,12 @@ pub struct ClockMap {
     pub uncertainty_ns: u64,
 }
 
+/// Whether a round trip `rtt` is within twice the window's best (or 50 µs of it): its offset
+/// is then about as good as the best's.
+fn good_trip(rtt: u64, best: u64) -> bool {
+    rtt <= (2 * best).max(best + 50_000)
+}
+
 /// One round: the local mid-point, the offset seen and the round trip.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Round {
@@ -114,6 +120,8 @@ pub struct Fit {
     chunks: VecDeque<(u64, i64)>,
     /// Samples and rounds refused so far.
     refused: u64,
+    /// [`Fit::drift_error`] as of the last round taken.
+    drift_err: Option<f64>,
 }
 
 impl Fit {
@@ -172,6 +180,7 @@ impl Fit {
                         // The source's clock changed (a rebooted source): the new value holds.
                         self.rounds = std::mem::take(&mut self.refused_streak).into();
                         self.drift = None;
+                        self.drift_err = None;
                     } else if !agree {
                         self.refused_streak = vec![r];
                     }
@@ -197,6 +206,7 @@ impl Fit {
                 None => slope,
             });
         }
+        self.drift_err = Some(self.drift_error());
         true
     }
 
@@ -209,17 +219,21 @@ impl Fit {
         self.slope_fit().map(|(b, _)| b)
     }
 
-    /// The slope and its standard error (both ns/ns), once the window spans 5 s.
+    /// The slope and its standard error (both ns/ns), once the good rounds span 5 s: only
+    /// rounds whose round trip is near the window's best ([`Fit::good`]) are fitted, since a
+    /// long round trip may hide an asymmetric delay of up to its length.
     fn slope_fit(&self) -> Option<(f64, f64)> {
-        let (first, last) = (self.rounds.front()?, self.rounds.back()?);
-        if self.rounds.len() < 3 || last.local_ns - first.local_ns < 5_000_000_000 {
+        let best = self.rounds.iter().map(|r| r.rtt_ns).min()?;
+        let good: Vec<&Round> = self.rounds.iter().filter(|r| good_trip(r.rtt_ns, best)).collect();
+        let (first, last) = (good.first()?, good.last()?);
+        if good.len() < 3 || last.local_ns - first.local_ns < 5_000_000_000 {
             return None;
         }
-        let n = self.rounds.len() as f64;
+        let n = good.len() as f64;
         let t0 = first.local_ns as f64;
         let o0 = first.offset_ns as f64;
         let (mut st, mut so, mut stt, mut sto) = (0.0, 0.0, 0.0, 0.0);
-        for r in &self.rounds {
+        for r in &good {
             let t = r.local_ns as f64 - t0;
             let o = r.offset_ns as f64 - o0;
             st += t;
@@ -233,8 +247,7 @@ impl Fit {
         }
         let b = (n * sto - st * so) / den;
         let a = (so - b * st) / n;
-        let ss: f64 = self
-            .rounds
+        let ss: f64 = good
             .iter()
             .map(|r| {
                 let (t, o) = (r.local_ns as f64 - t0, r.offset_ns as f64 - o0);
@@ -266,7 +279,7 @@ impl Fit {
             return None;
         }
         // The round whose carried uncertainty is least: a small round trip, not too old.
-        let err = self.drift_error();
+        let err = self.drift_err.unwrap_or(UNFIT_DRIFT);
         let unc = |r: &Round| r.rtt_ns / 2 + (err * (now as f64 - r.local_ns as f64).abs()).ceil() as u64;
         let best = self.rounds.iter().min_by_key(|r| unc(r))?;
         let drift = self.drift.unwrap_or(0.0);
