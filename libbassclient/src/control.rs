@@ -171,6 +171,7 @@ pub unsafe extern "C" fn bass_acquire(
             chunks_on_port,
             channels: if channels == 0 { DEFAULT_CHANNELS } else { channels },
             format: None,
+            followers: Vec::new(),
         };
         let acquired = client.acquire(&req)?;
         if !out_epoch.is_null() {
