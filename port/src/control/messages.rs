@@ -95,10 +95,14 @@ pub struct Acquired {
     pub port: PathBuf,
     /// Device sample format negotiated (e.g. `S16_LE`; `S32_LE` for simulated devices).
     pub format: String,
-    /// Devices in the acquisition (master and followers); 0 from a broker that predates
-    /// followers, which a client that asked for followers must treat as a refusal.
-    #[serde(default)]
+    /// Devices in the acquisition (master and followers); 0 (left out) from a broker that
+    /// predates followers, which a client that asked for followers must treat as a refusal.
+    #[serde(default, skip_serializing_if = "is_zero")]
     pub devices: u32,
+}
+
+fn is_zero(n: &u32) -> bool {
+    *n == 0
 }
 
 /// Answer to OpenPort when the port is a sealed memfd: its descriptor travels with this
