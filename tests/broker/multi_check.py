@@ -116,6 +116,13 @@ def main():
         c = next((c for c in chunks if not (c[1] | c[2]) & MASK[key]), None)
         lock_s[key] = None if c is None else (c[0] - 1) / RATE
     relock_s = None if not relocked else (relocked[0][0] - 1) / RATE - replug_s
+    # Per device through the C export (bass_broker_device_info), as Python shows it.
+    devs = bass.devices(name)
+    rows = [(d["role"], d["first_channel"], d["channels"]) for d in devs]
+    if rows != [("master", 0, 2), ("follower", 2, 2), ("follower", 4, 2)]:
+        fails.append(f"bass.devices: {rows}")
+    elif (devs[2]["xruns"], devs[2]["unplugs"], devs[1]["xruns"], devs[1]["unplugs"]) != (1, 1, 0, 0):
+        fails.append(f"bass.devices counters: {devs[1:]}")
     print("MULTI lock_s f1 %s f2 %s; relock after replug %s s; worst residual f1 %.4f f2 %.4f sample "
           "(bound %.2f); aligned frames checked f1 %d f2 %d" % (
               lock_s["f1"], lock_s["f2"], None if relock_s is None else round(relock_s, 2),
