@@ -88,6 +88,12 @@
 // Bytes of `bass_replica_info.source_state` (with the NUL).
 #define BASS_SOURCE_STATE_LEN 32
 
+// Bytes of `bass_device_info.role` and `.state` (with the NUL).
+#define BASS_DEVICE_STATE_LEN 16
+
+// Most devices `bass_acquire_devices()` takes (the broker's limit).
+#define BASS_MAX_DEVICES 8
+
 // Start at the oldest frame in the window.
 #define BASS_START_OLDEST 0
 
@@ -244,6 +250,36 @@ typedef struct {
   // Error message, NUL terminated.
   char message[BASS_MESSAGE_LEN];
 } bass_broker_status;
+
+// One device of a broker's acquisition (docs/multi-device.md), as returned by
+// `bass_broker_device_info()`: the master is device 0, the followers follow in port channel
+// order.
+typedef struct {
+  // Its first channel on the port.
+  uint32_t first_channel;
+  // Its channels.
+  uint32_t channels;
+  // Times it locked (a follower).
+  uint64_t locks;
+  // Recovered overruns (the master's: the port's).
+  uint64_t xruns;
+  // Times it was lost (unplugged) and reopened.
+  uint64_t unplugs;
+  // Frames published with its channels missing (zeros; the master's: the port's GAP frames).
+  uint64_t missing_frames;
+  // Frames published while it was not locked.
+  uint64_t unaligned_frames;
+  // Its rate against the master's, ppm (0 for the master).
+  double ratio_ppm;
+  // The current alignment error estimate, samples (0 for the master).
+  double error_estimate;
+  // Device name, NUL terminated.
+  char name[BASS_DEVICE_LEN];
+  // `master` or `follower`, NUL terminated.
+  char role[BASS_DEVICE_STATE_LEN];
+  // `master`, or a follower's `waiting`, `aligning`, `locked` or `lost`, NUL terminated.
+  char state[BASS_DEVICE_STATE_LEN];
+} bass_device_info;
 
 // A snapshot of a port's header.
 typedef struct {
@@ -490,6 +526,35 @@ bass_result bass_status(const char *broker, bass_broker_status *out_status);
 // `broker` must be NULL or NUL-terminated; `buf` NULL or valid for `buf_len` writes;
 // `out_len` valid for a write.
 bass_result bass_list_devices(const char *broker, char *buf, size_t buf_len, size_t *out_len);
+
+// Starts an acquisition of several devices on broker `broker` (NULL = "default"),
+// interrupting a running one (docs/multi-device.md): `devices[0]` is the master clock, the
+// others follow it, resampled onto its frames; each has `channels` channels (0 means 2),
+// after the master's on the port. `*out_epoch` (if not NULL) receives the new epoch. One
+// device is `bass_acquire()`. A broker that predates several devices gives
+// `BASS_ERR_PROTOCOL`.
+//
+// # Safety
+// `broker` must be NULL or NUL-terminated; `devices` valid for `devices_len` reads of
+// NUL-terminated strings; `out_epoch` NULL or valid for a write.
+bass_result bass_acquire_devices(const char *broker,
+                                 const char *const *devices,
+                                 size_t devices_len,
+                                 uint32_t sample_rate,
+                                 uint32_t frames_per_chunk,
+                                 uint32_t chunks_on_port,
+                                 uint32_t channels,
+                                 uint64_t *out_epoch);
+
+// Device `index` (0: the master) of broker `broker`'s acquisition (NULL = "default"): its
+// channels, state, rate against the master, alignment error and counters. An acquisition of
+// one device has device 0 only (the port's own figures); an index past the last device, or a
+// broker that has not acquired yet, gives `BASS_ERR_NOT_FOUND`, nothing written. To list
+// them, call with 0, 1, ... until `BASS_ERR_NOT_FOUND`.
+//
+// # Safety
+// `broker` must be NULL or NUL-terminated; `out_info` valid for a write.
+bass_result bass_broker_device_info(const char *broker, uint32_t index, bass_device_info *out_info);
 
 // Opens the port `name` (in `$BASS_RUNTIME_DIR`, default /dev/shm) read-only. The file is
 // not opened through a symbolic link, and its owner must be root, the caller (or

@@ -329,13 +329,19 @@ static mxArray *chunk_struct(const bass_chunk_info *c, const bass_chunk_ext *x) 
 }
 
 /* The broker's status; `replica` is the mirror's account of its replica (a struct of
- * REPLICA_FIELDS), or [] for a broker that is not a replica. */
-static mxArray *status_struct(const bass_broker_status *st, const bass_replica_info *replica) {
-    static const char *const extra[] = {"replica"};
-    mxArray *s = mapped_struct(st, STATUS_FIELDS, COUNT(STATUS_FIELDS), extra, 1);
+ * REPLICA_FIELDS), or [] for a broker that is not a replica; `devices` a cell array of the
+ * acquisition's devices (structs of DEVICE_FIELDS, master first; docs/multi-device.md). */
+static mxArray *status_struct(const bass_broker_status *st, const bass_replica_info *replica,
+                              const bass_device_info *devs, size_t n_devs) {
+    static const char *const extra[] = {"replica", "devices"};
+    mxArray *s = mapped_struct(st, STATUS_FIELDS, COUNT(STATUS_FIELDS), extra, 2);
     mxArray *r = replica ? mapped_struct(replica, REPLICA_FIELDS, COUNT(REPLICA_FIELDS), NULL, 0)
                          : mxCreateDoubleMatrix(0, 0, mxREAL);
     mxSetField(s, 0, "replica", r);
+    mxArray *d = mxCreateCellMatrix(1, n_devs);
+    for (size_t k = 0; k < n_devs; k++)
+        mxSetCell(d, k, mapped_struct(&devs[k], DEVICE_FIELDS, COUNT(DEVICE_FIELDS), NULL, 0));
+    mxSetField(s, 0, "devices", d);
     return s;
 }
 
@@ -508,10 +514,19 @@ void mexFunction(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
         bass_replica_info rep;
         bass_result r = bass_status(broker, &st);
         bass_result rr = r == BASS_OK ? bass_replica_status(broker, &rep) : BASS_ERR_NOT_FOUND;
+        bass_device_info devs[BASS_MAX_DEVICES];
+        size_t n_devs = 0;
+        bass_result rd = BASS_OK;
+        while (r == BASS_OK && rr == BASS_ERR_NOT_FOUND && n_devs < BASS_MAX_DEVICES) {
+            rd = bass_broker_device_info(broker, (uint32_t)n_devs, &devs[n_devs]);
+            if (rd != BASS_OK) break;
+            n_devs++;
+        }
         if (broker) mxFree(broker);
         check("Status", r);
         if (rr != BASS_OK && rr != BASS_ERR_NOT_FOUND) check("Status", rr);
-        plhs[0] = status_struct(&st, rr == BASS_OK ? &rep : NULL);
+        if (rd != BASS_OK && rd != BASS_ERR_NOT_FOUND) check("Status", rd);
+        plhs[0] = status_struct(&st, rr == BASS_OK ? &rep : NULL, devs, n_devs);
     } else if (!strcmp(cmd, "ListDevices")) {
         cmd_list_devices(nlhs, plhs, nrhs, prhs);
     } else if (!strcmp(cmd, "Open")) {

@@ -68,6 +68,22 @@ static const struct field_map CHUNK_FIELDS[] = {
     FIELD(bass_chunk_info, "flags", flags, AS_DOUBLE_U32),
 };
 
+/* bass_device_info: Status's `devices` field. */
+static const struct field_map DEVICE_FIELDS[] = {
+    FIELD(bass_device_info, "firstChannel", first_channel, AS_DOUBLE_U32),
+    FIELD(bass_device_info, "channels", channels, AS_DOUBLE_U32),
+    FIELD(bass_device_info, "locks", locks, AS_UINT64),
+    FIELD(bass_device_info, "xruns", xruns, AS_UINT64),
+    FIELD(bass_device_info, "unplugs", unplugs, AS_UINT64),
+    FIELD(bass_device_info, "missingFrames", missing_frames, AS_UINT64),
+    FIELD(bass_device_info, "unalignedFrames", unaligned_frames, AS_UINT64),
+    FIELD(bass_device_info, "ratioPpm", ratio_ppm, AS_DOUBLE),
+    FIELD(bass_device_info, "errorEstimate", error_estimate, AS_DOUBLE),
+    FIELD(bass_device_info, "name", name, AS_TEXT),
+    FIELD(bass_device_info, "role", role, AS_TEXT),
+    FIELD(bass_device_info, "state", state, AS_TEXT),
+};
+
 /* Every BASS_CHUNK_* flag, in the header's order: ChunkInfo adds one logical field per flag. */
 static const struct {
     uint32_t bit;

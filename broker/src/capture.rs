@@ -24,6 +24,7 @@ use bassport::{ChunkMeta, Geometry, Source, Writer};
 use crate::device::{Capture, ReadEvent, RecordedChunk, StopSignal};
 use basskit::rate_estimator::RateDll;
 
+pub mod multi;
 mod timeline;
 
 /// State shared by the capture thread and the control thread.
@@ -83,6 +84,10 @@ pub struct CaptureParams {
     /// last one was due. The frames between then and the device's first are published as
     /// GAP, so the frame index stays proportional to time across the restart.
     pub resume_from_ns: Option<u64>,
+    /// The master device's channels (the port's first; all of them without followers).
+    pub master_channels: u32,
+    /// The follower devices ([`multi`]); empty for one device.
+    pub followers: Vec<multi::FollowerSpec>,
 }
 
 /// A running (or finished) acquisition, as the control thread holds it.
@@ -98,6 +103,9 @@ pub struct Acquisition {
     pub format: String,
     stall_ns: u64,
     grace_ns: u64,
+    /// A several-device acquisition's aligner and follower counters.
+    multi: Option<Arc<multi::Multi>>,
+    followers: Vec<JoinHandle<()>>,
 }
 
 /// Warns once per process when real-time scheduling is refused.
@@ -118,7 +126,7 @@ impl Acquisition {
             None => Port::open_path(writer.path()),
         }
         .map_err(std::io::Error::other)?;
-        let g = &p.geometry;
+        let g = &p.geometry.clone();
         let period_ns = u64::from(g.frames_per_chunk) * 1_000_000_000 / u64::from(g.sample_rate);
         // A few periods, but never less than 250 ms (scheduling noise on a loaded machine).
         let stall_ns = if p.stall_ms > 0 { p.stall_ms * 1_000_000 } else { (4 * period_ns).max(250_000_000) };
@@ -132,14 +140,21 @@ impl Acquisition {
             failure: Mutex::new(None),
         });
         let format = dev.format_name().to_owned();
+        let mut p = p;
+        let specs = std::mem::take(&mut p.followers);
+        let rt = p.rt_priority;
+        let multi = multi::Multi::for_acquisition(device, p.master_channels, &specs, g)?;
         let (tx, done) = mpsc::channel();
         let sh = shared.clone();
+        let m = multi.clone();
         let thread = std::thread::Builder::new().name("bassd-capture".into()).spawn(move || {
             let mut dev = dev;
-            run(&sh, dev.as_mut(), &p);
+            run(&sh, dev.as_mut(), &p, m);
             drop(dev);
             let _ = tx.send(());
         })?;
+        let nfpc = g.frames_per_chunk as usize;
+        let followers = multi::spawn_followers(&shared, multi.as_ref(), specs, nfpc, rt)?;
         Ok(Acquisition {
             shared,
             thread: Some(thread),
@@ -149,7 +164,15 @@ impl Acquisition {
             format,
             stall_ns,
             grace_ns,
+            multi,
+            followers,
         })
+    }
+
+    /// Per device of a several-device acquisition (empty for one device), the master's
+    /// overruns and GAP frames being the port's.
+    pub fn devices(&self, master_xruns: u64, master_gap_frames: u64) -> Vec<bassport::control::DeviceStatus> {
+        self.multi.as_ref().map_or_else(Vec::new, |m| m.status(master_xruns, master_gap_frames))
     }
 
     /// The stall watchdog: ends the acquisition with DEVICE_STALLED when the device has
@@ -222,6 +245,7 @@ impl Acquisition {
                 }
             }
         }
+        multi::join_followers(std::mem::take(&mut self.followers), timeout);
     }
 
     /// Sets the port's restart grace (0: no successor can take it back, see
@@ -279,6 +303,7 @@ struct Assembler<'a> {
     dll: RateDll,
     published: u64,
     requested_ns: u64,
+    multi: Option<Arc<multi::Multi>>,
 }
 
 impl Assembler<'_> {
@@ -352,6 +377,7 @@ impl Assembler<'_> {
             flags |= chunk_flags::DISCONTINUITY;
             self.discontinuity = false;
         }
+        let discontinuity = flags & chunk_flags::DISCONTINUITY != 0;
         let bound_ns = Some(self.stamp_bound_ns(mono));
         let meta = ChunkMeta {
             mono_ns: mono.max(1),
@@ -361,6 +387,11 @@ impl Assembler<'_> {
             ..ChunkMeta::default()
         };
         let src = if all_zero { Source::Zeros } else { Source::Interleaved(&self.chunk) };
+        if let Some(m) = &self.multi {
+            if !self.shared.ended.load(Ordering::Acquire) && !self.shared.stop.is_set() {
+                m.master_chunk(self.shared, &self.chunk, all_zero, discontinuity, meta);
+            }
+        }
         {
             let mut w = self.shared.writer();
             if self.shared.ended.load(Ordering::Acquire) || self.shared.stop.is_set() {
@@ -368,7 +399,8 @@ impl Assembler<'_> {
                 self.filled = 0;
                 return;
             }
-            if let Err(e) = w.publish(src, meta) {
+            let published = if self.multi.is_some() { Ok(0) } else { w.publish(src, meta) };
+            if let Err(e) = published {
                 drop(w);
                 self.shared.fail(error_code::INTERNAL, &format!("publishing a chunk failed: {e}"));
                 return;
@@ -486,9 +518,9 @@ fn try_realtime(priority: i32) {
 }
 
 impl<'a> Assembler<'a> {
-    fn new(shared: &'a Shared, p: &CaptureParams) -> Self {
+    fn new(shared: &'a Shared, p: &CaptureParams, multi: Option<Arc<multi::Multi>>) -> Self {
         let g = &p.geometry;
-        let (channels, nfpc) = (g.channels as usize, g.frames_per_chunk as usize);
+        let (channels, nfpc) = (p.master_channels as usize, g.frames_per_chunk as usize);
         Assembler {
             shared,
             channels,
@@ -504,11 +536,12 @@ impl<'a> Assembler<'a> {
             dll: RateDll::new(f64::from(g.sample_rate), g.frames_per_chunk),
             published: 0,
             requested_ns: p.requested_ns,
+            multi,
         }
     }
 }
 
-fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
+fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams, multi: Option<Arc<multi::Multi>>) {
     try_realtime(p.rt_priority);
     // No timer slack on this thread: the device pacing's sleeps end when due.
     crate::device::precise_timers();
@@ -517,7 +550,7 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams) {
         return;
     }
     shared.progress_ns.store(monotonic_ns(), Ordering::Release);
-    let mut asm = Assembler::new(shared, p);
+    let mut asm = Assembler::new(shared, p, multi);
     let (channels, nfpc) = (asm.channels, asm.nfpc);
     let mut scratch = vec![0i32; nfpc * channels];
     let rate = f64::from(p.geometry.sample_rate);

@@ -26,6 +26,8 @@ pub use basskit::limits::Limits;
 pub enum DeviceKind {
     /// A simulated device.
     Sim(SimKind),
+    /// A simulated card with its own clock sampling the shared field (`sim:field?...`).
+    Field(crate::device::field::FieldParams),
     /// An ALSA PCM name.
     Alsa(String),
     /// A WAV file replayed (`sim:file:PATH`, `sim:file-renumber:PATH`, `sim:file-loop:PATH`;
@@ -49,30 +51,29 @@ pub struct Checked {
     pub format: Option<SampleFormat>,
     /// Size of the port file (bytes).
     pub port_bytes: u64,
+    /// The master device's channels (the port's first ones; all of them without followers).
+    pub master_channels: u32,
+    /// The follower devices, in port channel order.
+    pub followers: Vec<CheckedFollower>,
 }
+
+/// A follower device that passed the checks.
+#[derive(Clone, Debug)]
+pub struct CheckedFollower {
+    /// Its name as requested.
+    pub name: String,
+    /// The device.
+    pub device: DeviceKind,
+    /// Its channels.
+    pub channels: u32,
+}
+
+/// Most devices in one acquisition (the master and its followers).
+pub const MAX_DEVICES: usize = 8;
 
 /// Checks `r` against the format's limits, the operator's bounds and the broker's memory cap.
 pub fn check(r: &AcquireRequest, limits: &Limits) -> Result<Checked, String> {
-    let name = r.device.as_str();
-    if name.is_empty() {
-        return Err("device name is empty".into());
-    }
-    if name.len() >= DEVICE_LEN {
-        return Err(format!("device name of {} bytes is too long (at most {})", name.len(), DEVICE_LEN - 1));
-    }
-    if name.chars().any(char::is_control) {
-        return Err(format!("device name {name:?} contains control characters"));
-    }
-    let device = match name.strip_prefix("sim:") {
-        Some(s) => match file_device(s) {
-            Some(file) => file?,
-            None => DeviceKind::Sim(SimKind::from_name(s).ok_or_else(|| {
-                let known: Vec<String> = DEVICES.iter().map(|(k, _)| format!("sim:{}", k.name())).collect();
-                format!("unknown simulated device {name:?} (available: {})", known.join(", "))
-            })?),
-        },
-        None => DeviceKind::Alsa(name.to_owned()),
-    };
+    let device = device_kind(&r.device)?;
     let format = match &r.format {
         None => None,
         Some(f) => Some(SampleFormat::from_name(f).ok_or_else(|| {
@@ -83,14 +84,83 @@ pub fn check(r: &AcquireRequest, limits: &Limits) -> Result<Checked, String> {
     if r.sample_rate > MAX_SAMPLE_RATE {
         return Err(format!("sampleRate = {} Hz (must be 1..={MAX_SAMPLE_RATE})", r.sample_rate));
     }
+    let followers = check_followers(r)?;
+    let channels = followers.iter().try_fold(r.channels, |sum, f| sum.checked_add(f.channels));
+    let channels = channels.filter(|&c| followers.is_empty() || c <= 64).ok_or_else(|| {
+        let each: Vec<String> = followers.iter().map(|f| f.channels.to_string()).collect();
+        format!(
+            "channels = {} (master) + {} (followers): more than the port's 64",
+            r.channels,
+            each.join(" + ")
+        )
+    })?;
     let geometry = Geometry {
-        channels: r.channels,
+        channels,
         sample_rate: r.sample_rate,
         frames_per_chunk: r.frames_per_chunk,
         chunks_on_port: r.chunks_on_port,
     };
     let port_bytes = limits.check(&geometry, Holder::Broker)?;
-    Ok(Checked { geometry, device, format, port_bytes })
+    Ok(Checked { geometry, device, format, port_bytes, master_channels: r.channels, followers })
+}
+
+/// The followers of `r`, checked (names, channels, no device twice).
+fn check_followers(r: &AcquireRequest) -> Result<Vec<CheckedFollower>, String> {
+    if r.followers.len() + 1 > MAX_DEVICES {
+        return Err(format!(
+            "{} follower devices: at most {} devices in one acquisition",
+            r.followers.len(),
+            MAX_DEVICES
+        ));
+    }
+    if !r.followers.is_empty() && r.channels == 0 {
+        return Err("channels = 0 (the master's)".into());
+    }
+    let mut out = Vec::new();
+    for (i, f) in r.followers.iter().enumerate() {
+        let device = device_kind(&f.device).map_err(|e| format!("follower {}: {e}", i + 1))?;
+        if !matches!(device, DeviceKind::Sim(_) | DeviceKind::Field(_) | DeviceKind::Alsa(_)) {
+            return Err(format!(
+                "follower {} {:?}: a replayed recording cannot be a follower",
+                i + 1,
+                f.device
+            ));
+        }
+        let simulated = !matches!(device, DeviceKind::Alsa(_));
+        let twice = f.device == r.device || r.followers[..i].iter().any(|g| g.device == f.device);
+        if twice && !simulated {
+            return Err(format!("device {:?} named twice in one acquisition", f.device));
+        }
+        let channels = if f.channels == 0 { r.channels } else { f.channels };
+        out.push(CheckedFollower { name: f.device.clone(), device, channels });
+    }
+    Ok(out)
+}
+
+/// The device `name` names, checked.
+fn device_kind(name: &str) -> Result<DeviceKind, String> {
+    if name.is_empty() {
+        return Err("device name is empty".into());
+    }
+    if name.len() >= DEVICE_LEN {
+        return Err(format!("device name of {} bytes is too long (at most {})", name.len(), DEVICE_LEN - 1));
+    }
+    if name.chars().any(char::is_control) {
+        return Err(format!("device name {name:?} contains control characters"));
+    }
+    Ok(match name.strip_prefix("sim:") {
+        Some(s) if s == "field" || s.starts_with("field?") => {
+            DeviceKind::Field(crate::device::field::parse(&s["field".len()..])?)
+        }
+        Some(s) => match file_device(s) {
+            Some(file) => file?,
+            None => DeviceKind::Sim(SimKind::from_name(s).ok_or_else(|| {
+                let known: Vec<String> = DEVICES.iter().map(|(k, _)| format!("sim:{}", k.name())).collect();
+                format!("unknown simulated device {name:?} (available: {}, sim:field?...)", known.join(", "))
+            })?),
+        },
+        None => DeviceKind::Alsa(name.to_owned()),
+    })
 }
 
 /// `file:PATH`, `file-renumber:PATH` or `file-loop:PATH` (after `sim:`); `None` for any other name.
@@ -133,6 +203,7 @@ mod tests {
             chunks_on_port: ncop,
             channels: ch,
             format: None,
+            followers: Vec::new(),
         }
     }
 

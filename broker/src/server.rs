@@ -191,6 +191,7 @@ impl Broker {
                 s.message = format!("cannot read the port: {e}");
             }
         }
+        s.devices = a.devices(s.xruns, s.gap_frames);
         if let Some(cut) = port_cut(a) {
             s.state = State::Error as u32;
             s.error_code = error_code::INTERNAL;

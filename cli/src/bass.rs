@@ -76,12 +76,14 @@ pub enum Command {
     },
 }
 
-/// `bass acquire [DEVICE]`.
+/// `bass acquire [DEVICE...]`.
 #[derive(clap::Args, Debug)]
 pub struct AcquireCmd {
-    /// Capture device: an ALSA PCM (hw:1,0, plughw:..., default) or sim:sine, sim:pattern, ...
-    #[arg(value_name = "DEVICE", conflicts_with = "device_opt")]
-    pub device: Option<String>,
+    /// Capture device: an ALSA PCM (hw:1,0, plughw:..., default) or sim:sine, sim:pattern, ...;
+    /// several: the first is the master clock, the others follow it, resampled onto its
+    /// frames, each with --channels channels, after it on the port (docs/multi-device.md)
+    #[arg(value_name = "DEVICE", conflicts_with = "device_opt", value_parser = device_name, num_args = 0..)]
+    pub device: Vec<String>,
     /// Capture device (as arecord -D)
     #[arg(short = 'D', long = "device", value_name = "DEVICE", id = "device_opt")]
     pub device_opt: Option<String>,
@@ -91,6 +93,17 @@ pub struct AcquireCmd {
     /// Also wait for the first chunk and print how long it took
     #[arg(long)]
     pub wait: bool,
+}
+
+/// A device named on the command line: a bare number is the seed's positional parameters,
+/// refused by name (they are options here).
+fn device_name(s: &str) -> std::result::Result<String, String> {
+    if !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit()) {
+        return Err(format!(
+            "{s} is not a device name; the rate, frames per chunk and chunks are options: --rate, --frames, --chunks"
+        ));
+    }
+    Ok(s.to_owned())
 }
 
 /// Entry point of the `bass` binary: parses, runs, prints the error and exits with its code.
@@ -203,13 +216,18 @@ pub fn run(cli: &Cli) -> Result<()> {
 
 fn acquire(name: &str, a: &AcquireCmd, timeout: Duration) -> Result<()> {
     let default = bassport::control::AcquireRequest::default().device;
-    let device = a.device.as_deref().or(a.device_opt.as_deref()).unwrap_or(&default);
-    let req = a.params.request(device).map_err(|m| Exit::new(exit::USAGE, m))?;
+    let device = a.device.first().map(String::as_str).or(a.device_opt.as_deref()).unwrap_or(&default);
+    let mut req = a.params.request(device).map_err(|m| Exit::new(exit::USAGE, m))?;
+    for f in a.device.iter().skip(1) {
+        let device = a.params.request(f).map_err(|m| Exit::new(exit::USAGE, m))?.device;
+        req.followers.push(bassport::control::FollowerRequest { device, channels: 0 });
+    }
     let t0 = Instant::now();
     let got = connect(name, timeout)?.acquire(&req).map_err(|e| explain(e, name, Some(device)))?;
     let replied = t0.elapsed();
+    let followers: String = req.followers.iter().map(|f| format!(" + {}", f.device)).collect();
     outln!(
-        "acquiring {} (format {}), epoch {}, port {}",
+        "acquiring {}{followers} (format {}), epoch {}, port {}",
         req.device,
         got.format,
         got.epoch,
@@ -255,6 +273,7 @@ fn status(name: &str, json: bool, timeout: Duration) -> Result<()> {
             "xruns": s.xruns, "gap_frames": s.gap_frames, "rate_estimate_hz": s.rate_estimate_hz,
             "device": s.device, "format": s.format, "message": s.message, "port": s.port,
             "lost_upstream_frames": lost_upstream,
+            "devices": s.devices,
             "replica": s.replica,
         });
         outln!("{v}")?;
@@ -284,6 +303,23 @@ fn status(name: &str, json: bool, timeout: Duration) -> Result<()> {
         }
         outln!("rate est.   {:.3} Hz", s.rate_estimate_hz)?;
         outln!("port        {}", s.port)?;
+        for d in &s.devices {
+            outln!(
+                "  {} {} ch {}..{}: {}, {:+.2} ppm, error {:.3} smp, {} lock(s), {} xrun(s), {} unplug(s), {} missing, {} unaligned frames",
+                d.role,
+                d.name,
+                d.first_channel,
+                d.first_channel + d.channels,
+                d.state,
+                d.ratio_ppm,
+                d.error_estimate,
+                d.locks,
+                d.xruns,
+                d.unplugs,
+                d.missing_frames,
+                d.unaligned_frames
+            )?;
+        }
     }
     if let Some(r) = &s.replica {
         let link = if r.link_up { "up" } else { "down" };
@@ -336,15 +372,20 @@ mod tests {
     fn positional_numbers_after_the_device_are_refused() {
         let e = parse(&["acquire", "sim:sine", "48000", "480", "100"]).unwrap_err();
         assert_eq!(e.exit_code(), exit::USAGE);
-        assert!(e.to_string().contains("unexpected argument '48000'"), "{e}");
+        assert!(e.to_string().contains("48000 is not a device name"), "{e}");
     }
 
     #[test]
     fn device_by_position_or_by_dash_capital_d() {
         for args in [&["acquire", "sim:sine"][..], &["acquire", "-D", "sim:sine"]] {
             let Command::Acquire(a) = parse(args).unwrap().command else { panic!("not acquire") };
-            assert_eq!(a.device.or(a.device_opt).as_deref(), Some("sim:sine"));
+            assert_eq!(a.device.first().cloned().or(a.device_opt).as_deref(), Some("sim:sine"));
         }
         assert!(parse(&["acquire", "sim:sine", "-D", "sim:pattern"]).is_err());
+        let Command::Acquire(a) = parse(&["acquire", "sim:field", "sim:field?ppm=87"]).unwrap().command
+        else {
+            panic!("not acquire")
+        };
+        assert_eq!(a.device, ["sim:field", "sim:field?ppm=87"]);
     }
 }

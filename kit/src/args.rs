@@ -111,6 +111,7 @@ mod acquire {
                 chunks_on_port: self.chunks_on_port,
                 channels: self.channels,
                 format: self.format.clone(),
+                followers: Vec::new(),
             })
         }
     }

@@ -14,7 +14,9 @@ use std::ffi::c_char;
 use super::{
     bass_result, boundary, c_str, copy_text, nonnull_mut, Failure, BASS_DEVICE_LEN, BASS_MESSAGE_LEN,
 };
-use bassport::control::{AcquireRequest, Client, ReplicaStatus, Status, DEFAULT_CHANNELS};
+use bassport::control::{
+    AcquireRequest, Client, DeviceStatus, FollowerRequest, ReplicaStatus, Status, DEFAULT_CHANNELS,
+};
 use bassport::paths::DEFAULT_NAME;
 
 /// The state of a broker and of its current port, as returned by `bass_status()`.
@@ -171,6 +173,7 @@ pub unsafe extern "C" fn bass_acquire(
             chunks_on_port,
             channels: if channels == 0 { DEFAULT_CHANNELS } else { channels },
             format: None,
+            followers: Vec::new(),
         };
         let acquired = client.acquire(&req)?;
         if !out_epoch.is_null() {
@@ -281,6 +284,175 @@ pub unsafe extern "C" fn bass_list_devices(
     })
 }
 
+/// One device of a broker's acquisition (docs/multi-device.md), as returned by
+/// `bass_broker_device_info()`: the master is device 0, the followers follow in port channel
+/// order.
+#[repr(C)]
+pub struct bass_device_info {
+    /// Its first channel on the port.
+    pub first_channel: u32,
+    /// Its channels.
+    pub channels: u32,
+    /// Times it locked (a follower).
+    pub locks: u64,
+    /// Recovered overruns (the master's: the port's).
+    pub xruns: u64,
+    /// Times it was lost (unplugged) and reopened.
+    pub unplugs: u64,
+    /// Frames published with its channels missing (zeros; the master's: the port's GAP frames).
+    pub missing_frames: u64,
+    /// Frames published while it was not locked.
+    pub unaligned_frames: u64,
+    /// Its rate against the master's, ppm (0 for the master).
+    pub ratio_ppm: f64,
+    /// The current alignment error estimate, samples (0 for the master).
+    pub error_estimate: f64,
+    /// Device name, NUL terminated.
+    pub name: [c_char; BASS_DEVICE_LEN],
+    /// `master` or `follower`, NUL terminated.
+    pub role: [c_char; BASS_DEVICE_STATE_LEN],
+    /// `master`, or a follower's `waiting`, `aligning`, `locked` or `lost`, NUL terminated.
+    pub state: [c_char; BASS_DEVICE_STATE_LEN],
+}
+
+/// Bytes of `bass_device_info.role` and `.state` (with the NUL).
+pub const BASS_DEVICE_STATE_LEN: usize = 16;
+
+/// Most devices `bass_acquire_devices()` takes (the broker's limit).
+pub const BASS_MAX_DEVICES: usize = 8;
+
+/// Starts an acquisition of several devices on broker `broker` (NULL = "default"),
+/// interrupting a running one (docs/multi-device.md): `devices[0]` is the master clock, the
+/// others follow it, resampled onto its frames; each has `channels` channels (0 means 2),
+/// after the master's on the port. `*out_epoch` (if not NULL) receives the new epoch. One
+/// device is `bass_acquire()`. A broker that predates several devices gives
+/// `BASS_ERR_PROTOCOL`.
+///
+/// # Safety
+/// `broker` must be NULL or NUL-terminated; `devices` valid for `devices_len` reads of
+/// NUL-terminated strings; `out_epoch` NULL or valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn bass_acquire_devices(
+    broker: *const c_char,
+    devices: *const *const c_char,
+    devices_len: usize,
+    sample_rate: u32,
+    frames_per_chunk: u32,
+    chunks_on_port: u32,
+    channels: u32,
+    out_epoch: *mut u64,
+) -> bass_result {
+    boundary("bass_acquire_devices", || {
+        let list = super::nonnull(devices, "devices")?;
+        if devices_len == 0 || devices_len > BASS_MAX_DEVICES {
+            return Err(Failure::Lib(bassport::Error::InvalidArgument(format!(
+                "devices_len = {devices_len} (must be 1..={BASS_MAX_DEVICES})"
+            ))));
+        }
+        let mut names = Vec::with_capacity(devices_len);
+        for i in 0..devices_len {
+            // SAFETY: `list` is valid for `devices_len` reads (caller guarantee), i < devices_len.
+            let p = unsafe { list.add(i).read() };
+            if p.is_null() {
+                return Err(Failure::NullAt("devices", i));
+            }
+            // SAFETY: non-null and NUL-terminated (caller guarantee).
+            names.push(unsafe { c_str(p, "devices[i]") }?.to_owned());
+        }
+        // SAFETY: forwarded caller guarantee.
+        let mut client = unsafe { connect(broker) }?;
+        let followers =
+            names[1..].iter().map(|d| FollowerRequest { device: d.clone(), channels: 0 }).collect();
+        let req = AcquireRequest {
+            device: names[0].clone(),
+            sample_rate,
+            frames_per_chunk,
+            chunks_on_port,
+            channels: if channels == 0 { DEFAULT_CHANNELS } else { channels },
+            format: None,
+            followers,
+        };
+        let acquired = client.acquire(&req)?;
+        if !out_epoch.is_null() {
+            // SAFETY: non-null; the caller guarantees validity.
+            unsafe { out_epoch.write(acquired.epoch) };
+        }
+        Ok(())
+    })
+}
+
+fn device_to_c(d: &DeviceStatus) -> bass_device_info {
+    let mut out = bass_device_info {
+        first_channel: d.first_channel,
+        channels: d.channels,
+        locks: d.locks,
+        xruns: d.xruns,
+        unplugs: d.unplugs,
+        missing_frames: d.missing_frames,
+        unaligned_frames: d.unaligned_frames,
+        ratio_ppm: d.ratio_ppm,
+        error_estimate: d.error_estimate,
+        name: [0; BASS_DEVICE_LEN],
+        role: [0; BASS_DEVICE_STATE_LEN],
+        state: [0; BASS_DEVICE_STATE_LEN],
+    };
+    copy_text(&mut out.name, &d.name);
+    copy_text(&mut out.role, &d.role);
+    copy_text(&mut out.state, &d.state);
+    out
+}
+
+/// Device `index` (0: the master) of broker `broker`'s acquisition (NULL = "default"): its
+/// channels, state, rate against the master, alignment error and counters. An acquisition of
+/// one device has device 0 only (the port's own figures); an index past the last device, or a
+/// broker that has not acquired yet, gives `BASS_ERR_NOT_FOUND`, nothing written. To list
+/// them, call with 0, 1, ... until `BASS_ERR_NOT_FOUND`.
+///
+/// # Safety
+/// `broker` must be NULL or NUL-terminated; `out_info` valid for a write.
+#[no_mangle]
+pub unsafe extern "C" fn bass_broker_device_info(
+    broker: *const c_char,
+    index: u32,
+    out_info: *mut bass_device_info,
+) -> bass_result {
+    boundary("bass_broker_device_info", || {
+        let out = nonnull_mut(out_info, "out_info")?;
+        // SAFETY: forwarded caller guarantee.
+        let mut client = unsafe { connect(broker) }?;
+        let s = client.status()?;
+        let one = [DeviceStatus {
+            name: s.device.clone(),
+            role: "master".into(),
+            channels: s.channels,
+            state: "master".into(),
+            xruns: s.xruns,
+            missing_frames: s.gap_frames,
+            ..DeviceStatus::default()
+        }];
+        let devices: &[DeviceStatus] = match (s.devices.is_empty(), s.epoch) {
+            (false, _) => &s.devices,
+            (true, 0) => &[],
+            (true, _) => &one,
+        };
+        let Some(d) = devices.get(index as usize) else {
+            return Err(Failure::NotFound(format!(
+                "device index {index}: the acquisition has {} device(s){}",
+                devices.len(),
+                if s.epoch == 0 { " (the broker has not acquired yet)" } else { "" }
+            )));
+        };
+        let info = device_to_c(d);
+        // SAFETY: checked non-null; the caller guarantees validity.
+        unsafe { out.write(info) };
+        Ok(())
+    })
+}
+
+const _: () = assert!(
+    std::mem::size_of::<bass_device_info>()
+        == 8 + 5 * 8 + 2 * 8 + BASS_DEVICE_LEN + 2 * BASS_DEVICE_STATE_LEN
+);
 const _: () =
     assert!(std::mem::size_of::<bass_broker_status>() == 24 + 40 + BASS_DEVICE_LEN + BASS_MESSAGE_LEN);
 const _: () = assert!(

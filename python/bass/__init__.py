@@ -28,7 +28,8 @@ from . import _lib
 from ._lib import BASS_WAIT_FOREVER, lib
 
 __all__ = [
-    "BassError", "Port", "Writer", "AudioData", "Block", "ChunkInfo", "acquire", "stop", "status", "replica_status",
+    "BassError", "Port", "Writer", "AudioData", "Block", "ChunkInfo", "acquire", "devices", "stop", "status",
+    "replica_status",
     "list_devices", "version", "pattern_expected", "RESULT_NAMES", "STATE_NAMES", "CHUNK_FLAGS",
 ]
 
@@ -421,19 +422,46 @@ def _control(name):
 
 
 def acquire(device, sample_rate=44100, frames_per_chunk=2205, chunks_on_port=20, channels=2, broker=None):
-    """The Acquire service: starts (or restarts) the broker's acquisition. Returns the epoch."""
+    """The Acquire service: starts (or restarts) the broker's acquisition. Returns the epoch.
+    `device` a list of names: several devices, the first the master clock, each with `channels`
+    channels (bass_acquire_devices; docs/multi-device.md)."""
     if device is None:
-        raise TypeError("device must be a str, e.g. \"sim:pattern\"")
-    device = _bytes(device, "device")
+        raise TypeError("device must be a str, e.g. \"sim:pattern\", or a list of them")
     sample_rate = _uint(sample_rate, "sample_rate", "uint32_t")
     frames_per_chunk = _uint(frames_per_chunk, "frames_per_chunk", "uint32_t")
     chunks_on_port = _uint(chunks_on_port, "chunks_on_port", "uint32_t")
     channels = _uint(channels, "channels", "uint32_t")
     epoch = ctypes.c_uint64()
+    if isinstance(device, (list, tuple)):
+        if not device:
+            raise ValueError("device: an empty list (name the master first)")
+        names = (ctypes.c_char_p * len(device))(*[_bytes(d, f"device[{i}]") for i, d in enumerate(device)])
+        _check("bass_acquire_devices", _control("bass_acquire_devices")(
+            _bytes(broker, "broker"), names, len(device), sample_rate, frames_per_chunk, chunks_on_port,
+            channels, ctypes.byref(epoch)))
+        return epoch.value
     _check("bass_acquire", _control("bass_acquire")(
-        _bytes(broker, "broker"), device, sample_rate, frames_per_chunk, chunks_on_port, channels,
-        ctypes.byref(epoch)))
+        _bytes(broker, "broker"), _bytes(device, "device"), sample_rate, frames_per_chunk, chunks_on_port,
+        channels, ctypes.byref(epoch)))
     return epoch.value
+
+
+def devices(broker=None):
+    """The devices of the broker's acquisition (bass_broker_device_info), master first, as a list
+    of dicts: `name`, `role`, `state`, `first_channel`, `channels`, `ratio_ppm`,
+    `error_estimate`, `locks`, `xruns`, `unplugs`, `missing_frames`, `unaligned_frames`
+    (docs/multi-device.md). Empty before the first Acquire."""
+    out = []
+    while True:
+        d = _lib.DeviceInfo()
+        code = _control("bass_broker_device_info")(_bytes(broker, "broker"), len(out), ctypes.byref(d))
+        if code == globals()["BASS_ERR_NOT_FOUND"]:
+            return out
+        _check("bass_broker_device_info", code)
+        row = {name: getattr(d, name) for name, _ in _lib.DeviceInfo._fields_}
+        for text in ("name", "role", "state"):
+            row[text] = getattr(d, text).decode(errors="replace")
+        out.append(row)
 
 
 def stop(broker=None):

@@ -37,6 +37,8 @@ BASS_EVENT_WRITER_GONE = 4
 BASS_EVENT_REALTIME_REFUSED = 5
 BASS_EVENT_RESUMED = 6
 BASS_SOURCE_STATE_LEN = 32
+BASS_DEVICE_STATE_LEN = 16
+BASS_MAX_DEVICES = 8
 
 # The BASS_CHUNK_* flags by name without the prefix, in the header's order.
 CHUNK_FLAGS = {"GAP": 1, "DISCONTINUITY": 2, "TIME_ESTIMATED": 4, "LATE": 8}
@@ -143,6 +145,25 @@ class ReplicaInfo(ctypes.Structure):
     ]
 
 
+class DeviceInfo(ctypes.Structure):
+    """bass_device_info (one device of a several-device acquisition)."""
+
+    _fields_ = [
+        ("first_channel", c_uint32),
+        ("channels", c_uint32),
+        ("locks", c_uint64),
+        ("xruns", c_uint64),
+        ("unplugs", c_uint64),
+        ("missing_frames", c_uint64),
+        ("unaligned_frames", c_uint64),
+        ("ratio_ppm", c_double),
+        ("error_estimate", c_double),
+        ("name", c_char * BASS_DEVICE_LEN),
+        ("role", c_char * BASS_DEVICE_STATE_LEN),
+        ("state", c_char * BASS_DEVICE_STATE_LEN),
+    ]
+
+
 class StreamConfig(ctypes.Structure):
     """bass_stream_config (python/bass/stream.py)."""
 
@@ -244,4 +265,6 @@ SIGNATURES = {
     "bass_stop": (c_int, [c_char_p]),
     "bass_status": (c_int, [c_char_p, POINTER(Status)]),
     "bass_list_devices": (c_int, [c_char_p, POINTER(c_char), c_size_t, POINTER(c_size_t)]),
+    "bass_acquire_devices": (c_int, [c_char_p, POINTER(c_char_p), c_size_t, c_uint32, c_uint32, c_uint32, c_uint32, POINTER(c_uint64)]),
+    "bass_broker_device_info": (c_int, [c_char_p, c_uint32, POINTER(DeviceInfo)]),
 }

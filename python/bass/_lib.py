@@ -32,6 +32,7 @@ from ._abi import (  # noqa: F401  (re-exported: the package and its tests use _
     ChunkExt,
     ChunkInfo,
     ChunkMeta,
+    DeviceInfo,
     PortInfo,
     ReplicaInfo,
     Status,

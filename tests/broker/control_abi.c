@@ -1,5 +1,5 @@
-/* The control-plane C ABI (bass_acquire, bass_stop, bass_status, bass_replica_status,
- * bass_list_devices) against real bassd processes started by tests/broker/run.sh: broker
+/* The control-plane C ABI (bass_acquire, bass_acquire_devices, bass_stop, bass_status,
+ * bass_broker_device_info, bass_replica_status, bass_list_devices) against real bassd processes started by tests/broker/run.sh: broker
  * "default" and broker "second" in $BASS_RUNTIME_DIR, both idle. Every check prints its name;
  * any failure exits 1. */
 #include <stdint.h>
@@ -167,11 +167,49 @@ static void test_replica_status_of_a_bassd(void) {
   CHECK(r == BASS_ERR_NO_BROKER, "no such broker: %d", r);
 }
 
+/* Several devices on broker "second": the devices listed master first with their channels;
+ * an index past them, NULL arguments, a bad count and a NULL name are refused. */
+static void test_several_devices(void) {
+  bass_device_info d;
+  memset(&d, 0x5a, sizeof d);
+  bass_result r = bass_broker_device_info("second", 0, &d);
+  CHECK(r == BASS_OK && strcmp(d.role, "master") == 0 && strcmp(d.name, "sim:silence") == 0 && d.channels == 2,
+        "one device: device 0 is the master: %d %s %s %u", r, d.role, d.name, d.channels);
+  CHECK(bass_broker_device_info("second", 1, &d) == BASS_ERR_NOT_FOUND, "one device: no device 1");
+  const char *devices[] = {"sim:field", "sim:field?ppm=87", "sim:field?ppm=-143&ch=2"};
+  uint64_t epoch = 0;
+  r = bass_acquire_devices("second", devices, 3, 48000, 480, 20, 2, &epoch);
+  CHECK(r == BASS_OK && epoch == 2, "acquire three devices: %d, epoch %llu", r, (unsigned long long)epoch);
+  bass_broker_status st;
+  CHECK(bass_status("second", &st) == BASS_OK && st.channels == 6, "6 channels: %u", st.channels);
+  for (uint32_t i = 0; i < 3; i++) {
+    r = bass_broker_device_info("second", i, &d);
+    CHECK(r == BASS_OK && strcmp(d.name, devices[i]) == 0 && d.first_channel == 2 * i && d.channels == 2,
+          "device %u: %d %s first %u", i, r, d.name, d.first_channel);
+    CHECK(strcmp(d.role, i == 0 ? "master" : "follower") == 0, "device %u role %s", i, d.role);
+  }
+  memset(&d, 0x5a, sizeof d);
+  r = bass_broker_device_info("second", 3, &d);
+  CHECK(r == BASS_ERR_NOT_FOUND && strstr(bass_last_error(), "3 device(s)") != NULL, "no device 3: %d", r);
+  CHECK(d.channels == 0x5a5a5a5au, "nothing written on failure");
+  CHECK(bass_broker_device_info("second", 0, NULL) == BASS_ERR_NULL_ARGUMENT, "NULL out_info");
+  CHECK(bass_acquire_devices("second", NULL, 2, 48000, 480, 20, 2, NULL) == BASS_ERR_NULL_ARGUMENT, "NULL devices");
+  r = bass_acquire_devices("second", devices, 0, 48000, 480, 20, 2, NULL);
+  CHECK(r == BASS_ERR_INVALID_ARGUMENT && strstr(bass_last_error(), "devices_len = 0") != NULL, "no devices: %d", r);
+  const char *holes[] = {"sim:field", NULL};
+  CHECK(bass_acquire_devices("second", holes, 2, 48000, 480, 20, 2, NULL) == BASS_ERR_NULL_ARGUMENT, "NULL name");
+  const char *bad[] = {"sim:field", "sim:field?ppm=fast"};
+  r = bass_acquire_devices("second", bad, 2, 48000, 480, 20, 2, NULL);
+  CHECK(r == BASS_ERR_BROKER && strstr(bass_last_error(), "ppm=\"fast\"") != NULL, "bad follower: %d", r);
+  CHECK(bass_stop("second") == BASS_OK, "second broker stop");
+}
+
 int main(void) {
   test_list_devices();
   test_replica_status_of_a_bassd();
   test_acquire_read_stop();
   test_second_broker();
+  test_several_devices();
   test_errors();
   printf("control_abi: %d passed, %d failed\n", passes, failures);
   return failures ? 1 : 0;

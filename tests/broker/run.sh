@@ -2,7 +2,8 @@
 # tests/broker: the broker from the outside, as C users and shell users see it.
 #  1. the control-plane C ABI (tests/broker/control_abi.c, strict warnings, plain and under
 #     ASan/UBSan) against real bassd processes;
-#  2. the bass command-line tool (devices, acquire, status, blocks, stop, errors).
+#  2. the bass command-line tool (devices, acquire, status, blocks, stop, errors);
+#  3. several devices in one acquisition, checked against ground truth (multi.sh).
 # The Rust integration tests (broker/tests/: sim devices, ALSA file and jack plugins,
 # lifecycle) run with `cargo test --release --workspace`; pass --with-cargo to run them here too.
 set -euo pipefail
@@ -57,6 +58,9 @@ if grep -q '^state *stopped' <<<"$out"; then ok "bass stop"; else bad "bass stop
 if out=$(BASS_RUNTIME_DIR="$d" "$bin/bass" --name nobody status 2>&1); then bad "status of a missing broker succeeded"; else
   if grep -q 'is bassd --name nobody running' <<<"$out"; then ok "missing broker is reported"; else bad "missing broker: $out"; fi
 fi
+
+# 3. One acquisition of several sim:field cards against the analytic field (tests/broker/multi.sh).
+if "$top/tests/broker/multi.sh"; then ok "several devices on one port (multi.sh)"; else bad "several devices on one port (multi.sh)"; fi
 
 if [[ "${1:-}" == "--with-cargo" ]]; then
   if (cd "$top" && cargo test --release -p bass-broker); then ok "cargo test -p bass-broker"; else bad "cargo test -p bass-broker"; fi

@@ -3,6 +3,7 @@
 //! small interface the capture thread drives.
 
 pub mod alsa;
+pub mod field;
 pub mod file;
 pub mod mcap_file;
 mod regular;
@@ -92,6 +93,12 @@ pub trait Capture: Send {
     fn read(&mut self, out: &mut [i32], max_frames: usize, stop: &StopSignal) -> ReadEvent;
     /// The device sample format in use (`S32_LE` for simulated devices).
     fn format_name(&self) -> &'static str;
+    /// Reopens the device after it failed (a follower of a several-device acquisition
+    /// recovering) and starts it; `None`: not supported here, the caller opens the device
+    /// afresh by name.
+    fn reopen(&mut self) -> Option<Result<(), String>> {
+        None
+    }
 }
 
 /// Every capture device the broker can open: the simulated ones, then ALSA's hints.
@@ -100,6 +107,12 @@ pub fn list() -> Vec<DeviceInfo> {
         .iter()
         .map(|(k, d)| DeviceInfo { name: format!("sim:{}", k.name()), description: (*d).to_owned() })
         .collect();
+    v.push(DeviceInfo {
+        name: "sim:field".into(),
+        description: "Simulated: a card with its own clock sampling the shared analytic sound field \
+                      (sim:field?ppm=87&slew=0.5&jitter_us=200&seed=1; docs/multi-device.md)"
+            .into(),
+    });
     v.extend(alsa::list());
     v
 }

@@ -16,8 +16,9 @@ use bassport::{PortParams, Writer};
 
 use super::opening::{answer, NextPort, OpenJob, Opened, Opening, Parked, Poll, MAX_STUCK_OPENS};
 use super::{Broker, STOP_TIMEOUT};
+use crate::capture::multi::FollowerSpec;
 use crate::capture::{Acquisition, CaptureParams};
-use crate::device::{self, alsa, alsa::OpenError, sim::SimDevice, Capture};
+use crate::device::{self, alsa, alsa::OpenError, field::FieldDevice, sim::SimDevice, Capture};
 use crate::pins::PIN_BUDGET_FACTOR;
 use crate::request::{self, Checked, DeviceKind};
 
@@ -89,7 +90,8 @@ impl Broker {
                 return Some(Reply::error(ErrorKind::InvalidArgument, &msg));
             }
         };
-        if let Err(msg) = self.cfg.policy.check(&r.device, device::list) {
+        let names = std::iter::once(&r.device).chain(r.followers.iter().map(|f| &f.device));
+        if let Some(msg) = names.filter_map(|d| self.cfg.policy.check(d, device::list).err()).next() {
             tracing::warn!("Acquire refused by the device policy (nothing changed): {msg}");
             return Some(Reply::error(ErrorKind::Permission, &msg));
         }
@@ -137,7 +139,8 @@ impl Broker {
     }
 
     pub(super) fn spawn_open(&self, checked: &Checked) -> std::io::Result<OpenJob> {
-        let (kind, g, format) = (checked.device.clone(), checked.geometry.clone(), checked.format);
+        let (kind, mut g, format) = (checked.device.clone(), checked.geometry.clone(), checked.format);
+        g.channels = checked.master_channels;
         OpenJob::spawn(move || open_device(&kind, &g, format), self.cfg.open_timeout, &self.open_threads)
     }
 
@@ -211,11 +214,13 @@ impl Broker {
             Err(msg) => return Some((reply_to, Reply::error(ErrorKind::Internal, &msg))),
         };
         let cp = CaptureParams {
-            geometry: checked.geometry,
+            geometry: checked.geometry.clone(),
             rt_priority: self.cfg.rt_priority,
             requested_ns,
             stall_ms: self.cfg.stall_ms,
             resume_from_ns,
+            master_channels: checked.master_channels,
+            followers: follower_specs(&checked),
         };
         Some((reply_to, self.start_capture(writer, dev, &r, cp)))
     }
@@ -309,6 +314,7 @@ impl Broker {
         let epoch = writer.epoch();
         let port_path = writer.path().display().to_string();
         let format = dev.format_name();
+        let devices = 1 + cp.followers.len() as u32;
         writer.set_restart_grace_ms(self.sup.restart_grace_ms());
         let store_fd =
             writer.writable_fd().map_err(|e| tracing::warn!("no descriptor for the fd store: {e}")).ok();
@@ -331,7 +337,7 @@ impl Broker {
                     "acquisition started"
                 );
                 self.current = Some(a);
-                Reply::Acquired(Acquired { epoch, port: port_path.into(), format: format.into() })
+                Reply::Acquired(Acquired { epoch, port: port_path.into(), format: format.into(), devices })
             }
             Err(e) => Reply::error(ErrorKind::Internal, &format!("cannot start the capture thread: {e}")),
         }
@@ -383,6 +389,9 @@ fn open_device(
         DeviceKind::Sim(kind) => {
             Ok(Box::new(SimDevice::new(*kind, g.sample_rate, g.channels, g.frames_per_chunk)))
         }
+        DeviceKind::Field(p) => {
+            Ok(Box::new(FieldDevice::new(p.clone(), g.sample_rate, g.channels, g.frames_per_chunk)))
+        }
         DeviceKind::File { path, mode } => {
             device::file::open(path, *mode, g.sample_rate, g.channels, g.frames_per_chunk)
                 .map(|d| Box::new(d) as Box<dyn Capture>)
@@ -397,4 +406,23 @@ fn open_device(
         })
         .map(|d| Box::new(d) as Box<dyn Capture>),
     }
+}
+
+/// The followers of an Acquire, each opened by its own capture thread (a follower that does
+/// not open is retried, the acquisition going on with the master: docs/multi-device.md).
+fn follower_specs(checked: &Checked) -> Vec<FollowerSpec> {
+    checked
+        .followers
+        .iter()
+        .map(|f| {
+            let (kind, format) = (f.device.clone(), checked.format);
+            let mut g = checked.geometry.clone();
+            g.channels = f.channels;
+            FollowerSpec {
+                name: f.name.clone(),
+                channels: f.channels as usize,
+                open: Box::new(move || open_device(&kind, &g, format).map_err(|e| e.message)),
+            }
+        })
+        .collect()
 }

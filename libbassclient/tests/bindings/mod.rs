@@ -185,7 +185,7 @@ fn type_len(e: &Expr) -> String {
 const OPAQUE: [&str; 3] = ["bass_port", "bass_writer", "bass_stream"];
 
 /// The structs the Python package mirrors: (C name, Python class, what the class is).
-const PY_STRUCTS: [(&str, &str, &str); 10] = [
+const PY_STRUCTS: [(&str, &str, &str); 11] = [
     ("bass_port_info", "PortInfo", "bass_port_info."),
     ("bass_chunk_info", "ChunkInfo", "bass_chunk_info."),
     ("bass_chunk_ext", "ChunkExt", "bass_chunk_ext (port format 2.4: timestamp bound, channel masks)."),
@@ -196,6 +196,7 @@ const PY_STRUCTS: [(&str, &str, &str); 10] = [
         "ReplicaInfo",
         "bass_replica_info (a mirror's answer about its replica and the source it follows).",
     ),
+    ("bass_device_info", "DeviceInfo", "bass_device_info (one device of a several-device acquisition)."),
     ("bass_stream_config", "StreamConfig", "bass_stream_config (python/bass/stream.py)."),
     ("bass_block", "Block", "bass_block (one block of a callback stream)."),
     ("bass_stream_event", "StreamEvent", "bass_stream_event (an event of a callback stream)."),
@@ -261,11 +262,12 @@ fn c_signature(s: &Signature) -> Vec<String> {
 }
 
 /// The MEX gateway's tables: (C struct, C array name, what it is).
-const MEX_TABLES: [(&str, &str, &str); 4] = [
+const MEX_TABLES: [(&str, &str, &str); 5] = [
     ("bass_port_info", "INFO_FIELDS", "bass_port_info: bass('info') and GetInfo"),
     ("bass_broker_status", "STATUS_FIELDS", "bass_broker_status: bass('status')"),
     ("bass_replica_info", "REPLICA_FIELDS", "bass_replica_info: Status's `replica` field"),
     ("bass_chunk_info", "CHUNK_FIELDS", "bass_chunk_info: bass('chunks')"),
+    ("bass_device_info", "DEVICE_FIELDS", "bass_device_info: Status's `devices` field"),
 ];
 
 /// Members a Matlab struct leaves out.

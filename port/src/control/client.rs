@@ -147,6 +147,15 @@ impl Client {
     /// Starts an acquisition (interrupting a running one).
     pub fn acquire(&mut self, req: &AcquireRequest) -> Result<Acquired> {
         match self.request(&Request::Acquire(req.clone()))? {
+            // A broker that predates followers ignores them: it captured the master alone.
+            Reply::Acquired(a) if !req.followers.is_empty() && a.devices == 0 => {
+                Err(Error::Protocol(format!(
+                    "the broker acquired {:?} but ignored the {} follower device(s): it predates \
+                 several-device acquisitions (docs/multi-device.md); upgrade bassd",
+                    req.device,
+                    req.followers.len()
+                )))
+            }
             Reply::Acquired(a) => Ok(a),
             other => Err(unexpected("acquire", &other)),
         }

@@ -37,6 +37,21 @@ pub struct AcquireRequest {
     /// `S16_LE`); `None` = the broker's choice.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub format: Option<String>,
+    /// More devices in the same acquisition (docs/multi-device.md): `device` is the master
+    /// clock and its `channels` come first; each follower's channels follow, in order,
+    /// resampled onto the master's frames. Empty: one device, as before.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub followers: Vec<FollowerRequest>,
+}
+
+/// A follower device of an Acquire ([`AcquireRequest::followers`]).
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct FollowerRequest {
+    /// ALSA PCM name or `sim:...`.
+    pub device: String,
+    /// Its channels (0: as many as the master's).
+    pub channels: u32,
 }
 
 impl Default for AcquireRequest {
@@ -48,6 +63,7 @@ impl Default for AcquireRequest {
             chunks_on_port: DEFAULT_CHUNKS_ON_PORT,
             channels: DEFAULT_CHANNELS,
             format: None,
+            followers: Vec::new(),
         }
     }
 }
@@ -79,6 +95,14 @@ pub struct Acquired {
     pub port: PathBuf,
     /// Device sample format negotiated (e.g. `S16_LE`; `S32_LE` for simulated devices).
     pub format: String,
+    /// Devices in the acquisition (master and followers); 0 (left out) from a broker that
+    /// predates followers, which a client that asked for followers must treat as a refusal.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub devices: u32,
+}
+
+fn is_zero(n: &u32) -> bool {
+    *n == 0
 }
 
 /// Answer to OpenPort when the port is a sealed memfd: its descriptor travels with this
@@ -142,10 +166,46 @@ pub struct Status {
     pub broker_pid: u32,
     /// Broker version.
     pub broker_version: String,
+    /// Per device of a several-device acquisition (master first); empty for one device.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub devices: Vec<DeviceStatus>,
     /// For a replica (`bass-bridge mirror`), what the mirror knows of its link and source;
     /// absent for a broker.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub replica: Option<Box<ReplicaStatus>>,
+}
+
+/// One device of a several-device acquisition, in Status (docs/multi-device.md).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct DeviceStatus {
+    /// Device name.
+    pub name: String,
+    /// `master` or `follower`.
+    pub role: String,
+    /// Its first channel on the port.
+    pub first_channel: u32,
+    /// Its channels.
+    pub channels: u32,
+    /// A follower's state: `waiting` (no frames yet), `aligning` (not yet within its bound),
+    /// `locked`, `lost` (unplugged, being reopened); the master's: `master`.
+    pub state: String,
+    /// Measured rate against the master, ppm (follower frames per master frame - 1; 0 for
+    /// the master).
+    pub ratio_ppm: f64,
+    /// The current alignment error estimate, samples (a follower's; 0 for the master).
+    pub error_estimate: f64,
+    /// Times it locked.
+    pub locks: u64,
+    /// Recovered overruns.
+    pub xruns: u64,
+    /// Times it was lost (unplugged) and reopened.
+    pub unplugs: u64,
+    /// Port frames whose samples of its channels are missing (zeros, `missing_channels`),
+    /// after its first aligned frame.
+    pub missing_frames: u64,
+    /// Port frames published while it was not locked (`unaligned_channels`).
+    pub unaligned_frames: u64,
 }
 
 /// What a mirror answers about its replica without asking the source (Status on a replica's

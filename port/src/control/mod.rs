@@ -28,8 +28,9 @@ pub mod wire;
 pub use client::OpenedPort;
 pub use client::{Client, DEFAULT_TIMEOUT};
 pub use messages::{
-    AcquireRequest, Acquired, DeviceInfo, ErrorKind, PortFd, ReplicaStatus, Reply, Request, Status,
-    DEFAULT_CHANNELS, DEFAULT_CHUNKS_ON_PORT, DEFAULT_DEVICE, DEFAULT_FRAMES_PER_CHUNK, DEFAULT_SAMPLE_RATE,
+    AcquireRequest, Acquired, DeviceInfo, DeviceStatus, ErrorKind, FollowerRequest, PortFd, ReplicaStatus,
+    Reply, Request, Status, DEFAULT_CHANNELS, DEFAULT_CHUNKS_ON_PORT, DEFAULT_DEVICE,
+    DEFAULT_FRAMES_PER_CHUNK, DEFAULT_SAMPLE_RATE,
 };
 pub use socket::{
     peer_credentials, recv_datagram, recv_reply, recv_reply_with_fd, send_datagram, send_reply,

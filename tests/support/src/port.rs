@@ -16,6 +16,7 @@ pub fn acquire_req(device: &str, rate: u32, nfpc: u32, ncop: u32, channels: u32)
         chunks_on_port: ncop,
         channels,
         format: None,
+        followers: Vec::new(),
     }
 }
 

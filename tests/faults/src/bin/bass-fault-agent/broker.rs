@@ -93,6 +93,7 @@ pub(super) fn pin_loop(a: &PinArgs) {
         chunks_on_port: a.ncop,
         channels: a.channels,
         format: None,
+        followers: Vec::new(),
     };
     let mut held = Vec::new();
     let (mut ok, mut refused) = (0, 0);
