@@ -143,12 +143,14 @@ if sidecar_has "$gap" 's["chunks"][0]["flags"] & 1 and s["chunks"][-1]["flags"] 
 else
   bad "gap-ends: the recording does not start and end on GAP chunks: $(head -c 600 "$gap.json")"
 fi
-# The capture's bound of every chunk is in its row, and not one value for all (compare.py
-# then holds the replayed port's bound of each chunk against its row).
-if sidecar_has "$gap" 'all(r.get("bound_ns", 2**64) < 10**9 for r in s["chunks"]) and len({r["bound_ns"] for r in s["chunks"]}) > 1'; then
+# The capture's bound of every chunk is in its row (compare.py then holds the replayed port's
+# bound of each chunk against its row). A sim device's chunks all get the a-priori bound (one
+# chunk, 12.5 ms): bounds that differ per chunk are tested in broker/tests/replay.rs and
+# cli/src/record/tests.rs, from a writer that sets them.
+if sidecar_has "$gap" 'all(r.get("bound_ns", 2**64) < 10**9 for r in s["chunks"])'; then
   ok "gap-ends: every row has its chunk's bound: $(sidecar_bounds "$gap")"
 else
-  bad "gap-ends: rows without a bound, or all alike: $(sidecar_bounds "$gap")"
+  bad "gap-ends: rows without a bound: $(sidecar_bounds "$gap")"
 fi
 
 # 1b. old-sidecar: the gap-ends recording with a sidecar of a recorder before port format 2.4
