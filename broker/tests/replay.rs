@@ -257,6 +257,27 @@ fn another_chunk_size_or_a_sidecar_that_disagrees_is_refused_by_name() {
 /// 8000 Hz, 100-frame chunks, the audio `runs` (first frame, chunks, frames lost before it;
 /// sample = frame index) and `frames` frames in all from frame 1 (the rest lost at the end).
 fn mcap_recording(dir: &Path, name: &str, runs: &[(u64, u64, u64)], frames: u64) -> std::path::PathBuf {
+    mcap_recording_as(dir, name, runs, frames, false)
+}
+
+/// The bound and masks [`mcap_recording_as`] gives the chunk at frame `f` (chunk k from 0):
+/// bound 1000·k + 7, unknown for every third; channel 0 missing in odd chunks and unaligned
+/// in chunks 2, 3, 6, 7, ...
+fn mcap_ext(f: u64) -> (u64, u64, u64) {
+    let k = (f - 1) / 100;
+    let bound = if k % 3 == 2 { bassport::format::BOUND_UNKNOWN } else { 1000 * k + 7 };
+    (bound, k & 1, (k >> 1) & 1)
+}
+
+/// [`mcap_recording`]; with `old`, its ChunkInfo messages and schema as bass wrote them before
+/// port format 2.4 (the message ends at `lost_before`).
+fn mcap_recording_as(
+    dir: &Path,
+    name: &str,
+    runs: &[(u64, u64, u64)],
+    frames: u64,
+    old: bool,
+) -> std::path::PathBuf {
     use basskit::ros2::{self, AudioDataStamped, ChunkInfo, Header, Time};
     use basskit::sidecar::{Acquisition, Lost, Recording, Sidecar};
     use std::collections::BTreeMap;
@@ -266,7 +287,13 @@ fn mcap_recording(dir: &Path, name: &str, runs: &[(u64, u64, u64)], frames: u64)
         .create(std::io::Cursor::new(Vec::new()))
         .unwrap();
     let meta = BTreeMap::new();
-    let s1 = w.add_schema(ros2::CHUNK_INFO, "ros2msg", ros2::CHUNK_INFO_DEFINITION.as_bytes()).unwrap();
+    let new_fields = ["uint64 bound_ns", "uint64 missing_channels", "uint64 unaligned_channels"];
+    let info_def: String = ros2::CHUNK_INFO_DEFINITION
+        .lines()
+        .filter(|l| !old || !new_fields.iter().any(|f| l.starts_with(f)))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    let s1 = w.add_schema(ros2::CHUNK_INFO, "ros2msg", info_def.as_bytes()).unwrap();
     let c1 = w.add_channel(s1, "/bass/t/chunk_info", "cdr", &meta).unwrap();
     let def = ros2::AUDIO_DATA_STAMPED_DEFINITION.as_bytes();
     let s2 = w.add_schema(ros2::AUDIO_DATA_STAMPED, "ros2msg", def).unwrap();
@@ -278,6 +305,7 @@ fn mcap_recording(dir: &Path, name: &str, runs: &[(u64, u64, u64)], frames: u64)
         }
         for k in 0..chunks {
             let f = first + 100 * k;
+            let (bound_ns, missing_channels, unaligned_channels) = mcap_ext(f);
             let info = ChunkInfo {
                 header: Header { stamp: Time::from_ns(f * 125_000), frame_id: String::new() },
                 epoch: 1,
@@ -289,6 +317,9 @@ fn mcap_recording(dir: &Path, name: &str, runs: &[(u64, u64, u64)], frames: u64)
                 monotonic_ns: f * 125_000,
                 realtime_ns: f * 125_000,
                 lost_before: if k == 0 { lost_before } else { 0 },
+                bound_ns,
+                missing_channels,
+                unaligned_channels,
             };
             let h = |channel_id| mcap::records::MessageHeader {
                 channel_id,
@@ -297,6 +328,9 @@ fn mcap_recording(dir: &Path, name: &str, runs: &[(u64, u64, u64)], frames: u64)
                 publish_time: f,
             };
             info.encode(&mut buf);
+            if old {
+                buf.truncate(buf.len() - 24);
+            }
             w.write_to_known_channel(&h(c1), &buf).unwrap();
             let s: Vec<i32> = (f..f + 100).map(|x| x as i32).collect();
             AudioDataStamped::encode_samples(&info.header, &s, &mut buf);
@@ -446,4 +480,73 @@ fn a_loss_to_the_end_of_a_recording_is_replayed_and_leaves_no_capture_thread_beh
     assert!(!b.log_text().contains("leaving it behind"), "{}", b.log_text());
     b.signal(libc::SIGTERM);
     assert!(b.wait_exit().success());
+}
+
+/// Replays `dev` (1 or 2 channels at 8000 Hz, 100-frame chunks) to its end and gives the bound
+/// and masks of the port's chunks at frames `first`, `first + 100`, ... (`chunks` of them).
+fn replayed_ext(b: &Bassd, dev: &str, channels: u32, first: u64, chunks: u64) -> Vec<(u64, u64, u64)> {
+    b.client().acquire(&acquire_req(dev, 8000, 100, 200, channels)).unwrap();
+    let port = b.port();
+    replay_end(&port);
+    (0..chunks)
+        .map(|k| port.chunk_info(first + 100 * k).unwrap())
+        .map(|ci| (ci.bound_ns, ci.missing_channels, ci.unaligned_channels))
+        .collect()
+}
+
+#[test]
+fn a_replayed_mcap_recording_gives_each_chunk_its_recorded_bound_and_masks() {
+    let dir = TempDir::new("replay-mcap-bound");
+    let b = Bassd::start_replaying(dir.path(), "default");
+    let want: Vec<_> = (0..6u64).map(|k| mcap_ext(100 * k + 1)).collect();
+    assert_eq!(&want[..3], [(7, 0, 0), (1007, 1, 0), (u64::MAX, 0, 1)], "values that differ per chunk");
+    let p = mcap_recording(dir.path(), "bound.mcap", &[(1, 6, 0)], 600);
+    assert_eq!(replayed_ext(&b, &format!("sim:file:{}", p.display()), 1, 1, 6), want);
+    // A recording of an older bass: ChunkInfo without the three fields, replayed as not known.
+    let p = mcap_recording_as(dir.path(), "old.mcap", &[(1, 6, 0)], 600, true);
+    let got = replayed_ext(&b, &format!("sim:file:{}", p.display()), 1, 1, 6);
+    assert_eq!(got, vec![(u64::MAX, 0, 0); 6]);
+}
+
+#[test]
+fn a_replayed_wav_recording_gives_each_chunk_its_recorded_bound_and_masks() {
+    let dir = TempDir::new("replay-wav-bound");
+    let b = Bassd::start_replaying(dir.path(), "default");
+    let wav = record(&b, "sim:pattern", 100, 800, "b.wav");
+    let dev = format!("sim:file:{}", wav.display());
+    let side_path = basskit::sidecar::path_of(&wav);
+    let side: serde_json::Value = serde_json::from_slice(&std::fs::read(&side_path).unwrap()).unwrap();
+    // The capture's bounds, as recorded: every chunk has one, and the replay gives them back.
+    let rows = side["chunks"].as_array().unwrap();
+    let captured: Vec<(u64, u64, u64)> =
+        rows.iter().map(|r| (r["bound_ns"].as_u64().expect("a captured chunk has a bound"), 0, 0)).collect();
+    assert_eq!(captured.len(), 8);
+    assert_eq!(replayed_ext(&b, &dev, 2, 1, 8), captured);
+    // Values set per chunk in the sidecar (channel 1 missing where the row says so is not
+    // zeros in this file: the replay gives the masks as recorded, it does not check them).
+    let ext = |k: u64| {
+        let bound = if k % 3 == 2 { None } else { Some(1000 * k + 7) };
+        (bound, k & 2, k & 3)
+    };
+    let mut edited = side.clone();
+    for (k, r) in edited["chunks"].as_array_mut().unwrap().iter_mut().enumerate() {
+        let (bound, missing, unaligned) = ext(k as u64);
+        r["bound_ns"] = bound.map_or(serde_json::Value::Null, Into::into);
+        r["missing_channels"] = missing.into();
+        r["unaligned_channels"] = unaligned.into();
+    }
+    std::fs::write(&side_path, serde_json::to_vec(&edited).unwrap()).unwrap();
+    let want: Vec<_> = (0..8).map(ext).map(|(b, m, u)| (b.unwrap_or(u64::MAX), m, u)).collect();
+    assert_eq!(&want[..3], [(7, 0, 0), (1007, 0, 1), (u64::MAX, 2, 2)], "values that differ per chunk");
+    assert_eq!(replayed_ext(&b, &dev, 2, 1, 8), want);
+    // A sidecar of an older recorder: rows without the fields replay as not known and 0.
+    let mut old = side;
+    for r in old["chunks"].as_array_mut().unwrap() {
+        let r = r.as_object_mut().unwrap();
+        r.remove("bound_ns");
+        r.remove("missing_channels");
+        r.remove("unaligned_channels");
+    }
+    std::fs::write(&side_path, serde_json::to_vec(&old).unwrap()).unwrap();
+    assert_eq!(replayed_ext(&b, &dev, 2, 1, 8), vec![(u64::MAX, 0, 0); 8]);
 }

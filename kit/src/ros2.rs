@@ -9,7 +9,8 @@
 //!   `header.stamp` the CLOCK_REALTIME of its first frame;
 //! - [`AudioInfo`] (`audio_common_msgs/msg/AudioInfo`): channels, rate, `S32LE`, `wave`;
 //! - [`ChunkInfo`] (`bass_msgs/msg/ChunkInfo`, bass's own): the frame index, frames, chunk
-//!   flags, both clocks and the loss before the audio message with the same stamp;
+//!   flags, both clocks and the loss before the audio message with the same stamp, then (added
+//!   at its end with port format 2.4) the chunk's timestamp bound and channel masks;
 //! - [`foxglove::RawAudio`] (`foxglove_msgs/msg/RawAudio`, Foxglove's): the same run as 16-bit
 //!   PCM, for Foxglove's Audio panel (only in MCAP recordings that ask for it).
 //!
@@ -214,7 +215,7 @@ pub struct AudioInfo {
 }
 
 /// `bass_msgs/msg/ChunkInfo`: see [`CHUNK_INFO_DEFINITION`] for each field.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ChunkInfo {
     /// The audio message's header.
     pub header: Header,
@@ -236,6 +237,37 @@ pub struct ChunkInfo {
     pub realtime_ns: u64,
     /// Frames lost between the previous message and this one.
     pub lost_before: u64,
+    /// Half-width (ns) of the interval around the chunk's stamps in which its first frame's
+    /// true capture time lies; [`BOUND_UNKNOWN`] = not known (and in a message without it).
+    pub bound_ns: u64,
+    /// Bit c: channel c's frames in the chunk are zeros its device never delivered.
+    pub missing_channels: u64,
+    /// Bit c: channel c is not yet aligned to the frame index within its bound.
+    pub unaligned_channels: u64,
+}
+
+/// `ChunkInfo.bound_ns` of a chunk whose bound is not known (the port's own value).
+pub const BOUND_UNKNOWN: u64 = bassport::format::BOUND_UNKNOWN;
+
+impl Default for ChunkInfo {
+    /// Every field 0 but the bound, unknown.
+    fn default() -> Self {
+        ChunkInfo {
+            header: Header::default(),
+            epoch: 0,
+            first_frame: 0,
+            frames: 0,
+            chunk_first_frame: 0,
+            chunk_frames: 0,
+            flags: 0,
+            monotonic_ns: 0,
+            realtime_ns: 0,
+            lost_before: 0,
+            bound_ns: BOUND_UNKNOWN,
+            missing_channels: 0,
+            unaligned_channels: 0,
+        }
+    }
 }
 
 /// A CDR writer: appends to a buffer, aligning each primitive to its size within the body.
@@ -433,9 +465,29 @@ impl ChunkInfo {
         o.u64(self.monotonic_ns);
         o.u64(self.realtime_ns);
         o.u64(self.lost_before);
+        o.u64(self.bound_ns);
+        o.u64(self.missing_channels);
+        o.u64(self.unaligned_channels);
+    }
+
+    /// The port chunk's row this message describes; `None` when the recorder had none
+    /// (`chunk_first_frame` 0).
+    pub fn row(&self) -> Option<crate::sidecar::ChunkRow> {
+        (self.chunk_first_frame != 0).then_some(crate::sidecar::ChunkRow {
+            first_frame: self.chunk_first_frame,
+            frames: self.chunk_frames,
+            mono_ns: self.monotonic_ns,
+            realtime_ns: self.realtime_ns,
+            flags: self.flags,
+            bound_ns: Some(self.bound_ns).filter(|&b| b != BOUND_UNKNOWN),
+            missing_channels: self.missing_channels,
+            unaligned_channels: self.unaligned_channels,
+        })
     }
 
     /// Reads a CDR payload, every length checked (the values' meaning is the reader's to check).
+    /// A message that ends after `lost_before` (written before the bound was added) reads as
+    /// bound unknown and no channel flagged.
     pub fn decode(payload: &[u8]) -> Result<Self, CdrError> {
         let mut i = In::new(payload)?;
         let m = ChunkInfo {
@@ -449,6 +501,17 @@ impl ChunkInfo {
             monotonic_ns: i.u64("monotonic_ns")?,
             realtime_ns: i.u64("realtime_ns")?,
             lost_before: i.u64("lost_before")?,
+            ..ChunkInfo::default()
+        };
+        if i.body.len() - i.at < 8 {
+            i.end()?; // the older message: padding at most
+            return Ok(m);
+        }
+        let m = ChunkInfo {
+            bound_ns: i.u64("bound_ns")?,
+            missing_channels: i.u64("missing_channels")?,
+            unaligned_channels: i.u64("unaligned_channels")?,
+            ..m
         };
         i.end()?;
         Ok(m)

@@ -8,7 +8,8 @@
 //!   the WAV, each inside the file;
 //! - `chunks`: one row per chunk of the acquisition overlapping the file and still on the port
 //!   when the recorder read it (a chunk lost whole has no row), with its first frame (a chunk
-//!   start, possibly before the file's first frame), timestamps and flags;
+//!   start, possibly before the file's first frame), timestamps and flags, and (port format
+//!   2.4) its timestamp bound and channel masks, left out when not known or 0;
 //! - `recording.gap_frames`: the frames of GAP chunks inside the file, not counting lost ones;
 //! - `recording.started_after_requested`: frames between the requested first frame and the
 //!   first one the port still had (`--from` an index the port had already overwritten), which
@@ -16,7 +17,7 @@
 
 use std::path::{Path, PathBuf};
 
-use bassport::format::{chunk_flags, MAX_CHANNELS, MAX_FRAME_INDEX};
+use bassport::format::{chunk_flags, BOUND_UNKNOWN, MAX_CHANNELS, MAX_FRAME_INDEX};
 use serde::{Deserialize, Serialize};
 
 /// Every chunk flag a row may carry.
@@ -107,8 +108,10 @@ pub struct Lost {
     pub frames: u64,
 }
 
-/// One chunk of the acquisition, as the port described it.
-#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+/// One chunk of the acquisition, as the port described it (its chunk table entry and, from
+/// port format 2.4, its extension row). The bound and the masks are left out of the JSON when
+/// unknown or 0, and a row without them (an older recorder's) reads as unknown and 0.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ChunkRow {
     /// First frame of the chunk (a chunk start: `(first_frame - 1) % frames_per_chunk == 0`).
     pub first_frame: u64,
@@ -120,6 +123,61 @@ pub struct ChunkRow {
     pub realtime_ns: u64,
     /// Chunk flags: 1 GAP, 2 DISCONTINUITY, 4 TIME_ESTIMATED, 8 LATE.
     pub flags: u32,
+    /// Half-width (ns) of the interval around `mono_ns` (and `realtime_ns`) in which the first
+    /// frame's true capture time lies; `None` (absent in the JSON) = not known.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bound_ns: Option<u64>,
+    /// Bit c: port channel c's frames in this chunk are zeros the device never delivered.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub missing_channels: u64,
+    /// Bit c: port channel c is not yet aligned to the frame index within its bound.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub unaligned_channels: u64,
+}
+
+fn is_zero(v: &u64) -> bool {
+    *v == 0
+}
+
+impl ChunkRow {
+    /// The row of a port chunk as a reader sees it.
+    pub fn of(ci: &bassport::ChunkInfo) -> ChunkRow {
+        ChunkRow {
+            first_frame: ci.first_frame,
+            frames: ci.frames,
+            mono_ns: ci.mono_ns,
+            realtime_ns: ci.realtime_ns,
+            flags: ci.flags,
+            bound_ns: ci.bound(),
+            missing_channels: ci.missing_channels,
+            unaligned_channels: ci.unaligned_channels,
+        }
+    }
+
+    /// The bound as the port and the ROS message write it ([`BOUND_UNKNOWN`] = not known).
+    pub fn bound_or_unknown(&self) -> u64 {
+        self.bound_ns.unwrap_or(BOUND_UNKNOWN)
+    }
+
+    /// What is wrong with the bound and the masks of a row of a port of `channels` channels.
+    pub fn ext_problems(&self, channels: u32) -> impl Iterator<Item = String> {
+        let beyond = if channels >= 64 { 0 } else { !0u64 << channels };
+        let mut v = Vec::new();
+        if self.bound_ns == Some(BOUND_UNKNOWN) {
+            v.push(format!("bound_ns {BOUND_UNKNOWN} is the port's 'not known': the row must leave it out"));
+        }
+        for (name, m) in
+            [("missing_channels", self.missing_channels), ("unaligned_channels", self.unaligned_channels)]
+        {
+            if m & beyond != 0 {
+                v.push(format!(
+                    "{name} {m:#x} names channel {}; the port has {channels}",
+                    (m & beyond).trailing_zeros()
+                ));
+            }
+        }
+        v.into_iter()
+    }
 }
 
 /// `FILE.wav` → `FILE.wav.json`.
@@ -223,6 +281,20 @@ impl Sidecar {
         (frame < r.first_frame + u64::from(r.frames)).then_some(r)
     }
 
+    /// `" (B with a timestamp bound, at most X ns; M with missing channels)"` for the rows, or
+    /// `" (none with a timestamp bound)"`: the end of a checker's summary of the rows.
+    pub fn ext_summary(&self) -> String {
+        let bounds: Vec<u64> = self.chunks.iter().filter_map(|r| r.bound_ns).collect();
+        let missing = self.chunks.iter().filter(|r| r.missing_channels != 0).count();
+        match bounds.iter().max() {
+            None => format!(" (none with a timestamp bound; {missing} with missing channels)"),
+            Some(m) => format!(
+                " ({} with a timestamp bound, at most {m} ns; {missing} with missing channels)",
+                bounds.len()
+            ),
+        }
+    }
+
     /// Whether `frame` was lost by the recorder.
     pub fn is_lost(&self, frame: u64) -> bool {
         let i = self.losses.partition_point(|l| l.first_frame <= frame);
@@ -310,6 +382,7 @@ impl Sidecar {
             if c.flags & !KNOWN_FLAGS != 0 {
                 v.push(format!("chunks[{i}] (frame {f}): unknown flags {:#x}", c.flags & !KNOWN_FLAGS));
             }
+            v.extend(c.ext_problems(a.channels).map(|p| format!("chunks[{i}] (frame {f}): {p}")));
             if overlap(f, f.saturating_add(u64::from(c.frames)).saturating_sub(1), first, last) == 0 {
                 v.push(format!("chunks[{i}]: chunk {f} is outside the file (frames {first}..={last})"));
             }
@@ -364,10 +437,40 @@ mod tests {
             },
             losses: vec![Lost { first_frame: 301, frames: 100 }],
             chunks: vec![
-                ChunkRow { first_frame: 101, frames: 100, mono_ns: 1, realtime_ns: 1, flags: 1 },
-                ChunkRow { first_frame: 201, frames: 100, mono_ns: 2, realtime_ns: 2, flags: 0 },
-                ChunkRow { first_frame: 401, frames: 100, mono_ns: 4, realtime_ns: 4, flags: 1 },
-                ChunkRow { first_frame: 501, frames: 100, mono_ns: 5, realtime_ns: 5, flags: 0 },
+                ChunkRow {
+                    first_frame: 101,
+                    frames: 100,
+                    mono_ns: 1,
+                    realtime_ns: 1,
+                    flags: 1,
+                    ..Default::default()
+                },
+                ChunkRow {
+                    first_frame: 201,
+                    frames: 100,
+                    mono_ns: 2,
+                    realtime_ns: 2,
+                    bound_ns: Some(2000),
+                    missing_channels: 0b10,
+                    ..Default::default()
+                },
+                ChunkRow {
+                    first_frame: 401,
+                    frames: 100,
+                    mono_ns: 4,
+                    realtime_ns: 4,
+                    flags: 1,
+                    ..Default::default()
+                },
+                ChunkRow {
+                    first_frame: 501,
+                    frames: 100,
+                    mono_ns: 5,
+                    realtime_ns: 5,
+                    bound_ns: Some(0),
+                    unaligned_channels: 0b01,
+                    ..Default::default()
+                },
             ],
         }
     }
@@ -389,7 +492,14 @@ mod tests {
     fn gaps_with_losses(n: u64) -> Sidecar {
         let mut s = sample();
         s.chunks = (0..n)
-            .map(|k| ChunkRow { first_frame: 1 + 100 * k, frames: 100, mono_ns: k, realtime_ns: k, flags: 1 })
+            .map(|k| ChunkRow {
+                first_frame: 1 + 100 * k,
+                frames: 100,
+                mono_ns: k,
+                realtime_ns: k,
+                flags: 1,
+                ..Default::default()
+            })
             .collect();
         s.losses = (0..n).map(|k| Lost { first_frame: 41 + 100 * k, frames: 10 }).collect();
         let r = &mut s.recording;
@@ -433,6 +543,15 @@ mod tests {
                 "requested_first_frame 1 + started_after_requested 0",
             ),
             (|s| s.recording.channels = vec![2], "names channel 2; the port has 2"),
+            (|s| s.chunks[1].missing_channels = 0b100, "(frame 201): missing_channels 0x4 names channel 2"),
+            (
+                |s| s.chunks[3].unaligned_channels = 1 << 63,
+                "unaligned_channels 0x8000000000000000 names channel 63",
+            ),
+            (
+                |s| s.chunks[0].bound_ns = Some(u64::MAX),
+                "(frame 101): bound_ns 18446744073709551615 is the port's",
+            ),
         ];
         for (break_it, want) in cases {
             let mut s = sample();
@@ -454,5 +573,20 @@ mod tests {
             "gap_frames":0,"lost_frames":0,"end":"limit"},"losses":[],"chunks":[]}"#;
         let s: Sidecar = serde_json::from_str(old).unwrap();
         assert_eq!(s.problems(), Vec::<String>::new());
+        // A row of a recorder before port format 2.4: no bound, no masks.
+        let row: ChunkRow =
+            serde_json::from_str(r#"{"first_frame":1,"frames":10,"mono_ns":5,"realtime_ns":6,"flags":4}"#)
+                .unwrap();
+        assert_eq!((row.bound_ns, row.missing_channels, row.unaligned_channels), (None, 0, 0));
+        assert_eq!(row.bound_or_unknown(), BOUND_UNKNOWN);
+    }
+
+    #[test]
+    fn a_row_writes_its_bound_and_masks_only_when_known_or_set() {
+        let s = sample();
+        let json: Vec<String> = s.chunks.iter().map(|r| serde_json::to_string(r).unwrap()).collect();
+        assert!(!json[0].contains("bound_ns") && !json[0].contains("channels"), "{}", json[0]);
+        assert!(json[1].ends_with(r#""flags":0,"bound_ns":2000,"missing_channels":2}"#), "{}", json[1]);
+        assert!(json[3].ends_with(r#""bound_ns":0,"unaligned_channels":1}"#), "{}", json[3]);
     }
 }

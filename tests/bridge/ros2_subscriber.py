@@ -169,6 +169,10 @@ for m, att in decoded:
     samples_checked += c.frames if right else 0
     check(c.realtime_ns == st and c.lost_before == 0 and c.flags & 1 == 0 and c.chunk_first_frame == c.first_frame,
           f"chunk_info consistent, no loss: {c}")
+    # bassd's capture bounds every chunk's stamp (docs/time.md: under a second, never unknown,
+    # 2^64-1); a sim device has no missing or unaligned channel.
+    check(c.bound_ns < 10**9 and c.missing_channels == 0 == c.unaligned_channels,
+          f"chunk_info carries the port row's bound and masks: {c.bound_ns}, {c.missing_channels}, {c.unaligned_channels}")
     if prev is not None:
         check(c.epoch == prev.epoch and c.first_frame == prev.first_frame + prev.frames,
               f"frame indices contiguous: {prev.first_frame}+{prev.frames} then {c.first_frame}")

@@ -9,7 +9,10 @@ recording it replays (WAV + sidecar), with a WAV parser of its own (no bass code
 - the losses the client saw are exactly: the frames before the recording (one loss at frame
   1), then each loss of the sidecar, at its frame and of its length;
 - every chunk read has the recorded flags and CLOCK_REALTIME time, and CLOCK_MONOTONIC times
-  spaced as recorded (one constant offset); a chunk without a row is TIME_ESTIMATED.
+  spaced as recorded (one constant offset); a chunk without a row is TIME_ESTIMATED;
+- every chunk read has the recorded timestamp bound (a row without `bound_ns`: not known,
+  2^64-1) and channel masks (absent: 0), read through bass_port_chunk_ext; a chunk without a
+  row has neither.
 
 Usage: compare.py FILE.wav DUMP [--renumbered]. Prints one "ok" line or the problems (exit 1).
 """
@@ -18,6 +21,7 @@ import struct
 import sys
 
 GAP, TIME_ESTIMATED, LATE = 1, 4, 8
+UNKNOWN = 2**64 - 1  # BASS_BOUND_UNKNOWN
 
 
 def read_wav(path):
@@ -75,7 +79,7 @@ def main():
         if w[0] == "read":
             reads.append((int(w[1]), int(w[2]), int(w[3])))
         elif w[0] == "chunk":
-            chunks.append(tuple(int(x) for x in w[1:5]))
+            chunks.append(tuple(int(x) for x in w[1:8]))
         elif w[0] == "chunk-missing":
             problems.append(f"no chunk info for the chunk at frame {w[1]} (result {w[2]})")
         elif w[0] == "frame":
@@ -104,13 +108,20 @@ def main():
     if losses != want:
         problems.append(f"losses seen {losses}; the recording has {want}")
     offsets = set()
-    n_gap = n_late = 0
-    for c0, flags, mono, rt in chunks:
+    n_gap = n_late = n_bound = 0
+    for c0, flags, mono, rt, bound, missing, unaligned in chunks:
         r = rows.get(c0)
         if r is None:
             if not renumbered and not flags & TIME_ESTIMATED:
                 problems.append(f"chunk {c0}: no row in the sidecar, yet flags {flags} lack TIME_ESTIMATED")
+            if (bound, missing, unaligned) != (UNKNOWN, 0, 0):
+                problems.append(f"chunk {c0}: no row, yet bound {bound} and masks {missing}, {unaligned}")
             continue
+        # The row's bound (absent: not known) and masks (absent: 0), as recorded.
+        want = (r.get("bound_ns", UNKNOWN), r.get("missing_channels", 0), r.get("unaligned_channels", 0))
+        if (bound, missing, unaligned) != want:
+            problems.append(f"chunk {c0}: bound and masks {(bound, missing, unaligned)}, recorded {want}")
+        n_bound += bound != UNKNOWN
         if flags != r["flags"]:
             problems.append(f"chunk {c0}: flags {flags}, recorded {r['flags']}")
         if rt != r["realtime_ns"]:
@@ -133,7 +144,8 @@ def main():
             print("  " + p)
         return 1
     print(f"ok: frames {first}..{last} ({len(got)} read, {bits}-bit, {nch} ch), losses {losses}, "
-          f"{len(chunks)} chunks ({n_gap} GAP, {n_late} LATE), all flags and times as recorded")
+          f"{len(chunks)} chunks ({n_gap} GAP, {n_late} LATE, {n_bound} with a bound), all flags, times, "
+          f"bounds and channel masks as recorded")
     return 0
 
 

@@ -13,8 +13,11 @@
   (every sample is pattern(frame, channel) of the sim device) or `--signal xrun` (GAP chunks
   are zeros; elsewhere each sample names its channel and the device frames run on by one
   inside a message);
+- every ChunkInfo's timestamp bound and channel masks (the fields added at the message's end
+  with port format 2.4) are the same in each message of a chunk, the masks name only the
+  port's channels, and with `--expect-bound` every bound is known and under 1 s;
 - `--wav REC.wav`: a WAV recording of the same port (with its sidecar) holds the same samples
-  for every frame both have, and the same chunk rows (flags, both clocks);
+  for every frame both have, and the same chunk rows (flags, both clocks, bound, masks);
 - `rosbags` opens the directory as a rosbag2 bag and the .mcap file alone, and deserialises
   every message with the definitions stored in the file: the same samples and fields.
 
@@ -38,6 +41,7 @@ GAP, DISCONTINUITY = 1, 2
 AUDIO = "audio_common_msgs/msg/AudioDataStamped"
 INFO = "audio_common_msgs/msg/AudioInfo"
 CHUNK = "bass_msgs/msg/ChunkInfo"
+UNKNOWN = 2**64 - 1  # ChunkInfo.bound_ns of a chunk without a known bound
 
 
 def pattern(frame, channel):
@@ -97,6 +101,7 @@ def main():
     ap.add_argument("--ref", help="write the messages as WAV + sidecar here")
     ap.add_argument("--expect-loss", action="store_true", help="the recording must hold a loss")
     ap.add_argument("--expect-gap", action="store_true", help="it must hold GAP chunks")
+    ap.add_argument("--expect-bound", action="store_true", help="every chunk's bound must be known (< 1 s)")
     a = ap.parse_args()
     problems = []
     files = glob.glob(os.path.join(a.bag, "*.mcap"))
@@ -134,8 +139,21 @@ def main():
         if ci.chunk_first_frame:
             if ci.chunk_first_frame != chunk or ci.chunk_frames != nfpc:
                 problems.append(f"message {seq}: chunk {ci.chunk_first_frame}/{ci.chunk_frames}, want {chunk}/{nfpc}")
-            rows[chunk] = {"first_frame": chunk, "frames": nfpc, "mono_ns": ci.monotonic_ns,
-                           "realtime_ns": ci.realtime_ns, "flags": ci.flags}
+            row = {"first_frame": chunk, "frames": nfpc, "mono_ns": ci.monotonic_ns,
+                   "realtime_ns": ci.realtime_ns, "flags": ci.flags}
+            # The sidecar's form of the bound (absent: not known) and masks (absent: 0).
+            for k, v in (("bound_ns", ci.bound_ns), ("missing_channels", ci.missing_channels),
+                         ("unaligned_channels", ci.unaligned_channels)):
+                if v != {"bound_ns": UNKNOWN}.get(k, 0):
+                    row[k] = v
+            if rows.get(chunk, row) != row:
+                problems.append(f"message {seq}: chunk {chunk} is {row}; a message before it said {rows[chunk]}")
+            if a.expect_bound and not ci.bound_ns < 10**9:
+                problems.append(f"message {seq}: chunk {chunk}'s bound_ns {ci.bound_ns}, not a bound under 1 s")
+            if (ci.missing_channels | ci.unaligned_channels) >> acq["channels"]:
+                problems.append(f"message {seq}: masks {ci.missing_channels:#x}, {ci.unaligned_channels:#x} "
+                                f"name channels the port ({acq['channels']}) does not have")
+            rows[chunk] = row
         gap = bool(ci.flags & GAP)
         gap_frames += len(fr) if gap else 0
         for k, s in enumerate(fr):
@@ -201,7 +219,8 @@ def main():
         return 1
     print(f"ok: {len(runs)} audio messages decoded by mcap-ros2-support, frames {rec['first_frame']}.."
           f"{end - 1} ({len(frames)} with samples, {a.signal} signal), {lost} lost in {len(losses)} run(s), "
-          f"{gap_frames} GAP; rosbags deserialised {n_bag} messages from the bag directory and {n_file} "
+          f"{gap_frames} GAP, {sum('bound_ns' in r for r in rows.values())} of {len(rows)} chunk rows with a "
+          f"timestamp bound (at most {max([r.get('bound_ns', 0) for r in rows.values()] or [0])} ns); rosbags deserialised {n_bag} messages from the bag directory and {n_file} "
           f"from the .mcap file")
     return 0
 
@@ -217,10 +236,12 @@ def check_rosbags(path, runs, nch, problems):
             if con.msgtype == AUDIO:
                 audio.append(bytes(m.audio.data))
             elif con.msgtype == CHUNK:
-                chunks.append((m.first_frame, m.frames, m.flags, m.lost_before, m.realtime_ns))
+                chunks.append((m.first_frame, m.frames, m.flags, m.lost_before, m.realtime_ns, m.bound_ns,
+                               m.missing_channels, m.unaligned_channels))
     if audio != [d for _, d, _ in runs]:
         problems.append(f"rosbags ({path.name}): {len(audio)} audio messages, not the same as mcap-ros2-support's")
-    want = [(c.first_frame, c.frames, c.flags, c.lost_before, c.realtime_ns) for c, _, _ in runs]
+    want = [(c.first_frame, c.frames, c.flags, c.lost_before, c.realtime_ns, c.bound_ns, c.missing_channels,
+             c.unaligned_channels) for c, _, _ in runs]
     if chunks != want:
         problems.append(f"rosbags ({path.name}): ChunkInfo fields differ from mcap-ros2-support's")
     return n

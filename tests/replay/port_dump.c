@@ -4,8 +4,10 @@
  *
  *   read NFR N LOSS                  each bass_get_audio_data_multi call that returned frames
  *                                    or a loss (NFR: the frame asked for)
- *   chunk FIRST FLAGS MONO REALTIME  once per chunk, from bass_port_chunk_info, when its first
- *                                    frame read arrives
+ *   chunk FIRST FLAGS MONO REALTIME BOUND MISSING UNALIGNED
+ *                                    once per chunk, from bass_port_chunk_info and
+ *                                    bass_port_chunk_ext, when its first frame read arrives
+ *                                    (BOUND 18446744073709551615: not known)
  *   frame F S0 S1 ...                every frame read, its samples
  *   end LAST STATE                   the port's last frame and state at the end
  *
@@ -48,10 +50,14 @@ static long drain(const bass_port *port, uint64_t *nfr, size_t block, size_t nch
     uint64_t c = (f - 1) / nfpc;
     if (c != *last_chunk) {
       bass_chunk_info ci;
+      bass_chunk_ext ext;
       bass_result rc = bass_port_chunk_info(port, f, &ci);
+      if (rc == BASS_OK) rc = bass_port_chunk_ext(port, f, &ext);
+      if (rc == BASS_OK && ext.first_frame != ci.first_frame) rc = BASS_ERR_CORRUPT;
       if (rc == BASS_OK) {
-        printf("chunk %" PRIu64 " %" PRIu32 " %" PRIu64 " %" PRIu64 "\n", ci.first_frame, ci.flags,
-               ci.mono_ns, ci.realtime_ns);
+        printf("chunk %" PRIu64 " %" PRIu32 " %" PRIu64 " %" PRIu64 " %" PRIu64 " %" PRIu64 " %" PRIu64 "\n",
+               ci.first_frame, ci.flags, ci.mono_ns, ci.realtime_ns, ext.bound_ns, ext.missing_channels,
+               ext.unaligned_channels);
       } else {
         printf("chunk-missing %" PRIu64 " %d\n", c * nfpc + 1, (int)rc);
       }

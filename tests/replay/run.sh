@@ -9,6 +9,9 @@
 #   late      sim:pattern with bassd stopped 0.4 s mid-recording: LATE chunks
 #   loss      sim:pattern with the recorder stopped longer than the window: a loss inside
 #   renumber  gap-ends replayed with --renumber: from frame 1, same flags
+#   old-sidecar  gap-ends with its rows' bounds and masks taken out (an older recorder's
+#             sidecar): replayed with every bound not known and no mask
+# (every replay is held against its rows' flags, times, timestamp bounds and channel masks)
 # and the same for `bass record --format mcap` (a rosbag2 bag directory holding one MCAP file),
 # checked first by readers bass did not write (tests/replay/mcap_check.py: PyPI mcap with
 # mcap-ros2-support, and rosbags), which also write what the messages say as the WAV +
@@ -108,6 +111,11 @@ mcap_check() {
   bad "$case: $out"; return 1
 }
 
+# sidecar_bounds WAV: the rows' bounds, in short.
+sidecar_bounds() {
+  python3 -c 'import json,sys; b=[r.get("bound_ns") for r in json.load(open(sys.argv[1]))["chunks"]]; print(len(b), "rows, bounds", sorted(set(b), key=str)[:6])' "$1.json"
+}
+
 # sidecar_has WAV PYTHON-EXPR: whether the expression holds of the sidecar `s`.
 sidecar_has() {
   python3 -c "import json,sys; s=json.load(open(sys.argv[1])); sys.exit(0 if ($2) else 1)" "$1.json"
@@ -134,6 +142,33 @@ if sidecar_has "$gap" 's["chunks"][0]["flags"] & 1 and s["chunks"][-1]["flags"] 
   replay gap-ends "$gap"
 else
   bad "gap-ends: the recording does not start and end on GAP chunks: $(head -c 600 "$gap.json")"
+fi
+# The capture's bound of every chunk is in its row (compare.py then holds the replayed port's
+# bound of each chunk against its row). A sim device's chunks all get the a-priori bound (one
+# chunk, 12.5 ms): bounds that differ per chunk are tested in broker/tests/replay.rs and
+# cli/src/record/tests.rs, from a writer that sets them.
+if sidecar_has "$gap" 'all(r.get("bound_ns", 2**64) < 10**9 for r in s["chunks"])'; then
+  ok "gap-ends: every row has its chunk's bound: $(sidecar_bounds "$gap")"
+else
+  bad "gap-ends: rows without a bound: $(sidecar_bounds "$gap")"
+fi
+
+# 1b. old-sidecar: the gap-ends recording with a sidecar of a recorder before port format 2.4
+# (rows without bound_ns and masks): replayed with the bounds not known and no mask.
+old=$work/rec/old-sidecar.wav
+cp "$gap" "$old"
+python3 -c '
+import json, sys
+s = json.load(open(sys.argv[1]))
+for r in s["chunks"]:
+    for k in ("bound_ns", "missing_channels", "unaligned_channels"):
+        r.pop(k, None)
+s["recording"]["file"] = sys.argv[2]
+json.dump(s, open(sys.argv[2] + ".json", "w"))' "$gap.json" "$old"
+replay old-sidecar "$old"
+if ! grep -q "^chunk .* 18446744073709551615 0 0$" "$work/old-sidecar.dump" \
+    || grep "^chunk " "$work/old-sidecar.dump" | grep -qv " 18446744073709551615 0 0$"; then
+  bad "old-sidecar: a replayed chunk has a bound or a mask: $(grep -m3 '^chunk ' "$work/old-sidecar.dump")"
 fi
 
 # 2. late: bassd stopped for 0.4 s while the recorder runs: the sim device catches up in a
@@ -171,7 +206,7 @@ replay renumber "$gap" --renumber
 
 # 5. MCAP: the sim:xrun recording made beside gap-ends, checked against its WAV and the
 # signal, replayed from the bag directory at its indices and from frame 1.
-if mcap_check mcap-gap "$gap_bag" --signal xrun --expect-gap --recorder "$work/gap-mcap.json" \
+if mcap_check mcap-gap "$gap_bag" --signal xrun --expect-gap --expect-bound --recorder "$work/gap-mcap.json" \
     --wav "$gap" --ref "$work/gap-mcap-ref.wav"; then
   replay_mcap mcap-gap "$gap_bag" "$work/gap-mcap-ref.wav"
   replay_mcap mcap-renumber "$gap_bag" "$work/gap-mcap-ref.wav" --renumber
@@ -217,7 +252,7 @@ sleep 0.4
 kill -STOP "$rec" "$rec_fox"; sleep 0.6; kill -CONT "$rec" "$rec_fox"
 wait "$rec" || true
 wait "$rec_fox" || bad "mcap-foxglove-loss: bass record --foxglove-audio failed"
-if mcap_check mcap-loss "$loss_bag" --signal pattern --expect-loss --recorder "$work/loss-mcap.json" \
+if mcap_check mcap-loss "$loss_bag" --signal pattern --expect-loss --expect-bound --recorder "$work/loss-mcap.json" \
     --ref "$work/loss-mcap-ref.wav"; then
   replay_mcap mcap-loss "$loss_bag/loss-mcap_0.mcap" "$work/loss-mcap-ref.wav"
 fi

@@ -169,6 +169,8 @@ struct Item {
     mono_ns: u64,
     realtime_ns: u64,
     lost_before: u64,
+    /// The port row's bound ([`msgs::BOUND_UNKNOWN`] = not known) and channel masks.
+    ext: [u64; 3],
     sequence: i64,
     planar: Vec<i32>,
 }
@@ -323,6 +325,9 @@ fn publish_loop(
             monotonic_ns: it.mono_ns,
             realtime_ns: it.realtime_ns,
             lost_before: it.lost_before,
+            bound_ns: it.ext[0],
+            missing_channels: it.ext[1],
+            unaligned_channels: it.ext[2],
         }
         .encode(&mut bytes);
         chunks.put(&bytes, it.sequence);
@@ -359,6 +364,7 @@ impl Exporter {
             mono_ns: h.mono_ns,
             realtime_ns: h.realtime_ns,
             lost_before: h.first_frame.saturating_sub(self.next_frame),
+            ext: [h.bound_ns, h.missing_channels, h.unaligned_channels],
             sequence: self.sequence,
             planar: buf,
         };

@@ -267,6 +267,13 @@ mod tests {
                 "RIHS01_b3494d204e513d2cceefae1888e5be3da7c8c8ca31eb277f7b5b62f364bcb1fb",
             ),
             (
+                // Port format 2.4: bound_ns, missing_channels, unaligned_channels at the end
+                // (before them: RIHS01_ba33ad288bac5881c8d97098c1ceea79cb363163e465758aa7d18f480a816ae2).
+                ros2::CHUNK_INFO,
+                ros2::CHUNK_INFO_DEFINITION,
+                "RIHS01_da155aa457e442f3007bab40ae66cbc6cf6401dd435e5c2202e5856e5a2a7aec",
+            ),
+            (
                 "builtin_interfaces/msg/Time",
                 "int32 sec\nuint32 nanosec\n",
                 "RIHS01_b106235e25a4c5ed35098aa0a61a3ee9c9b18d197f398b0e4206cea9acf9c197",

@@ -532,11 +532,14 @@ impl FileDevice {
             let at = i128::from(self.stamp_ns(p0));
             let off = *self.mono_offset.get_or_insert(at - i128::from(row.mono_ns));
             let mono = (i128::from(row.mono_ns) + off).clamp(1, i128::from(u64::MAX)) as u64;
+            // The recorded bound holds around the shifted stamp too (the shift is exact).
             let meta = ChunkMeta {
                 mono_ns: mono,
                 realtime_ns: row.realtime_ns.max(1),
                 flags: row.flags,
-                ..ChunkMeta::default()
+                bound_ns: row.bound_ns,
+                missing_channels: row.missing_channels,
+                unaligned_channels: row.unaligned_channels,
             };
             return (meta, is_gap(row.flags));
         }

@@ -299,14 +299,8 @@ fn check_messages(
                 _ => losses.push(Lost { first_frame: next, frames: m.lost_before }),
             }
         }
-        if m.chunk_first_frame != 0 && rows.last().map_or(true, |p| p.first_frame < chunk) {
-            rows.push(ChunkRow {
-                first_frame: chunk,
-                frames: m.chunk_frames,
-                mono_ns: m.monotonic_ns,
-                realtime_ns: m.realtime_ns,
-                flags: m.flags,
-            });
+        if let Some(row) = m.row().filter(|_| rows.last().map_or(true, |p| p.first_frame < chunk)) {
+            rows.push(row); // with its bound and masks (unknown and 0 in an older recording)
         }
         runs.push(Run { first_frame: m.first_frame, frames: u64::from(m.frames) });
         next = last + 1;

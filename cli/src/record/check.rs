@@ -75,7 +75,7 @@ pub fn check(path: &Path) -> Result<String, Vec<String>> {
         return Err(v);
     }
     let mut line = format!(
-        "ok: {}: {} frames ({:.3} s), frames {}..={} of epoch {}, {} channels, {} bits, {found}; {} frames lost in {} losses, {} gap frames, {} chunk rows",
+        "ok: {}: {} frames ({:.3} s), frames {}..={} of epoch {}, {} channels, {} bits, {found}; {} frames lost in {} losses, {} gap frames, {} chunk rows{}",
         path.display(),
         r.frames,
         r.seconds,
@@ -87,7 +87,8 @@ pub fn check(path: &Path) -> Result<String, Vec<String>> {
         r.lost_frames,
         side.losses.len(),
         r.gap_frames,
-        side.chunks.len()
+        side.chunks.len(),
+        side.ext_summary()
     );
     if let Some(q) = r.requested_first_frame {
         line += &format!("; started {} frames after the requested frame {q}", r.started_after_requested);
@@ -98,15 +99,27 @@ pub fn check(path: &Path) -> Result<String, Vec<String>> {
     Ok(line)
 }
 
-/// The frames of losses and of GAP chunks must be zeros in the WAV.
+/// The frames of losses and of GAP chunks must be zeros in the WAV, and so must a chunk's
+/// missing channels (`missing_channels`) among those recorded.
 pub(super) fn zeros_where_due(path: &Path, side: &Sidecar) -> Vec<String> {
     let (first, last) = (side.recording.first_frame, side.last_frame());
-    let mut runs: Vec<(u64, u64, &str)> =
-        side.losses.iter().map(|l| (l.first_frame, l.first_frame + l.frames - 1, "lost")).collect();
-    for c in side.chunks.iter().filter(|c| c.flags & chunk_flags::GAP != 0) {
+    let all = u64::MAX;
+    let mut runs: Vec<(u64, u64, &str, u64)> =
+        side.losses.iter().map(|l| (l.first_frame, l.first_frame + l.frames - 1, "lost", all)).collect();
+    // File channel i is port channel channels[i]: the file channels of a port mask.
+    let in_file = |m: u64| {
+        let on = side.recording.channels.iter().enumerate().filter(|(_, &c)| c < 64 && m >> c & 1 != 0);
+        on.fold(0u64, |acc, (i, _)| acc | 1 << i)
+    };
+    for c in &side.chunks {
         let (a, b) = (c.first_frame.max(first), (c.first_frame + u64::from(c.frames) - 1).min(last));
-        if a <= b {
-            runs.push((a, b, "GAP"));
+        if a > b {
+            continue;
+        }
+        if c.flags & chunk_flags::GAP != 0 {
+            runs.push((a, b, "GAP", all));
+        } else if in_file(c.missing_channels) != 0 {
+            runs.push((a, b, "missing-channel", in_file(c.missing_channels)));
         }
     }
     let mut r = match hound::WavReader::open(path) {
@@ -115,18 +128,21 @@ pub(super) fn zeros_where_due(path: &Path, side: &Sidecar) -> Vec<String> {
     };
     let ch = u64::from(r.spec().channels);
     let mut v = Vec::new();
-    for (a, b, what) in runs {
+    for (a, b, what, mask) in runs {
         let Ok(at) = u32::try_from(a - first) else { continue };
         if let Err(e) = r.seek(at) {
             v.push(format!("seek to frame {a}: {e}"));
             continue;
         }
         let n = (b - a + 1) * ch;
-        let nonzero = r.samples::<i32>().take(n as usize).position(|s| !matches!(s, Ok(0)));
+        let due = |i: usize| mask >> (i as u64 % ch) & 1 != 0;
+        let nonzero =
+            r.samples::<i32>().take(n as usize).enumerate().position(|(i, s)| due(i) && !matches!(s, Ok(0)));
         if let Some(i) = nonzero {
             v.push(format!(
-                "{what} frame {} is not zero in the WAV (frames {a}..={b} must be)",
-                a + i as u64 / ch
+                "{what} frame {} is not zero in the WAV (frames {a}..={b} must be{})",
+                a + i as u64 / ch,
+                if mask == all { String::new() } else { format!(", in file channel {}", i as u64 % ch) }
             ));
         }
     }

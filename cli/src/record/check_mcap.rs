@@ -181,14 +181,13 @@ fn against_facts(side: &mut Sidecar, runs: &[(ChunkInfo, usize)]) -> Vec<String>
                 r.channels.len()
             ));
         }
-        if m.chunk_first_frame != 0 && rows.last().map_or(true, |p| p.first_frame < m.chunk_first_frame) {
-            rows.push(ChunkRow {
-                first_frame: m.chunk_first_frame,
-                frames: m.chunk_frames,
-                mono_ns: m.monotonic_ns,
-                realtime_ns: m.realtime_ns,
-                flags: m.flags,
-            });
+        match (m.row(), rows.last()) {
+            (Some(row), Some(p)) if p.first_frame == row.first_frame && *p != row => v.push(format!(
+                "message at frame {}: chunk {} described as {row:?}; a message before it said {p:?}",
+                m.first_frame, row.first_frame
+            )),
+            (Some(row), p) if p.map_or(true, |p| p.first_frame < row.first_frame) => rows.push(row),
+            _ => {}
         }
         next = m.first_frame.saturating_add(u64::from(m.frames));
     }
@@ -231,7 +230,7 @@ pub fn check_mcap(path: &Path) -> Result<String, Vec<String>> {
     }
     let (a, r) = (&side.acquisition, &side.recording);
     let mut line = format!(
-        "ok: {}: {} frames ({:.3} s), frames {}..={} of epoch {}, {} channels, 32 bits, MCAP ({} audio messages); {} frames lost in {} losses, {} gap frames, {} chunk rows",
+        "ok: {}: {} frames ({:.3} s), frames {}..={} of epoch {}, {} channels, 32 bits, MCAP ({} audio messages); {} frames lost in {} losses, {} gap frames, {} chunk rows{}",
         file_path.display(),
         r.frames,
         r.seconds,
@@ -244,6 +243,7 @@ pub fn check_mcap(path: &Path) -> Result<String, Vec<String>> {
         side.losses.len(),
         r.gap_frames,
         side.chunks.len(),
+        side.ext_summary(),
     );
     if raw_messages > 0 {
         line += &format!("; {raw_messages} RawAudio messages (pcm-s16) agree with them");

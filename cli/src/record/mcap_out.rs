@@ -395,7 +395,7 @@ impl McapOut {
         }
         self.last_ns = log_time;
         let header = Header { stamp: Time::from_ns(stamp_ns), frame_id: String::new() };
-        let r = row.unwrap_or(ChunkRow { first_frame: 0, frames: 0, mono_ns: 0, realtime_ns: 0, flags: 0 });
+        let r = row.unwrap_or_default();
         ChunkInfo {
             header: header.clone(),
             epoch: self.epoch,
@@ -407,6 +407,9 @@ impl McapOut {
             monotonic_ns: r.mono_ns,
             realtime_ns: r.realtime_ns,
             lost_before: std::mem::take(&mut self.lost_before),
+            bound_ns: r.bound_or_unknown(),
+            missing_channels: r.missing_channels,
+            unaligned_channels: r.unaligned_channels,
         }
         .encode(&mut self.buf);
         self.message(1, log_time)?;

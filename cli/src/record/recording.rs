@@ -390,14 +390,6 @@ impl Recording {
 /// one), read before the frames.
 fn rows_of(port: &Port, before: u64, end: u64, nfpc: u64) -> Vec<Option<ChunkRow>> {
     ((before - 1) / nfpc..=(end - 1) / nfpc)
-        .map(|c| {
-            port.chunk_info((c * nfpc + 1).max(before)).ok().map(|ci| ChunkRow {
-                first_frame: ci.first_frame,
-                frames: ci.frames,
-                mono_ns: ci.mono_ns,
-                realtime_ns: ci.realtime_ns,
-                flags: ci.flags,
-            })
-        })
+        .map(|c| port.chunk_info((c * nfpc + 1).max(before)).ok().map(|ci| ChunkRow::of(&ci)))
         .collect()
 }

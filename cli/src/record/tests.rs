@@ -35,8 +35,14 @@ fn pair(name: &str, poke: impl FnOnce(&mut Vec<i32>, &mut Sidecar)) -> PathBuf {
     let mut samples: Vec<i32> = (151..551u64)
         .flat_map(|f| [0, 1].map(|c| if (301..=400).contains(&f) { 0 } else { (f * 2 + c) as i32 }))
         .collect();
-    let row =
-        |f: u64, flags: u32| ChunkRow { first_frame: f, frames: 100, mono_ns: f, realtime_ns: f, flags };
+    let row = |f: u64, flags: u32| ChunkRow {
+        first_frame: f,
+        frames: 100,
+        mono_ns: f,
+        realtime_ns: f,
+        flags,
+        ..Default::default()
+    };
     let mut side: Sidecar = serde_json::from_value(serde_json::json!({
         "acquisition": {"device": "sim:pattern", "format": "S32_LE", "sample_rate": 8000, "channels": 2,
                         "frames_per_chunk": 100, "chunks_on_port": 20, "epoch": 1},
@@ -80,6 +86,16 @@ fn check_accepts_a_pair_that_agrees_and_names_each_disagreement() {
         ("frames", Box::new(|s, _| s.truncate(399 * 2)), "the WAV holds 399 frames; the sidecar says 400"),
         ("format", Box::new(|_, d| d.recording.wav_format = Some("extensible".into())), "header is pcm"),
         ("bits", Box::new(|_, d| d.recording.bits = 24), "16 bits per sample; the sidecar says 24"),
+        (
+            "missing",
+            Box::new(|_, d| d.chunks[3].missing_channels = 0b10),
+            "missing-channel frame 501 is not zero in the WAV (frames 501..=550 must be, in file channel 1)",
+        ),
+        (
+            "mask",
+            Box::new(|_, d| d.chunks[0].unaligned_channels = 0b100),
+            "unaligned_channels 0x4 names channel 2",
+        ),
     ];
     for (name, poke, want) in cases {
         let path = pair(name, poke);
@@ -87,6 +103,15 @@ fn check_accepts_a_pair_that_agrees_and_names_each_disagreement() {
         done(&path);
         assert!(p.iter().any(|m| m.contains(want)), "{name}: {want:?} not in {p:?}");
     }
+    // A missing channel that is zero in the WAV (its frames as the device left them) agrees.
+    let p = pair("missing-ok", |s, d| {
+        d.chunks[3].missing_channels = 0b10;
+        d.chunks[3].bound_ns = Some(1);
+        (501..=550).for_each(|f| s[(f - 151) * 2 + 1] = 0);
+    });
+    let ok = check(&p);
+    done(&p);
+    assert!(ok.is_ok(), "{ok:?}");
     let p = check(Path::new("/nonexistent/r.wav")).unwrap_err();
     assert!(p[0].contains("no sidecar"), "{p:?}");
 }
@@ -127,11 +152,20 @@ fn rig(dir: &Path, from: u64) -> (bassport::Writer, Port, Recording) {
     (w, port, rec)
 }
 
+/// The bound and the unaligned mask `publish` gives the chunk starting at `first`: chunk k
+/// (from 1) has bound 1000·k, unknown for every third, and channel 0 unaligned in odd chunks.
+fn ext_of(first: u64) -> (Option<u64>, u64) {
+    let k = (first - 1) / 10 + 1;
+    ((k % 3 != 0).then_some(1000 * k), k & 1)
+}
+
 fn publish(w: &mut bassport::Writer, chunks: u64) {
     for _ in 0..chunks {
         let lfi = w.last_frame_index();
         let s: Vec<i32> = (lfi + 1..=lfi + 10).map(|f| f as i32).collect();
-        w.publish(bassport::Source::Interleaved(&s), bassport::ChunkMeta::default()).unwrap();
+        let (bound_ns, unaligned_channels) = ext_of(lfi + 1);
+        let meta = bassport::ChunkMeta { bound_ns, unaligned_channels, ..Default::default() };
+        w.publish(bassport::Source::Interleaved(&s), meta).unwrap();
     }
 }
 
@@ -163,6 +197,17 @@ fn reads_end_on_chunks_so_a_loss_starts_on_a_chunk_and_whole_chunks_have_rows() 
     assert_eq!((side.recording.first_frame, side.recording.frames), (5, 126));
     let want: Vec<i32> = (5..=130).map(|f| if (21..=90).contains(&f) { 0 } else { f }).collect();
     assert_eq!(samples(&mut rec), want);
+    // Each row's bound and mask, as the port had them, through the sidecar file and back.
+    let side = rec.finish("limit", false).unwrap().side;
+    let back = Sidecar::load_for(&rec.file).unwrap().unwrap();
+    assert_eq!(back, side);
+    let ext: Vec<_> =
+        back.chunks.iter().map(|r| (r.bound_ns, r.unaligned_channels, r.missing_channels)).collect();
+    let want: Vec<_> = rows.iter().map(|&f| (ext_of(f).0, ext_of(f).1, 0)).collect();
+    assert_eq!(ext, want);
+    assert_eq!(&want[..2], [(Some(1000), 1, 0), (Some(2000), 0, 0)], "the rows differ: chunks 1 and 2");
+    assert_eq!(want[4], (None, 0, 0), "chunk 12's bound is not known");
+    assert!(check(&rec.file).is_ok());
     drop(port);
     w.remove().unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
@@ -251,6 +296,13 @@ fn an_mcap_recording_holds_every_frame_once_and_a_loss_in_no_message() {
         let s = AudioDataStamped::decode(&a.2).unwrap().samples().unwrap();
         assert_eq!(s.len(), ci.frames as usize);
         runs.push((ci.first_frame, ci.frames, ci.chunk_first_frame, ci.lost_before));
+        let (bound, unaligned) = ext_of(ci.chunk_first_frame);
+        assert_eq!(
+            (ci.bound_ns, ci.unaligned_channels, ci.missing_channels),
+            (bound.unwrap_or(basskit::ros2::BOUND_UNKNOWN), unaligned, 0),
+            "chunk {}",
+            ci.chunk_first_frame
+        );
         frames.extend(s);
     }
     assert_eq!(

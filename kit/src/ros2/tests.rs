@@ -50,14 +50,52 @@ fn chunk_info_round_trips_with_u64_fields_aligned_to_8() {
             monotonic_ns: u64::MAX - 1,
             realtime_ns: 1_700_000_000_000_000_001,
             lost_before: 960,
+            bound_ns: 1000 * n as u64,
+            missing_channels: 1 << n,
+            unaligned_channels: u64::MAX - n as u64,
         };
         let mut b = Vec::new();
         m.encode(&mut b);
+        // The three fields added last: the message's last 24 bytes.
+        let tail: Vec<u8> = [m.bound_ns, m.missing_channels, m.unaligned_channels]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        assert_eq!(&b[b.len() - 24..], &tail[..], "frame_id {n} chars");
         // epoch: the first u64 after the string ending at 12 + n + 1.
         let epoch_at = (12 + n + 1).next_multiple_of(8);
         assert_eq!(&b[4 + epoch_at..4 + epoch_at + 8], &3u64.to_le_bytes(), "frame_id {n} chars");
         assert_eq!(ChunkInfo::decode(&b).unwrap(), m);
     }
+}
+
+#[test]
+fn a_chunk_info_without_the_bound_reads_as_unknown_and_no_channel() {
+    // The bytes of a ChunkInfo as bass wrote it before port format 2.4: every field up to
+    // lost_before, laid out by hand.
+    let mut b = CDR_LE.to_vec();
+    b.extend_from_slice(&1_700_000_123i32.to_le_bytes());
+    b.extend_from_slice(&456_789u32.to_le_bytes());
+    b.extend_from_slice(&1u32.to_le_bytes());
+    b.extend_from_slice(&[0, 0, 0, 0]); // "" + NUL, padding to 16
+    for v in [3u64, 101] {
+        b.extend_from_slice(&v.to_le_bytes()); // epoch, first_frame
+    }
+    b.extend_from_slice(&[100, 0, 0, 0, 0, 0, 0, 0]); // frames, padding
+    b.extend_from_slice(&101u64.to_le_bytes()); // chunk_first_frame
+    b.extend_from_slice(&100u32.to_le_bytes()); // chunk_frames
+    b.extend_from_slice(&4u32.to_le_bytes()); // flags
+    for v in [11u64, 12, 13] {
+        b.extend_from_slice(&v.to_le_bytes()); // monotonic_ns, realtime_ns, lost_before
+    }
+    let m = ChunkInfo::decode(&b).unwrap();
+    assert_eq!((m.first_frame, m.flags, m.monotonic_ns, m.lost_before), (101, 4, 11, 13));
+    assert_eq!((m.bound_ns, m.missing_channels, m.unaligned_channels), (BOUND_UNKNOWN, 0, 0));
+    // The new encoder writes exactly those bytes, then the three fields.
+    let mut new = Vec::new();
+    ChunkInfo { bound_ns: 5, missing_channels: 6, unaligned_channels: 7, ..m.clone() }.encode(&mut new);
+    assert_eq!(&new[..b.len()], &b[..]);
+    assert_eq!(new.len(), b.len() + 24);
 }
 
 #[test]
@@ -73,9 +111,22 @@ fn audio_info_round_trips_and_pads_after_the_u8() {
 #[test]
 fn every_truncation_and_bad_value_is_refused_by_name() {
     let mut b = Vec::new();
-    ChunkInfo { header: header("abc"), frames: 10, ..Default::default() }.encode(&mut b);
+    let m = ChunkInfo {
+        header: header("abc"),
+        frames: 10,
+        bound_ns: 7,
+        missing_channels: 2,
+        ..Default::default()
+    };
+    m.encode(&mut b);
+    // A message cut right after lost_before (or in the 7 bytes after it) is one written before
+    // the bound was added; a cut anywhere else is refused.
+    let old = b.len() - 24;
     for cut in 0..b.len() {
-        assert!(ChunkInfo::decode(&b[..cut]).is_err(), "cut at {cut}");
+        match ChunkInfo::decode(&b[..cut]) {
+            Ok(o) => assert!((old..old + 8).contains(&cut), "cut at {cut} accepted: {o:?}"),
+            Err(e) => assert!(!(old..old + 8).contains(&cut), "cut at {cut}: {e}"),
+        }
     }
     let mut big = b.clone();
     big[4 + 8..4 + 12].copy_from_slice(&u32::MAX.to_le_bytes()); // frame_id length

@@ -10,9 +10,17 @@ use bassport::format::chunk_flags;
 
 use super::*;
 
+/// The bound and masks [`run`] gives chunk `chunk`: bound 10·chunk (unknown for chunk 401),
+/// channel 0 missing in chunk 201 and unaligned in chunk 501.
+fn ext_of(chunk: u64) -> (u64, u64, u64) {
+    let bound = if chunk == 401 { ros2::BOUND_UNKNOWN } else { chunk * 10 };
+    (bound, u64::from(chunk == 201), u64::from(chunk == 501))
+}
+
 /// A run of frames for [`write`]: its ChunkInfo (frames and chunk fields filled in).
 fn run(first: u64, frames: u32, lost_before: u64, flags: u32) -> ChunkInfo {
     let chunk = (first - 1) / 100 * 100 + 1;
+    let (bound_ns, missing_channels, unaligned_channels) = ext_of(chunk);
     ChunkInfo {
         header: Header { stamp: Time::from_ns(first * 1000), frame_id: String::new() },
         epoch: 3,
@@ -24,6 +32,9 @@ fn run(first: u64, frames: u32, lost_before: u64, flags: u32) -> ChunkInfo {
         monotonic_ns: chunk * 10,
         realtime_ns: chunk * 1000,
         lost_before,
+        bound_ns,
+        missing_channels,
+        unaligned_channels,
     }
 }
 
@@ -73,11 +84,32 @@ fn write(
     facts: Option<&Sidecar>,
     bad_data: Option<usize>,
 ) -> PathBuf {
+    write_as(dir, name, runs, facts, bad_data, false)
+}
+
+/// The ChunkInfo definition of bass before port format 2.4: without its last three fields.
+fn old_definition() -> String {
+    let d = ros2::CHUNK_INFO_DEFINITION;
+    let cut = d.find("uint64 bound_ns").expect("the bound's line");
+    let rest = &d[d.find("uint64 unaligned_channels").unwrap()..];
+    format!("{}{}", &d[..cut], &rest[rest.find('\n').unwrap() + 1..])
+}
+
+/// [`write`], with the ChunkInfo messages and schema of an older recorder if `old`.
+fn write_as(
+    dir: &Path,
+    name: &str,
+    runs: &[ChunkInfo],
+    facts: Option<&Sidecar>,
+    bad_data: Option<usize>,
+    old: bool,
+) -> PathBuf {
     std::fs::create_dir_all(dir).unwrap();
     let mut w =
         mcap::WriteOptions::new().profile("ros2").compression(None).create(Cursor::new(Vec::new())).unwrap();
     let meta = BTreeMap::new();
-    let s1 = w.add_schema(ros2::CHUNK_INFO, "ros2msg", ros2::CHUNK_INFO_DEFINITION.as_bytes()).unwrap();
+    let def = if old { old_definition() } else { ros2::CHUNK_INFO_DEFINITION.to_string() };
+    let s1 = w.add_schema(ros2::CHUNK_INFO, "ros2msg", def.as_bytes()).unwrap();
     let c1 = w.add_channel(s1, "/bass/t/chunk_info", "cdr", &meta).unwrap();
     let s2 = w
         .add_schema(ros2::AUDIO_DATA_STAMPED, "ros2msg", ros2::AUDIO_DATA_STAMPED_DEFINITION.as_bytes())
@@ -92,6 +124,9 @@ fn write(
             publish_time: r.first_frame,
         };
         r.encode(&mut buf);
+        if old {
+            buf.truncate(buf.len() - 24); // the message ended at lost_before
+        }
         w.write_to_known_channel(&h(c1), &buf).unwrap();
         let n = if bad_data == Some(i) { u64::from(r.frames) - 1 } else { u64::from(r.frames) };
         let s: Vec<i32> = (r.first_frame..r.first_frame + n).map(|f| f as i32).collect();
@@ -126,6 +161,13 @@ fn a_recording_reads_back_as_its_frames_and_sidecar_with_losses_as_zeros() {
     let rows: Vec<u64> = side.chunks.iter().map(|r| r.first_frame).collect();
     assert_eq!(rows, [101, 201, 401, 501], "one row per chunk, none for the lost one");
     assert_eq!((side.chunks[0].realtime_ns, side.chunks[0].mono_ns), (101_000, 1010));
+    let ext: Vec<_> = side
+        .chunks
+        .iter()
+        .map(|r| (r.bound_or_unknown(), r.missing_channels, r.unaligned_channels))
+        .collect();
+    assert_eq!(ext, rows.iter().map(|&c| ext_of(c)).collect::<Vec<_>>(), "each row's bound and masks");
+    assert_eq!((side.chunks[1].bound_ns, side.chunks[2].bound_ns), (Some(2010), None));
     // File frame i is frame 151 + i; frames 301..=400 were lost.
     let mut out = vec![0; 400];
     frames.fill(0, &mut out, 400).unwrap();
@@ -170,6 +212,12 @@ fn every_bad_value_is_refused_by_name() {
         ("losses", |_, f| f.losses[0].frames = 50, None, "the messages' lost_before make the losses"),
         ("flags", |r, _| r[1].flags = 0x40, None, "unknown flags 0x40"),
         (
+            "mask",
+            |r, _| r[1].unaligned_channels = 0b10,
+            None,
+            "unaligned_channels 0x2 names channel 1; the port has 1",
+        ),
+        (
             "end",
             |_, f| f.recording.frames = 300,
             None,
@@ -203,6 +251,25 @@ fn every_bad_value_is_refused_by_name() {
     std::fs::write(&p, &flipped).unwrap();
     let e = open_path(&p).err().expect("a changed sample is refused");
     assert!(e.contains("crc") || e.contains("CRC"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn an_older_recording_without_the_bound_reads_as_unknown_and_no_channel() {
+    let dir = tmp("old");
+    let def = old_definition();
+    assert!(
+        !def.contains("bound_ns") && !def.contains("_channels") && def.contains("MSG: std_msgs/Header"),
+        "{def}"
+    );
+    let p = write_as(&dir, "old.mcap", &good_runs(), Some(&facts()), None, true);
+    let (mut frames, side) = open_path(&p).unwrap();
+    let ext: Vec<_> =
+        side.chunks.iter().map(|r| (r.bound_ns, r.missing_channels, r.unaligned_channels)).collect();
+    assert_eq!(ext, [(None, 0, 0); 4]);
+    let mut out = vec![0; 50];
+    frames.fill(0, &mut out, 50).unwrap();
+    assert_eq!(out, (151..201).collect::<Vec<i32>>());
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
