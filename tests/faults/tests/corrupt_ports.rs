@@ -246,7 +246,7 @@ fn a_port_shrunk_under_a_reader_gives_corrupt_not_sigbus() {
         w.publish(Source::Interleaved(&chunk), ChunkMeta::default()).unwrap();
     }
     let layout = *w.layout();
-    let total = layout.total_size;
+    let total = layout.mapped_size; // the file's size: the rings and the extension table
     let nfop = layout.frames_on_port as usize;
     let samples_end = layout.samples_offset + 2 * layout.frames_on_port * 4;
     let lfi = w.last_frame_index();
@@ -350,7 +350,7 @@ fn a_port_shrinking_while_a_reader_process_hammers_it_kills_no_reader() {
     for _ in 0..64 {
         w.publish(Source::Zeros, ChunkMeta::default()).unwrap();
     }
-    let total = w.layout().total_size;
+    let total = w.layout().mapped_size;
     let file = OpenOptions::new().write(true).open(&path).unwrap();
     let (mut runs, mut sigbus, mut cycles_to_sigbus) = (0, 0, Vec::new());
     let (mut calls, mut corrupt, mut guarded) = (0u64, 0u64, 0);
@@ -425,7 +425,7 @@ fn a_sealed_memfd_port_cannot_shrink_under_a_reader_process() {
         fill_pattern_interleaved(&mut chunk, 2, w.last_frame_index() + 1);
         w.publish(Source::Interleaved(&chunk), ChunkMeta::default()).unwrap();
     }
-    let total = w.layout().total_size;
+    let total = w.layout().mapped_size;
     // The strongest handle there is: the writer's memfd reopened read-write by its owner.
     let reader_fd = w.reader_fd().unwrap().expect("a memfd port hands out descriptors");
     let rw = rustix::fs::open(

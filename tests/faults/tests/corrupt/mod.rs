@@ -26,7 +26,7 @@ macro_rules! fields {
     ($($f:ident),* $(,)?) => { [$((stringify!($f), offset_of!(Header, $f), width(|h| &h.$f))),*] };
 }
 
-pub fn fields() -> [(&'static str, usize, usize); 30] {
+pub fn fields() -> [(&'static str, usize, usize); 31] {
     fields![
         magic,
         version_major,
@@ -49,6 +49,7 @@ pub fn fields() -> [(&'static str, usize, usize); 30] {
         futex,
         restart_grace_ms,
         writer_pid_ns,
+        ext_table_offset,
         last_frame_index,
         write_intent,
         heartbeat_mono_ns,
