@@ -2,12 +2,19 @@
 
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
 import time
 
 import pytest
+
+# Ctrl-C tests send SIGINT to child processes. A run started in the background by a
+# non-interactive shell (nohup, `cmd &`) inherits SIGINT ignored, and an ignored signal stays
+# ignored across exec, so the children would never see it. Handled here, it is reset to the
+# default in every child exec'd from this process, as in a terminal.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 TARGET = os.environ.get("CARGO_TARGET_DIR") or os.path.join(ROOT, "target")
