@@ -130,19 +130,36 @@ fi
 cat "$WORK/table" | tee "$OUT"
 
 # Time (docs/time.md): the replica's mapped chunk stamps against the source's (one
-# CLOCK_MONOTONIC in both namespaces: the source's stamp is the truth), 48-frame chunks, clean
-# and with every clock answer held 600 us after its time was read (bass-bridge-faults
-# --fault clock-delay=600: 0 us one way, 600 us the other); then pylsl's time_correction()
-# between an outlet and an inlet in the same namespaces (liblsl over IPv6, unicast to the
-# outlet's address). scripts/bench-time.py measures. BENCH_NET_TIME=0 skips it.
+# CLOCK_MONOTONIC in both namespaces: the source's stamp is the truth), 48-frame chunks, in
+# the cases of BENCH_NET_TIME_CASES (default all), each with bass-bridge-faults' clock faults
+# on serve's side (bridge/src/fault.rs):
+#   clean   none (for clean, asym and jitter the "late" column sums up the chunks after 10 s);
+#   asym    every clock answer held 600 us after its time was read (0 us one way, 600 the other);
+#   jitter  every probe held 0-200 us before its time is read and its answer 0-200 us after;
+#   drift   the source's clock 1 h ahead and 50 ppm fast (stamps and answers alike), run for
+#           max(SECONDS, 60) + 10 s: the error after 60 s is the "late" column;
+#   step    the source's CLOCK_REALTIME stamps stepped +1 s at 10 s (an NTP step): the mapped
+#           stamps after it are the "late" column, the replica's wall-clock shift beside them;
+# then pylsl's time_correction() between an outlet and an inlet in the same namespaces
+# (liblsl over IPv6, unicast to the outlet's address). scripts/bench-time.py measures.
+# BENCH_NET_TIME=0 skips it.
 if [ "${BENCH_NET_TIME:-1}" = 1 ]; then
   {
   echo
-  echo "| clock path | mapped-stamp error p50 / p99 / p99.9 / max (us) | chunks | truth inside the chunk's bound | bound p50 / p99 (us) | bound p50 / error p99 | first bound / first bound <= 100 us after (s) |"
-  echo "|---|---:|---:|---:|---:|---:|---:|"
+  echo "| clock path | mapped-stamp error p50 / p99 / p99.9 / max (us) | chunks | truth inside the chunk's bound | bound p50 / p99 (us) | bound p50 / error p99 | first bound / first bound <= 100 us after (s) | late: after (s), error p99 / max (us), inside bound, wall-clock shift (ms) |"
+  echo "|---|---:|---:|---:|---:|---:|---:|---|"
   } >>"$OUT"
-  for CASE in ${BENCH_NET_TIME_CASES:-clean clock-delay=600}; do
-    SERVE_CMD=("$BIN/bass-bridge" serve); [ "$CASE" != clean ] && SERVE_CMD=("$BIN/bass-bridge-faults" --fault "$CASE" serve)
+  for CASE in ${BENCH_NET_TIME_CASES:-clean asym jitter drift step}; do
+    T=$SECS; LATE=""
+    case $CASE in
+      clean) FAULT=""; LATE=10 ;;
+      asym) FAULT=clock-delay=600; LATE=10 ;;
+      jitter) FAULT=clock-jitter=200; LATE=10 ;;
+      drift) FAULT=clock-offset=3600000000,clock-skew=50; T=$(( (SECS > 60 ? SECS : 60) + 10 )); LATE=60 ;;
+      step) FAULT=realtime-step=1000:10; T=$(( SECS > 20 ? SECS : 20 )); LATE=12 ;;
+      *) echo "bench-network: unknown time case $CASE (clean asym jitter drift step)" >&2; exit 2 ;;
+    esac
+    SERVE_CMD=("$BIN/bass-bridge" serve); [ -n "$FAULT" ] && SERVE_CMD=("$BIN/bass-bridge-faults" --fault "$FAULT" serve)
     rm -f "$WORK/status.json"
     "${IN_A[@]}" "$BIN/bassd" --name src --rt-priority 0 --acquire sim:pattern --rate 48000 --frames 48 \
       --chunks 1000 --channels 2 >"$WORK/bassd-time.log" 2>&1 & BASSD=$!; PIDS+=($BASSD)
@@ -151,7 +168,7 @@ if [ "${BENCH_NET_TIME:-1}" = 1 ]; then
     sleep 0.5
     "${IN_B[@]}" "$BIN/bass-bridge" mirror "${MIRROR_X[@]}" --source src --name rep --connect "$EP" --no-scouting \
       --status-file "$WORK/status.json" >"$WORK/mirror-time.log" 2>&1 & MIRROR=$!; PIDS+=($MIRROR)
-    R=$(PYTHONPATH="$ROOT/python" python3 scripts/bench-time.py replica "$WORK/a" src "$WORK/b" rep "$WORK/status.json" "$SECS") || R='{}'
+    R=$(PYTHONPATH="$ROOT/python" python3 scripts/bench-time.py replica "$WORK/a" src "$WORK/b" rep "$WORK/status.json" "$T" $LATE) || R='{}'
     python3 - "$CASE" "$R" >>"$OUT" <<'PY'
 import json, sys
 case, r = sys.argv[1], json.loads(sys.argv[2] or "{}")
@@ -160,10 +177,22 @@ f = lambda v: "–" if v is None else f"{v:.1f}"
 n = r.get("chunks") or 0
 cov = f"{100 * r.get('covered', 0) / n:.2f} %" if n else "–"
 ratio = f"{b['p50'] / e['p99']:.2f}×" if b.get("p50") and e.get("p99") else "–"
-label = "bass mirror, clean" if case == "clean" else "bass mirror, clock answers 600 us late (asymmetric)"
+label = {"clean": "bass mirror, clean", "asym": "bass mirror, clock answers 600 us late (asymmetric)",
+         "jitter": "bass mirror, probes and answers jittered 0–200 us each way",
+         "drift": "bass mirror, source clock 1 h ahead and 50 ppm fast",
+         "step": "bass mirror, source CLOCK_REALTIME stepped +1 s at 10 s"}[case]
 label += f" ({r.get('unbounded', 0)} chunks before the first clock map, stamped at arrival with no bound, left out)"
+late = r.get("late")
+if late:
+    le, ls = late.get("error_us") or {}, late.get("realtime_shift_ms") or {}
+    ln = le.get("n") or 0
+    lcov = f"{100 * late.get('covered', 0) / ln:.2f} %" if ln else "–"
+    shift = f"{f(ls.get('p50'))} (p50; max {f(ls.get('max'))})" if ls.get("n") else "–"
+    late_cell = f"{late['after_s']:.0f}, {f(le.get('p99'))} / {f(le.get('max'))}, {lcov} of {ln}, {shift}"
+else:
+    late_cell = "–"
 print(f"| {label} | {f(e.get('p50'))} / {f(e.get('p99'))} / {f(e.get('p999'))} / {f(e.get('max'))} | {n} | {cov} "
-      f"| {f(b.get('p50'))} / {f(b.get('p99'))} | {ratio} | {f(r.get('first_bound_s'))} / {f(r.get('first_bound_100us_s'))} |")
+      f"| {f(b.get('p50'))} / {f(b.get('p99'))} | {ratio} | {f(r.get('first_bound_s'))} / {f(r.get('first_bound_100us_s'))} | {late_cell} |")
 PY
     echo "time $CASE: $R" >&2
     stop $MIRROR $SERVE $BASSD
@@ -178,7 +207,7 @@ import json, sys
 r = json.loads(sys.argv[1] or "{}")
 e = r.get("error_us") or {}
 f = lambda v: "–" if v is None else f"{v:.1f}"
-print(f"| pylsl time_correction(), clean (\\|offset\\|, 5 per second; LSL gives no per-sample bound) | {f(e.get('p50'))} / {f(e.get('p99'))} / {f(e.get('p999'))} / {f(e.get('max'))} | {e.get('n', 0)} corrections | – | – | {f(r.get('first_s'))} |")
+print(f"| pylsl time_correction(), clean (\\|offset\\|, 5 per second; LSL gives no per-sample bound) | {f(e.get('p50'))} / {f(e.get('p99'))} / {f(e.get('p999'))} / {f(e.get('max'))} | {e.get('n', 0)} corrections | – | – | – | {f(r.get('first_s'))} | – |")
 PY
   echo "time lsl: $R" >&2
   stop $LO

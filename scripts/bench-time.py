@@ -1,14 +1,18 @@
 #!/usr/bin/env python3
 """Timestamp figures of the network bench (scripts/bench-network.sh, "Time" table).
 
-    bench-time.py replica DIR_A SRC DIR_B REP STATUS SECS
+    bench-time.py replica DIR_A SRC DIR_B REP STATUS SECS [LATE_S]
         Follows the replica port REP (runtime directory DIR_B) for SECS seconds and, for every
         chunk that arrives, compares its mapped CLOCK_MONOTONIC stamp with the source port's
         stamp of the same first frame (SRC in DIR_A). The two network namespaces share one
         CLOCK_MONOTONIC, so the source's stamp is the truth: error = replica - source. A chunk
         counts as covered when |error| is within the bound the replica chunk itself carries
         (port format 2.4: source bound + clock-map uncertainty). The status file STATUS gives
-        the mirror's clock uncertainty beside it. Prints one JSON object.
+        the mirror's clock uncertainty beside it. With LATE_S, the chunks that arrive LATE_S
+        seconds or more after the start are also summed up apart ("late": their error, and how
+        far the replica's CLOCK_REALTIME stamps are from the source port's: a source whose
+        clock runs fast, or whose wall clock was stepped, by bass-bridge-faults). Prints one
+        JSON object.
 
     bench-time.py lsl-outlet NAME SECS      (in the source's namespace)
     bench-time.py lsl-inlet NAME SECS       (in the mirror's namespace)
@@ -59,7 +63,7 @@ def live_replica(dir_b, rep_name, wait_s=15.0):
         time.sleep(0.1)
 
 
-def replica(dir_a, src_name, dir_b, rep_name, status_path, secs):
+def replica(dir_a, src_name, dir_b, rep_name, status_path, secs, late_s=None):
     """Every replica chunk that carries a bound (port format 2.4; chunks stamped at arrival,
     before the mirror has a clock map, carry none and are counted apart) is compared with the
     source's stamp of the same frames, the truth (the source is sim:pattern, whose stamps are
@@ -70,6 +74,7 @@ def replica(dir_a, src_name, dir_b, rep_name, status_path, secs):
     nfpc = rep.info()["frames_per_chunk"]
     errors, bounds, clock_parts, covered, unbounded, misses, replaced = [], [], [], 0, 0, {}, 0
     first_bound_s, first_narrow_s, unc_seen = None, None, []
+    late_errors, late_shift, late_covered = [], [], 0
     next_status = 0.0
     nxt = rep.last_frame_index + 1
     while time.monotonic() - t0 < secs:
@@ -112,12 +117,20 @@ def replica(dir_a, src_name, dir_b, rep_name, status_path, secs):
                     if s.bound_ns is not None:
                         clock_parts.append((r.bound_ns - s.bound_ns) / 1e3)
                     covered += e <= r.bound_ns
+                    if late_s is not None and seen >= late_s:
+                        late_errors.append(e / 1e3)
+                        late_covered += e <= r.bound_ns
+                        if r.realtime_ns and s.realtime_ns:
+                            late_shift.append((r.realtime_ns - s.realtime_ns) / 1e6)
             nxt = r.first_frame + r.frames
         time.sleep(0.002)
     out = {"error_us": quantiles(errors), "bound_us": quantiles(bounds), "clock_part_us": quantiles(clock_parts),
            "uncertainty_us": quantiles([u / 1e3 for u in unc_seen]), "covered": covered, "chunks": len(errors),
            "unbounded": unbounded, "first_bound_s": first_bound_s, "first_bound_100us_s": first_narrow_s,
            "skipped": misses, "replica_replaced": replaced}
+    if late_s is not None:
+        out["late"] = {"after_s": late_s, "error_us": quantiles(late_errors), "covered": late_covered,
+                       "realtime_shift_ms": quantiles(late_shift)}
     print(json.dumps(out))
 
 
@@ -151,8 +164,8 @@ def lsl_inlet(name, secs):
 
 if __name__ == "__main__":
     a = sys.argv[1:]
-    if a[:1] == ["replica"] and len(a) == 7:
-        replica(a[1], a[2], a[3], a[4], a[5], float(a[6]))
+    if a[:1] == ["replica"] and len(a) in (7, 8):
+        replica(a[1], a[2], a[3], a[4], a[5], float(a[6]), float(a[7]) if len(a) == 8 else None)
     elif a[:1] == ["lsl-outlet"] and len(a) == 3:
         lsl_outlet(a[1], float(a[2]))
     elif a[:1] == ["lsl-inlet"] and len(a) == 3:

@@ -119,7 +119,8 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
         .map_err(|e| anyhow!("declare state publisher: {e}"))?;
     let shared = Arc::new(Mutex::new(SourceState { ..Default::default() }));
     let info = declare_info(&session, &o, shared.clone(), cred.clone())?;
-    let clock = declare_clock(&session, &o, cred.as_deref(), faults.clock_delay())?;
+    let clock_faults = faults.clock();
+    let clock = declare_clock(&session, &o, cred.as_deref(), clock_faults)?;
     let control_stats = Arc::new(crate::control::Audit::default());
     let control = declare_control(&session, &o, cred.as_ref(), faults.control_delay(), &control_stats)?;
     #[cfg(feature = "iceoryx2")]
@@ -146,6 +147,7 @@ pub fn run(o: ServeOpts, faults: crate::fault::Faults) -> Result<()> {
     tracing::info!(instance = %instance_hex, zid = %zid, name = %o.name, "serving");
     let mut reader = Reader::new(&o.name, &tx, &term, &matched, instance, o.chunks_per_message);
     reader.ros2 = ros2;
+    reader.clock = clock_faults.source;
     let mut states = StatePublisher {
         shared,
         conflicts,
@@ -277,19 +279,26 @@ fn declare_info(
         .map_err(|e| anyhow!("declare info queryable: {e}"))
 }
 
-/// The `clock` queryable: this host's CLOCK_MONOTONIC, with `cred` a keyed answer; `delay`
-/// (zero but in the fault build's tests) holds each answer after its time was read.
+/// The `clock` queryable: this host's CLOCK_MONOTONIC, with `cred` a keyed answer; `faults`
+/// (none but in the fault build's tests) hold the probes and answers and move the clock.
 fn declare_clock(
     session: &zenoh::Session,
     o: &ServeOpts,
     cred: Option<&crate::credentials::Credentials>,
-    delay: Duration,
+    faults: crate::fault::ClockFaults,
 ) -> Result<Queryable<()>> {
     let (clock_key, clock_keys) = (o.net.key(&o.name, "clock"), cred.map(crate::clock::ReplyKeys::new));
+    let (delay, rng) = (faults.delay, std::sync::atomic::AtomicU64::new(0x9e37_79b9_7f4a_7c15));
+    let pause = move |d: Duration| {
+        if !d.is_zero() {
+            std::thread::sleep(d);
+        }
+    };
     session
         .declare_queryable(clock_key.clone())
         .callback(move |q| {
-            let now = bassport::sys::monotonic_ns().to_le_bytes();
+            pause(crate::fault::jitter(&rng, faults.jitter));
+            let now = faults.source.mono(bassport::sys::monotonic_ns()).to_le_bytes();
             // A keyed answer (HMAC, ~1 us, not a signature's ~20 us that would skew the probe).
             let sig = clock_keys.as_ref().and_then(|k| {
                 k.answer(
@@ -298,9 +307,7 @@ fn declare_clock(
                     &now,
                 )
             });
-            if !delay.is_zero() {
-                std::thread::sleep(delay);
-            }
+            pause(delay + crate::fault::jitter(&rng, faults.jitter));
             if let Err(e) = q.reply(q.key_expr().clone(), now.to_vec()).attachment(sig).wait() {
                 tracing::debug!("clock reply: {e}");
             }

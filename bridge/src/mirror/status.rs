@@ -60,7 +60,8 @@ pub struct MirrorStatus {
     pub error: Option<String>,
     /// Source CLOCK_MONOTONIC minus local CLOCK_MONOTONIC (ns), estimated.
     pub clock_offset_ns: Option<i64>,
-    /// Uncertainty of that estimate (ns): half the best round trip.
+    /// Uncertainty of that estimate (ns): half the overlap of the rounds' intervals (each half
+    /// its round trip plus the drift's possible error over its age; [`crate::clock::Fit::at`]).
     pub clock_uncertainty_ns: Option<u64>,
     /// Source clock rate relative to ours minus 1, in parts per million.
     pub clock_drift_ppm: Option<f64>,

@@ -66,6 +66,8 @@ pub struct Reader<'a> {
     pub catching_up: bool,
     /// The ROS 2 export (`serve --ros2`), if any.
     pub ros2: Option<crate::ros2::Exporter>,
+    /// The clock the chunks' stamps are given on: the real one but in the fault build's tests.
+    pub clock: crate::fault::SourceClock,
 }
 
 /// One port being followed: where the reader is, and its reused buffers.
@@ -104,6 +106,7 @@ impl<'a> Reader<'a> {
             started: false,
             catching_up: false,
             ros2: None,
+            clock: crate::fault::SourceClock::default(),
         }
     }
 
@@ -249,9 +252,9 @@ impl<'a> Reader<'a> {
             channels: g.channels as u16,
             sample_rate: g.sample_rate,
             chunks_on_port: g.chunks_on_port,
-            mono_ns: ci.map_or(0, |c| c.mono_ns),
-            realtime_ns: ci.map_or(0, |c| c.realtime_ns),
-            send_mono_ns: bassport::sys::monotonic_ns(),
+            mono_ns: ci.map_or(0, |c| self.clock.mono(c.mono_ns)),
+            realtime_ns: ci.map_or(0, |c| self.clock.realtime(c.realtime_ns, c.mono_ns)),
+            send_mono_ns: self.clock.mono(bassport::sys::monotonic_ns()),
             source_lost: self.lost_frames,
             bound_ns: ci.map_or(bassport::format::BOUND_UNKNOWN, |c| c.bound_ns),
             missing_channels: ci.map_or(0, |c| c.missing_channels),
