@@ -806,6 +806,17 @@ bass_result bass_writer_publish_lost(bass_writer *writer,
                                      const bass_chunk_meta *meta,
                                      uint64_t *out_last_frame_index);
 
+// Gives the next chunk this writer publishes (by any `bass_writer_publish_*`) the timestamp
+// bound and channel masks of `ext` (port format 2.4's chunk extension; `ext->first_frame` is
+// ignored: the publish decides it). For that one chunk: the chunks after it carry
+// `BASS_BOUND_UNKNOWN` and no masks again unless this is called again. NULL clears what an
+// earlier call set. A mask bit at or past the port's channel count is `BASS_ERR_INVALID_ARGUMENT`
+// (naming the mask), and nothing is set.
+//
+// # Safety
+// `ext` must be NULL or valid for a read.
+bass_result bass_writer_set_chunk_ext(bass_writer *writer, const bass_chunk_ext *ext);
+
 // Sets the port state (`BASS_STATE_*`), with an error code and message (may be NULL) for
 // `BASS_STATE_ERROR`, and wakes waiting readers.
 //

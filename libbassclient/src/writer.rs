@@ -5,6 +5,7 @@ use std::ffi::c_char;
 use std::sync::{Arc, Mutex};
 
 use super::bass_result;
+use super::port::bass_chunk_ext;
 use super::{boundary, c_str, nonnull, nonnull_mut, put, Failure, Registry};
 use bassport::error::Error;
 use bassport::format::{self, chunk_flags, Geometry, State};
@@ -27,10 +28,32 @@ pub struct bass_chunk_meta {
     pub flags: u32,
 }
 
-static WRITERS: Registry<Mutex<Writer>> = Registry::new();
+/// A writer handle: the port writer and what `bass_writer_set_chunk_ext` gave for its next
+/// chunk.
+struct CWriter {
+    w: Writer,
+    /// Bound and masks of the next chunk published (one chunk only).
+    next_ext: Option<(Option<u64>, u64, u64)>,
+}
 
-fn writer(w: *mut bass_writer) -> Result<Arc<Mutex<Writer>>, Failure> {
+static WRITERS: Registry<Mutex<CWriter>> = Registry::new();
+
+fn writer(w: *mut bass_writer) -> Result<Arc<Mutex<CWriter>>, Failure> {
     WRITERS.get(nonnull_mut(w, "writer")? as usize)
+}
+
+/// Runs `f` on the handle's writer with `meta` completed by the pending chunk extension
+/// (taken: it is for one chunk).
+fn with_ext<T>(
+    w: &Mutex<CWriter>,
+    mut meta: ChunkMeta,
+    f: impl FnOnce(&mut Writer, ChunkMeta) -> Result<T, Error>,
+) -> Result<T, Failure> {
+    let mut g = w.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((bound, missing, unaligned)) = g.next_ext.take() {
+        (meta.bound_ns, meta.missing_channels, meta.unaligned_channels) = (bound, missing, unaligned);
+    }
+    Ok(f(&mut g.w, meta)?)
 }
 
 /// Creates the port `name` for writing (mode 0640, in `$BASS_RUNTIME_DIR` or /dev/shm),
@@ -61,7 +84,7 @@ pub unsafe extern "C" fn bass_writer_create(
             device: device.to_owned(),
             group: None,
         };
-        let id = WRITERS.insert(Mutex::new(Writer::create(name, &params)?));
+        let id = WRITERS.insert(Mutex::new(CWriter { w: Writer::create(name, &params)?, next_ext: None }));
         // SAFETY: checked non-null; caller guarantees validity.
         unsafe { put(out, id as *mut bass_writer) };
         Ok(())
@@ -81,7 +104,7 @@ unsafe fn meta_from(meta: *const bass_chunk_meta) -> ChunkMeta {
 
 fn publish(w: *mut bass_writer, src: Source<'_>, meta: ChunkMeta, out_lfi: *mut u64) -> Result<(), Failure> {
     let w = writer(w)?;
-    let lfi = w.lock().unwrap_or_else(|e| e.into_inner()).publish(src, meta)?;
+    let lfi = with_ext(&w, meta, |w, meta| w.publish(src, meta))?;
     if !out_lfi.is_null() {
         // SAFETY: non-null; the exporting function's caller guarantees validity.
         unsafe { put(out_lfi, lfi) };
@@ -179,7 +202,7 @@ pub unsafe extern "C" fn bass_writer_publish_gap(
 pub unsafe extern "C" fn bass_writer_start_at(writer: *mut bass_writer, first_frame: u64) -> bass_result {
     boundary("bass_writer_start_at", || {
         let w = self::writer(writer)?;
-        w.lock().unwrap_or_else(|e| e.into_inner()).start_at(first_frame)?;
+        w.lock().unwrap_or_else(|e| e.into_inner()).w.start_at(first_frame)?;
         Ok(())
     })
 }
@@ -202,11 +225,52 @@ pub unsafe extern "C" fn bass_writer_publish_lost(
         let w = self::writer(writer)?;
         // SAFETY: forwarded caller guarantee.
         let meta = unsafe { meta_from(meta) };
-        let lfi = w.lock().unwrap_or_else(|e| e.into_inner()).publish_lost(n_frames, meta)?;
+        let lfi = with_ext(&w, meta, |w, meta| w.publish_lost(n_frames, meta))?;
         if !out_last_frame_index.is_null() {
             // SAFETY: non-null; caller guarantees validity.
             unsafe { put(out_last_frame_index, lfi) };
         }
+        Ok(())
+    })
+}
+
+/// Gives the next chunk this writer publishes (by any `bass_writer_publish_*`) the timestamp
+/// bound and channel masks of `ext` (port format 2.4's chunk extension; `ext->first_frame` is
+/// ignored: the publish decides it). For that one chunk: the chunks after it carry
+/// `BASS_BOUND_UNKNOWN` and no masks again unless this is called again. NULL clears what an
+/// earlier call set. A mask bit at or past the port's channel count is `BASS_ERR_INVALID_ARGUMENT`
+/// (naming the mask), and nothing is set.
+///
+/// # Safety
+/// `ext` must be NULL or valid for a read.
+#[no_mangle]
+pub unsafe extern "C" fn bass_writer_set_chunk_ext(
+    writer: *mut bass_writer,
+    ext: *const bass_chunk_ext,
+) -> bass_result {
+    boundary("bass_writer_set_chunk_ext", || {
+        let w = self::writer(writer)?;
+        let mut g = w.lock().unwrap_or_else(|e| e.into_inner());
+        if ext.is_null() {
+            g.next_ext = None;
+            return Ok(());
+        }
+        // SAFETY: non-null; caller guarantees validity.
+        let e = unsafe { &*ext };
+        let channels = g.w.geometry().channels;
+        let past = if channels >= 64 { 0 } else { !0u64 << channels };
+        for (what, mask) in
+            [("missing_channels", e.missing_channels), ("unaligned_channels", e.unaligned_channels)]
+        {
+            if mask & past != 0 {
+                return Err(Error::InvalidArgument(format!(
+                    "{what} = {mask:#x}: bits at or past the port's {channels} channels"
+                ))
+                .into());
+            }
+        }
+        let bound = (e.bound_ns != format::BOUND_UNKNOWN).then_some(e.bound_ns);
+        g.next_ext = Some((bound, e.missing_channels, e.unaligned_channels));
         Ok(())
     })
 }
@@ -236,7 +300,7 @@ pub unsafe extern "C" fn bass_writer_set_state(
         };
         // SAFETY: forwarded caller guarantee.
         let msg = if message.is_null() { "" } else { unsafe { c_str(message, "message") }? };
-        w.lock().unwrap_or_else(|e| e.into_inner()).set_state(st, error_code, msg);
+        w.lock().unwrap_or_else(|e| e.into_inner()).w.set_state(st, error_code, msg);
         Ok(())
     })
 }

@@ -258,6 +258,7 @@ SIGNATURES = {
     "bass_writer_publish_gap": (c_int, [c_void_p, POINTER(ChunkMeta), POINTER(c_uint64)]),
     "bass_writer_start_at": (c_int, [c_void_p, c_uint64]),
     "bass_writer_publish_lost": (c_int, [c_void_p, c_uint64, POINTER(ChunkMeta), POINTER(c_uint64)]),
+    "bass_writer_set_chunk_ext": (c_int, [c_void_p, POINTER(ChunkExt)]),
     "bass_writer_set_state": (c_int, [c_void_p, c_uint32, c_uint32, c_char_p]),
     "bass_writer_close": (c_int, [c_void_p]),
     "bass_replica_status": (c_int, [c_char_p, POINTER(ReplicaInfo)]),

@@ -141,6 +141,15 @@ static void test_reads(bass_port *port, bass_writer *w) {
     }
     const int32_t *planes[CH] = {pl, pr};
     bass_chunk_meta meta = {123456789, 987654321, 0};
+    /* The next chunk's timestamp bound and channel masks (that one chunk only); a mask bit
+       past the channels is refused by name and sets nothing; NULL clears. */
+    bass_chunk_ext set = {0, 2500, 0x2, 0x1}, bad = {0, 1, 0x4, 0};
+    EXPECT(bass_writer_set_chunk_ext(w, &bad), BASS_ERR_INVALID_ARGUMENT);
+    CHECK(strstr(bass_last_error(), "missing_channels = 0x4") != NULL);
+    EXPECT(bass_writer_set_chunk_ext(NULL, &set), BASS_ERR_NULL_ARGUMENT);
+    EXPECT(bass_writer_set_chunk_ext(w, &set), BASS_OK);
+    EXPECT(bass_writer_set_chunk_ext(w, NULL), BASS_OK);
+    EXPECT(bass_writer_set_chunk_ext(w, &set), BASS_OK);
     EXPECT(bass_writer_publish_planar(w, planes, CH, NFPC, &meta, &lfi), BASS_OK);
     frame += NFPC;
     EXPECT(bass_writer_publish_gap(w, NULL, &lfi), BASS_OK);
@@ -202,11 +211,16 @@ static void test_reads(bass_port *port, bass_writer *w) {
     EXPECT(bass_port_chunk_info(port, 8, &ci), BASS_ERR_FRAME_LOST);
     EXPECT(bass_port_chunk_info(port, 0, &ci), BASS_ERR_FRAME_LOST);
     EXPECT(bass_port_chunk_info(port, 21, &ci), BASS_ERR_FRAME_NOT_YET);
-    /* Format 2.4's extension row: a C writer's chunks carry no bound and no channel masks. */
+    /* Format 2.4's extension row: the chunk given bass_writer_set_chunk_ext carries it; the
+       writer's other chunks carry no bound and no channel masks. */
     bass_chunk_ext ce;
     EXPECT(bass_port_chunk_ext(port, 14, &ce), BASS_OK);
-    CHECK(ce.first_frame == 13 && ce.bound_ns == BASS_BOUND_UNKNOWN && ce.missing_channels == 0 &&
+    CHECK(ce.first_frame == 13 && ce.bound_ns == 2500 && ce.missing_channels == 0x2 && ce.unaligned_channels == 0x1);
+    EXPECT(bass_port_chunk_ext(port, 12, &ce), BASS_OK);
+    CHECK(ce.first_frame == 9 && ce.bound_ns == BASS_BOUND_UNKNOWN && ce.missing_channels == 0 &&
           ce.unaligned_channels == 0);
+    EXPECT(bass_port_chunk_ext(port, 20, &ce), BASS_OK);
+    CHECK(ce.first_frame == 17 && ce.bound_ns == BASS_BOUND_UNKNOWN && ce.missing_channels == 0);
     EXPECT(bass_port_chunk_ext(port, 8, &ce), BASS_ERR_FRAME_LOST);
     EXPECT(bass_port_chunk_ext(port, 21, &ce), BASS_ERR_FRAME_NOT_YET);
 
