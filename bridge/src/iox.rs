@@ -47,12 +47,21 @@ pub struct ChunkHeader {
     pub sample_rate: u32,
     /// Source nChunksOnPort.
     pub chunks_on_port: u32,
+    /// Bound (ns) of `mono_ns` (and `realtime_ns`): the first frame's true capture time lies
+    /// within `± bound_ns`; `u64::MAX` if none is known (version 3).
+    pub bound_ns: u64,
+    /// Bit c: channel c's frames are zero-filled, lost by the device feeding it (version 3).
+    pub missing_channels: u64,
+    /// Bit c: channel c is not yet aligned within its bound (version 3).
+    pub unaligned_channels: u64,
 }
 
-const _: () = assert!(core::mem::size_of::<ChunkHeader>() == 88);
+const _: () = assert!(core::mem::size_of::<ChunkHeader>() == 112);
 
-/// [`ChunkHeader::version`].
-pub const VERSION: u32 = 2;
+/// [`ChunkHeader::version`]: 3 since the header carries the bound and the channel masks
+/// (112 bytes; a subscriber built for the 88-byte header of version 2 is refused by iceoryx2
+/// when it opens the service, the header's size having changed).
+pub const VERSION: u32 = 3;
 
 /// The iceoryx2 node, service and publisher (dropped in reverse order of creation).
 pub struct Exporter {
@@ -110,6 +119,9 @@ impl Exporter {
                 channels: u32::from(h.channels),
                 sample_rate: h.sample_rate,
                 chunks_on_port: h.chunks_on_port,
+                bound_ns: h.bound_ns,
+                missing_channels: h.missing_channels,
+                unaligned_channels: h.unaligned_channels,
             };
             let s = s.write_from_slice(samples);
             s.send().map_err(|e| anyhow!("send: {e:?}"))?;

@@ -13,12 +13,13 @@ import iceoryx2 as iox2
 
 
 class ChunkHeader(ctypes.Structure):
-    """bridge/src/iox.rs ChunkHeader (repr(C), 88 bytes)."""
+    """bridge/src/iox.rs ChunkHeader (repr(C), 112 bytes, version 3)."""
 
     _fields_ = [(n, ctypes.c_uint64) for n in (
         "instance", "epoch", "sequence", "first_frame", "mono_ns", "realtime_ns", "send_mono_ns",
         "source_lost")] + [(n, ctypes.c_uint32) for n in (
-        "version", "flags", "frames", "channels", "sample_rate", "chunks_on_port")]
+        "version", "flags", "frames", "channels", "sample_rate", "chunks_on_port")] + [
+        (n, ctypes.c_uint64) for n in ("bound_ns", "missing_channels", "unaligned_channels")]
 
     @staticmethod
     def type_name():
@@ -32,12 +33,12 @@ def pattern(frame, channel):
 
 def main():
     broker, want, timeout = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
-    assert ctypes.sizeof(ChunkHeader) == 88
+    assert ctypes.sizeof(ChunkHeader) == 112
     node = iox2.NodeBuilder.new().create(iox2.ServiceType.Ipc)
     service = (node.service_builder(iox2.ServiceName.new(f"bass/{broker}/chunks"))
                .publish_subscribe(iox2.Slice[ctypes.c_int32]).user_header(ChunkHeader).open_or_create())
     sub = service.subscriber_builder().create()
-    got, bad, gaps, expected = 0, 0, 0, None
+    got, bad, gaps, expected, bounded, masked, versions = 0, 0, 0, None, 0, 0, set()
     deadline = time.monotonic() + timeout
     while got < want and time.monotonic() < deadline:
         sample = sub.receive()
@@ -52,14 +53,19 @@ def main():
         if expected is not None and h.first_frame != expected:
             gaps += 1
         expected = h.first_frame + h.frames
+        versions.add(h.version)
+        # bassd bounds every chunk's stamp (a-priori at first); a stereo sim card has no followers.
+        bounded += h.bound_ns != (1 << 64) - 1 and h.bound_ns > 0
+        masked += h.missing_channels != 0 or h.unaligned_channels != 0
         for i in range(n):
             f, c = h.first_frame + i // h.channels, i % h.channels
             if payload[i] != pattern(f, c):
                 bad += 1
         got += 1
-    print(f"iceoryx2: {got} chunks, {bad} wrong samples, {gaps} index jumps")
+    print(f"iceoryx2: {got} chunks, {bad} wrong samples, {gaps} index jumps, {bounded} with a "
+          f"timestamp bound, {masked} with channel masks, header versions {sorted(versions)}")
     del sub, service, node
-    sys.exit(0 if got == want and bad == 0 else 1)
+    sys.exit(0 if got == want and bad == 0 and bounded == got and masked == 0 and versions == {3} else 1)
 
 
 main()
