@@ -33,6 +33,9 @@ use zenoh::Wait;
 
 /// Probes per round; the one with the smallest round trip is kept.
 const BURST: usize = 4;
+/// Pause between rounds until there is an estimate ([`MIN_ROUNDS`] agreeing rounds), when
+/// shorter than the probe interval: the first bound comes within a fraction of a second.
+const FIRST_ROUNDS_PAUSE: Duration = Duration::from_millis(50);
 /// Rounds older than this leave the fit.
 const WINDOW_NS: u64 = 60_000_000_000;
 /// Low-pass weight of a new drift value.
@@ -381,8 +384,9 @@ impl ClockEstimator {
                     None if !sane.is_empty() => f.count_refused(1),
                     None => {}
                 }
+                let first = f.rounds.len() < MIN_ROUNDS;
                 drop(f);
-                std::thread::sleep(interval);
+                std::thread::sleep(if first { interval.min(FIRST_ROUNDS_PAUSE) } else { interval });
             })
             .map_err(|e| anyhow!("spawn the clock prober: {e}"))?;
         Ok(ClockEstimator { fit })
