@@ -48,9 +48,10 @@ pub struct NetOpts {
     /// audio, and feed or stop a replica. Shown in the log and the status.
     #[arg(long)]
     pub insecure: bool,
-    /// Run every thread of this process, Zenoh's included, at SCHED_FIFO priority P (1..=99;
-    /// 0: normal scheduling). Keeps a loaded machine from holding chunks back (docs/network.md,
-    /// "Latency"); needs CAP_SYS_NICE or an rtprio limit, else a warning and normal scheduling.
+    /// Run the data path's threads, Zenoh's included (all but the shutdown watchdog), at
+    /// SCHED_FIFO priority P (1..=99; 0: normal scheduling): a loaded machine then holds no
+    /// chunk back (docs/network.md, "Latency"). Needs CAP_SYS_NICE or an rtprio limit, else a
+    /// warning and normal scheduling.
     #[arg(long, value_name = "P", default_value_t = 0, value_parser = clap::value_parser!(i32).range(0..=99))]
     pub rt_priority: i32,
 }
@@ -83,7 +84,8 @@ pub struct Opened {
 
 impl NetOpts {
     /// `--rt-priority`: SCHED_FIFO for the calling thread, and so for every thread made after
-    /// it; a refusal is a warning.
+    /// it (Zenoh's runtimes, serve's sender threads; not the shutdown watchdog, made before);
+    /// a refusal is a warning.
     fn realtime(&self) {
         if self.rt_priority == 0 {
             return;
