@@ -10,6 +10,8 @@
 # Usage: bench/net-stages/run.sh OUTDIR SECONDS [ZENOH_CONFIG|-] [BUSY_LOOPS]
 # Environment: BRT=P bassd at SCHED_FIFO P; CHRT="chrt -f P" serve and mirror under chrt;
 # RCHRT="chrt -f P" the readers; ZRT=... ZENOH_RUNTIME. Namespaces removed on exit.
+# Who held a CPU when a stage was late: `perf sched record -a -o F -- sleep 8` beside a run, then
+# `perf sched timehist -i F -w` around the late chunk (docs/performance.md, part 8).
 set -euo pipefail
 OUT=$1; SECS=$2; ZC=${3:--}; LOAD=${4:-0}
 ROOT=$(cd "$(dirname "$0")/../.." && pwd); BIN=${BENCH_NET_BIN:-${CARGO_TARGET_DIR:-$ROOT/target}/release}
