@@ -48,6 +48,12 @@ pub struct NetOpts {
     /// audio, and feed or stop a replica. Shown in the log and the status.
     #[arg(long)]
     pub insecure: bool,
+    /// Run the data path's threads, Zenoh's included (all but the shutdown watchdog), at
+    /// SCHED_FIFO priority P (1..=99; 0: normal scheduling): a loaded machine then holds no
+    /// chunk back (docs/network.md, "Latency"). Needs CAP_SYS_NICE or an rtprio limit, else a
+    /// warning and normal scheduling.
+    #[arg(long, value_name = "P", default_value_t = 0, value_parser = clap::value_parser!(i32).range(0..=99))]
+    pub rt_priority: i32,
 }
 
 pub use crate::usage::UsageError;
@@ -77,10 +83,31 @@ pub struct Opened {
 }
 
 impl NetOpts {
+    /// `--rt-priority`: SCHED_FIFO for the calling thread, and so for every thread made after
+    /// it (Zenoh's runtimes, serve's sender threads; not the shutdown watchdog, made before);
+    /// a refusal is a warning.
+    fn realtime(&self) {
+        if self.rt_priority == 0 {
+            return;
+        }
+        match bassport::sys::sched::set_fifo(self.rt_priority) {
+            Ok(()) => tracing::info!("real-time scheduling: SCHED_FIFO {}", self.rt_priority),
+            Err(e) => tracing::warn!(
+                "real-time scheduling (SCHED_FIFO {}) not permitted: {}; running at normal priority \
+                 (grant CAP_SYS_NICE or an rtprio limit to enable it)",
+                self.rt_priority,
+                std::io::Error::from_raw_os_error(e)
+            ),
+        }
+    }
+
     /// Opens a Zenoh session with these options; says at the default log level which
     /// endpoints it uses.
     pub fn open(&self, role: Role) -> Result<Opened> {
         let mut prepared = self.config()?;
+        // Before the session opens: Zenoh's runtime threads, made as it opens, and the threads
+        // this process makes afterwards inherit the calling thread's scheduling.
+        self.realtime();
         let mut source_identity = None;
         if let Some(cred) = &prepared.credentials {
             let mut keys = vec![format!("{}/**", self.namespace)];

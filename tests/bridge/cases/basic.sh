@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Network case "basic": the clean link, Python on the replica, a 3 s link outage, an upstream
 # Acquire, bassd killed, serve and mirror restarted, a congested link, deterministic faults
-# (the test-only bass-bridge-faults), batched messages, remote control, the iceoryx2 export,
+# (the test-only bass-bridge-faults), batched messages, a real-time bridge (--rt-priority), remote control, the iceoryx2 export,
 # the clock estimate, TLS with client certificates. tests/bridge/lib.sh has the rig.
 source "$(dirname "$0")/../lib.sh"
 rig_up
@@ -97,6 +97,20 @@ start_serve --chunks-per-message 4; sleep 1.5
 J=$(reader $((RATE * 2)) 20) || true
 check_exact "$J" "batched messages"
 [[ $(field "$J" gap) == 0 && $(field "$J" lost) == 0 ]] && ok "batched messages: no gap, no loss" || bad "batched messages lost frames: $J"
+
+echo "== 9c. serve and mirror --rt-priority 7: the data path's threads (Zenoh's included) at SCHED_FIFO 7, data exact"
+kill $SERVE $MIRROR 2>/dev/null || true; wait $SERVE $MIRROR 2>/dev/null || true; rm -f "$DIR_B/status.json"
+start_serve --rt-priority 7; sleep 0.5; start_mirror --rt-priority 7; wait_replica
+J=$(reader $((RATE * 2)) 20) || true
+check_exact "$J" "real-time bridge"
+[[ $(field "$J" gap) == 0 && $(field "$J" lost) == 0 ]] && ok "real-time bridge: no gap, no loss" || bad "real-time bridge lost frames: $J"
+# Every thread but the shutdown watchdog (made before the option is applied; it only acts at exit).
+for p in $SERVE $MIRROR; do
+  T=$(ps -L -o cls=,rtprio=,comm= -p "$p" | grep -v 'shutdown-dead')
+  if [[ -n $T ]] && ! grep -qv '^ *FF *7 ' <<<"$T"; then
+    ok "real-time bridge: pid $p, all $(wc -l <<<"$T") threads of the data path (Zenoh's included) SCHED_FIFO 7"
+  else bad "real-time bridge: pid $p threads: $(tr '\n' ';' <<<"$T")"; fi
+done
 
 echo "== 10. remote control: refused without serve --allow-control, forwarded with it"
 # From here on serve and mirror run with credentials (remote control needs them): chunks,
