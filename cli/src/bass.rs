@@ -153,7 +153,7 @@ fn describe(e: &anyhow::Error) -> String {
     text
 }
 
-fn connect(name: &str, timeout: Duration) -> Result<Client> {
+pub(crate) fn connect(name: &str, timeout: Duration) -> Result<Client> {
     let mut c = Client::connect(name).map_err(|e| match e {
         // The broker runs but this user may not use it: the message says what to do.
         Error::NoBroker { .. } if e.is_access_refused() => Exit::new(exit::NO_BROKER, e.to_string()),
