@@ -10,8 +10,8 @@
 //! over ±70 ms), and sample by sample the follower against the master's signal at that delay.
 //!
 //! What it shows (docs/multi-device.md, *The jack-plugin pair*): the follower is the master's
-//! signal at a delay of about a sample that wanders by about a sample from second to second —
-//! the jitter of the jack plugin's timestamps on this machine — and the aligner does not lock
+//! signal at a delay within a fraction of a sample to a few samples that wanders slowly —
+//! the jitter of the jack plugin's timestamps on this machine — and the aligner seldom locks
 //! (its bound is 0.25 sample). The bounds below are that measured wander with a margin, not
 //! the resampler's precision: the lock is reported, not asserted.
 
