@@ -110,6 +110,9 @@ fn delay(tones: &[(u32, f64)], mas: &[(f64, f64)], fol: &[(f64, f64)]) -> f64 {
     d
 }
 
+/// One channel's second: its samples and its tones' complex amplitudes.
+type Fit = (Vec<f64>, Vec<(f64, f64)>);
+
 fn device(s: &bassport::control::Status, i: usize) -> &bassport::control::DeviceStatus {
     s.devices.get(i).unwrap_or_else(|| panic!("Status has no device {i}: {:?}", s.devices))
 }
@@ -184,7 +187,7 @@ fn two_jack_pcms_on_one_clock_give_the_same_signal_at_a_steady_delay() {
         let signal =
             |c: usize| -> Vec<f64> { data[c][r.clone()].iter().map(|&v| f64::from(v) / FS).collect() };
         // The master first: is this second the played tones?
-        let fits: Vec<(Vec<f64>, Vec<(f64, f64)>)> = TONES
+        let fits: Vec<Fit> = TONES
             .iter()
             .enumerate()
             .map(|(ch, tones)| {
