@@ -15,7 +15,7 @@ use align::{Aligner, Chunk, Config};
 
 const RATE: f64 = 48000.0;
 
-fn rows(text: &str) -> Vec<(u64, u64)> {
+fn rows(text: &str) -> Rows {
     text.lines()
         .map(|l| {
             let mut v = l.split(' ').map(|x| x.parse::<u64>().expect("a number"));
@@ -24,8 +24,11 @@ fn rows(text: &str) -> Vec<(u64, u64)> {
         .collect()
 }
 
+/// Rows of two numbers: (first frame or frames, stamp in ns).
+type Rows = Vec<(u64, u64)>;
+
 /// (master chunks: first frame, stamp), (follower reads: frames, stamp).
-fn data() -> (Vec<(u64, u64)>, Vec<(u64, u64)>) {
+fn data() -> (Rows, Rows) {
     (
         rows(include_str!("data/jack_pair_master_stamps.txt")),
         rows(include_str!("data/jack_pair_follower_stamps.txt")),
