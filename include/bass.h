@@ -531,7 +531,8 @@ bass_result bass_list_devices(const char *broker, char *buf, size_t buf_len, siz
 // interrupting a running one (docs/multi-device.md): `devices[0]` is the master clock, the
 // others follow it, resampled onto its frames; each has `channels` channels (0 means 2),
 // after the master's on the port. `*out_epoch` (if not NULL) receives the new epoch. One
-// device is `bass_acquire()`. A broker that predates several devices gives
+// device is `bass_acquire()`; a channel count per device is
+// `bass_acquire_devices_channels()`. A broker that predates several devices gives
 // `BASS_ERR_PROTOCOL`.
 //
 // # Safety
@@ -545,6 +546,21 @@ bass_result bass_acquire_devices(const char *broker,
                                  uint32_t chunks_on_port,
                                  uint32_t channels,
                                  uint64_t *out_epoch);
+
+// `bass_acquire_devices()` with a channel count per device: `channels[i]` for
+// `devices[i]` (`channels[0]` the master's, 0 meaning 2; a follower's 0 meaning as many as
+// the master's), `devices_len` of each.
+//
+// # Safety
+// As `bass_acquire_devices()`; `channels` valid for `devices_len` reads.
+bass_result bass_acquire_devices_channels(const char *broker,
+                                          const char *const *devices,
+                                          const uint32_t *channels,
+                                          size_t devices_len,
+                                          uint32_t sample_rate,
+                                          uint32_t frames_per_chunk,
+                                          uint32_t chunks_on_port,
+                                          uint64_t *out_epoch);
 
 // Device `index` (0: the master) of broker `broker`'s acquisition (NULL = "default"): its
 // channels, state, rate against the master, alignment error and counters. An acquisition of

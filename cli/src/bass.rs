@@ -81,7 +81,8 @@ pub enum Command {
 pub struct AcquireCmd {
     /// Capture device: an ALSA PCM (hw:1,0, plughw:..., default) or sim:sine, sim:pattern, ...;
     /// several: the first is the master clock, the others follow it, resampled onto its
-    /// frames, each with --channels channels, after it on the port (docs/multi-device.md)
+    /// frames, each with --channels channels (or --follower-channels), after it on the port
+    /// (docs/multi-device.md)
     #[arg(value_name = "DEVICE", conflicts_with = "device_opt", value_parser = device_name, num_args = 0..)]
     pub device: Vec<String>,
     /// Capture device (as arecord -D)
@@ -90,9 +91,22 @@ pub struct AcquireCmd {
     /// Acquisition parameters.
     #[command(flatten)]
     pub params: AcquireArgs,
+    /// Channels of each follower, in order, comma-separated (e.g. 4,2 for two followers; 1 to
+    /// 64 each); without it every follower has --channels channels
+    #[arg(long, value_name = "N,N...", value_delimiter = ',', value_parser = follower_channels)]
+    pub follower_channels: Vec<u32>,
     /// Also wait for the first chunk and print how long it took
     #[arg(long)]
     pub wait: bool,
+}
+
+/// One count of `--follower-channels`: 1 to 64 (a port holds at most 64 channels).
+fn follower_channels(s: &str) -> std::result::Result<u32, String> {
+    match s.trim().parse::<u32>() {
+        Ok(n) if (1..=64).contains(&n) => Ok(n),
+        Ok(n) => Err(format!("{n} is out of range (1..=64 channels)")),
+        Err(_) => Err(format!("{s:?} is not a channel count")),
+    }
 }
 
 /// A device named on the command line: a bare number is the seed's positional parameters,
@@ -139,7 +153,7 @@ fn describe(e: &anyhow::Error) -> String {
     text
 }
 
-fn connect(name: &str, timeout: Duration) -> Result<Client> {
+pub(crate) fn connect(name: &str, timeout: Duration) -> Result<Client> {
     let mut c = Client::connect(name).map_err(|e| match e {
         // The broker runs but this user may not use it: the message says what to do.
         Error::NoBroker { .. } if e.is_access_refused() => Exit::new(exit::NO_BROKER, e.to_string()),
@@ -218,9 +232,22 @@ fn acquire(name: &str, a: &AcquireCmd, timeout: Duration) -> Result<()> {
     let default = bassport::control::AcquireRequest::default().device;
     let device = a.device.first().map(String::as_str).or(a.device_opt.as_deref()).unwrap_or(&default);
     let mut req = a.params.request(device).map_err(|m| Exit::new(exit::USAGE, m))?;
-    for f in a.device.iter().skip(1) {
+    let followers = a.device.len().saturating_sub(1);
+    if !a.follower_channels.is_empty() && a.follower_channels.len() != followers {
+        return Err(Exit::new(
+            exit::USAGE,
+            format!(
+                "--follower-channels has {} count(s) for {followers} follower device(s): give one per follower, in order",
+                a.follower_channels.len()
+            ),
+        )
+        .into());
+    }
+    for (i, f) in a.device.iter().skip(1).enumerate() {
         let device = a.params.request(f).map_err(|m| Exit::new(exit::USAGE, m))?.device;
-        req.followers.push(bassport::control::FollowerRequest { device, channels: 0 });
+        // 0: as many as the master's (the protocol's default).
+        let channels = a.follower_channels.get(i).copied().unwrap_or(0);
+        req.followers.push(bassport::control::FollowerRequest { device, channels });
     }
     let t0 = Instant::now();
     let got = connect(name, timeout)?.acquire(&req).map_err(|e| explain(e, name, Some(device)))?;
@@ -387,5 +414,24 @@ mod tests {
             panic!("not acquire")
         };
         assert_eq!(a.device, ["sim:field", "sim:field?ppm=87"]);
+    }
+
+    #[test]
+    fn follower_channels_are_a_list_of_counts_refused_by_name() {
+        let args = ["acquire", "sim:field", "sim:field?ppm=87", "sim:field", "--follower-channels", "4,1"];
+        let Command::Acquire(a) = parse(&args).unwrap().command else { panic!("not acquire") };
+        assert_eq!(a.follower_channels, [4, 1]);
+        for (bad, says) in [
+            ("0", "0 is out of range (1..=64 channels)"),
+            ("65", "65 is out of range"),
+            ("4,x", "\"x\" is not a channel count"),
+        ] {
+            let e = parse(&["acquire", "sim:field", "sim:field", "--follower-channels", bad]).unwrap_err();
+            assert_eq!(e.exit_code(), exit::USAGE, "{bad}");
+            assert!(
+                e.to_string().contains("--follower-channels") && e.to_string().contains(says),
+                "{bad}: {e}"
+            );
+        }
     }
 }

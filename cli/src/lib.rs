@@ -17,6 +17,7 @@
 //! - [`out`]: stdout and stderr as Unix tools use them (a closed pipe ends a command quietly).
 #![forbid(unsafe_code)]
 
+pub mod alignment;
 pub mod bass;
 pub mod blocks;
 pub mod exit;

@@ -25,12 +25,23 @@ const MAX_WAVEFORMS: usize = 8;
 #[derive(clap::Args, Debug, Clone)]
 pub struct PlotArgs {
     /// WAV file to plot (its sidecar FILE.json, if any, gives the gaps)
-    #[arg(required_unless_present = "live", conflicts_with = "live")]
+    #[arg(required_unless_present_any = ["live", "alignment"], conflicts_with_all = ["live", "alignment"])]
     pub file: Option<PathBuf>,
     /// Plot the last --seconds on the port instead of a file
-    #[arg(long)]
+    #[arg(long, conflicts_with = "alignment")]
     pub live: bool,
-    /// Seconds of the port to plot with --live (at most the window)
+    /// Plot a several-device acquisition's alignment over the next --seconds instead: each
+    /// follower's ratio (ppm), error estimate and state, from Status every --interval
+    #[arg(long)]
+    pub alignment: bool,
+    /// With --alignment: also write the samples as CSV
+    #[arg(long, value_name = "FILE", requires = "alignment")]
+    pub csv: Option<PathBuf>,
+    /// With --alignment: seconds between two Status samples (0.01 to 10)
+    #[arg(long, value_name = "S", default_value = "0.1", value_parser = parse_seconds, requires = "alignment")]
+    pub interval: f64,
+    /// Seconds of the port to plot with --live (at most the window), or to sample with
+    /// --alignment
     #[arg(short = 'd', long, value_name = "S", default_value = "2", value_parser = parse_seconds)]
     pub seconds: f64,
     /// Output PNG
@@ -48,6 +59,9 @@ struct Signal {
 
 /// Runs `bass plot`.
 pub fn run(name: &str, a: &PlotArgs, timeout: Duration) -> Result<()> {
+    if a.alignment {
+        return crate::alignment::run(name, a.seconds, a.interval, &a.output, a.csv.as_deref(), timeout);
+    }
     let sig = match &a.file {
         Some(f) => from_wav(f)?,
         None => from_port(name, a.seconds, timeout)?,

@@ -340,3 +340,51 @@ fn a_second_stop_says_already_stopped() {
     let frame = first.trim().trim_start_matches("stopped at frame ");
     assert_eq!(second.trim(), format!("already stopped at frame {frame}"));
 }
+
+#[test]
+fn follower_channels_give_each_follower_its_own_count() {
+    let dir = TempDir::new("follower-ch");
+    let b = Bassd::start(dir.path(), "default", &[], &[]);
+    let master = ["acquire", "sim:field", "sim:field?ppm=87", "-r", "48000", "--frames", "480", "-c", "2"];
+    // A count per follower, checked before anything is asked of the broker.
+    for (extra, says) in [
+        (&["--follower-channels", "4,2"][..], "--follower-channels has 2 count(s) for 1 follower device(s)"),
+        (&["--follower-channels", "0"][..], "0 is out of range (1..=64 channels)"),
+        (&["--follower-channels", "four"][..], "\"four\" is not a channel count"),
+    ] {
+        let o = bass(&b, &[&master[..], extra].concat());
+        assert_eq!(o.status.code(), Some(2), "{extra:?}: {}", text(&o));
+        assert!(text(&o).contains(says), "{extra:?}: {}", text(&o));
+    }
+    assert_eq!(b.client().status().unwrap().devices.len(), 0, "nothing was acquired");
+    let o = bass(&b, &[&master[..], &["--follower-channels", "4"]].concat());
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let port = b.port();
+    assert_eq!(port.geometry().channels, 6, "master 2 + follower 4");
+    wait_frame(&port, 4800);
+    let o = bass(&b, &["status", "--json"]);
+    let s: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(s["channels"].as_u64(), Some(6), "{s}");
+    let rows: Vec<(String, u64, u64)> = s["devices"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no devices in {s}"))
+        .iter()
+        .map(|d| {
+            (
+                d["role"].as_str().unwrap().to_owned(),
+                d["first_channel"].as_u64().unwrap(),
+                d["channels"].as_u64().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(rows, [("master".into(), 0, 2), ("follower".into(), 2, 4)]);
+    // The follower's four channels carry its samples (the field's channels 0..3), once aligned
+    // frames come: not all zero.
+    let last = wait_frame(&port, 48_000);
+    let data = read_frames(&port, last - 4799, last);
+    for (c, samples) in data.iter().enumerate().skip(2) {
+        assert!(samples.iter().any(|&v| v != 0), "follower channel {c} is silent");
+    }
+    let o = bass(&b, &["status"]);
+    assert!(text(&o).contains("sim:field?ppm=87"), "{}", text(&o));
+}

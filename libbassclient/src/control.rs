@@ -325,7 +325,8 @@ pub const BASS_MAX_DEVICES: usize = 8;
 /// interrupting a running one (docs/multi-device.md): `devices[0]` is the master clock, the
 /// others follow it, resampled onto its frames; each has `channels` channels (0 means 2),
 /// after the master's on the port. `*out_epoch` (if not NULL) receives the new epoch. One
-/// device is `bass_acquire()`. A broker that predates several devices gives
+/// device is `bass_acquire()`; a channel count per device is
+/// `bass_acquire_devices_channels()`. A broker that predates several devices gives
 /// `BASS_ERR_PROTOCOL`.
 ///
 /// # Safety
@@ -343,42 +344,106 @@ pub unsafe extern "C" fn bass_acquire_devices(
     out_epoch: *mut u64,
 ) -> bass_result {
     boundary("bass_acquire_devices", || {
-        let list = super::nonnull(devices, "devices")?;
-        if devices_len == 0 || devices_len > BASS_MAX_DEVICES {
-            return Err(Failure::Lib(bassport::Error::InvalidArgument(format!(
-                "devices_len = {devices_len} (must be 1..={BASS_MAX_DEVICES})"
-            ))));
+        // SAFETY: forwarded caller guarantee on `devices`.
+        let names = unsafe { device_names(devices, devices_len) }?;
+        let counts = vec![channels; names.len()];
+        // SAFETY: forwarded caller guarantees.
+        unsafe {
+            acquire_devices(broker, &names, &counts, sample_rate, frames_per_chunk, chunks_on_port, out_epoch)
         }
-        let mut names = Vec::with_capacity(devices_len);
-        for i in 0..devices_len {
-            // SAFETY: `list` is valid for `devices_len` reads (caller guarantee), i < devices_len.
-            let p = unsafe { list.add(i).read() };
-            if p.is_null() {
-                return Err(Failure::NullAt("devices", i));
-            }
-            // SAFETY: non-null and NUL-terminated (caller guarantee).
-            names.push(unsafe { c_str(p, "devices[i]") }?.to_owned());
-        }
-        // SAFETY: forwarded caller guarantee.
-        let mut client = unsafe { connect(broker) }?;
-        let followers =
-            names[1..].iter().map(|d| FollowerRequest { device: d.clone(), channels: 0 }).collect();
-        let req = AcquireRequest {
-            device: names[0].clone(),
-            sample_rate,
-            frames_per_chunk,
-            chunks_on_port,
-            channels: if channels == 0 { DEFAULT_CHANNELS } else { channels },
-            format: None,
-            followers,
-        };
-        let acquired = client.acquire(&req)?;
-        if !out_epoch.is_null() {
-            // SAFETY: non-null; the caller guarantees validity.
-            unsafe { out_epoch.write(acquired.epoch) };
-        }
-        Ok(())
     })
+}
+
+/// `bass_acquire_devices()` with a channel count per device: `channels[i]` for
+/// `devices[i]` (`channels[0]` the master's, 0 meaning 2; a follower's 0 meaning as many as
+/// the master's), `devices_len` of each.
+///
+/// # Safety
+/// As `bass_acquire_devices()`; `channels` valid for `devices_len` reads.
+#[no_mangle]
+pub unsafe extern "C" fn bass_acquire_devices_channels(
+    broker: *const c_char,
+    devices: *const *const c_char,
+    channels: *const u32,
+    devices_len: usize,
+    sample_rate: u32,
+    frames_per_chunk: u32,
+    chunks_on_port: u32,
+    out_epoch: *mut u64,
+) -> bass_result {
+    boundary("bass_acquire_devices_channels", || {
+        // SAFETY: forwarded caller guarantee on `devices`.
+        let names = unsafe { device_names(devices, devices_len) }?;
+        let counts_ptr = super::nonnull(channels, "channels")?;
+        // SAFETY: `counts_ptr` is valid for `devices_len` reads (caller guarantee), and
+        // `devices_len` was checked to be 1..=BASS_MAX_DEVICES by `device_names`.
+        let counts = unsafe { std::slice::from_raw_parts(counts_ptr, devices_len) }.to_vec();
+        // SAFETY: forwarded caller guarantees.
+        unsafe {
+            acquire_devices(broker, &names, &counts, sample_rate, frames_per_chunk, chunks_on_port, out_epoch)
+        }
+    })
+}
+
+/// The names of `devices` (1..=[`BASS_MAX_DEVICES`] of them).
+///
+/// # Safety
+/// `devices` valid for `devices_len` reads of NUL-terminated strings (or NULL: refused).
+unsafe fn device_names(devices: *const *const c_char, devices_len: usize) -> Result<Vec<String>, Failure> {
+    let list = super::nonnull(devices, "devices")?;
+    if devices_len == 0 || devices_len > BASS_MAX_DEVICES {
+        return Err(Failure::Lib(bassport::Error::InvalidArgument(format!(
+            "devices_len = {devices_len} (must be 1..={BASS_MAX_DEVICES})"
+        ))));
+    }
+    let mut names = Vec::with_capacity(devices_len);
+    for i in 0..devices_len {
+        // SAFETY: `list` is valid for `devices_len` reads (caller guarantee), i < devices_len.
+        let p = unsafe { list.add(i).read() };
+        if p.is_null() {
+            return Err(Failure::NullAt("devices", i));
+        }
+        // SAFETY: non-null and NUL-terminated (caller guarantee).
+        names.push(unsafe { c_str(p, "devices[i]") }?.to_owned());
+    }
+    Ok(names)
+}
+
+/// One Acquire of `names` (the first the master) with `counts[i]` channels each.
+///
+/// # Safety
+/// `broker` NULL or NUL-terminated; `out_epoch` NULL or valid for a write.
+unsafe fn acquire_devices(
+    broker: *const c_char,
+    names: &[String],
+    counts: &[u32],
+    sample_rate: u32,
+    frames_per_chunk: u32,
+    chunks_on_port: u32,
+    out_epoch: *mut u64,
+) -> Result<(), Failure> {
+    // SAFETY: forwarded caller guarantee.
+    let mut client = unsafe { connect(broker) }?;
+    let followers = names[1..]
+        .iter()
+        .zip(&counts[1..])
+        .map(|(d, &channels)| FollowerRequest { device: d.clone(), channels })
+        .collect();
+    let req = AcquireRequest {
+        device: names[0].clone(),
+        sample_rate,
+        frames_per_chunk,
+        chunks_on_port,
+        channels: if counts[0] == 0 { DEFAULT_CHANNELS } else { counts[0] },
+        format: None,
+        followers,
+    };
+    let acquired = client.acquire(&req)?;
+    if !out_epoch.is_null() {
+        // SAFETY: non-null; the caller guarantees validity.
+        unsafe { out_epoch.write(acquired.epoch) };
+    }
+    Ok(())
 }
 
 fn device_to_c(d: &DeviceStatus) -> bass_device_info {

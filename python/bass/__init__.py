@@ -424,18 +424,31 @@ def _control(name):
 def acquire(device, sample_rate=44100, frames_per_chunk=2205, chunks_on_port=20, channels=2, broker=None):
     """The Acquire service: starts (or restarts) the broker's acquisition. Returns the epoch.
     `device` a list of names: several devices, the first the master clock, each with `channels`
-    channels (bass_acquire_devices; docs/multi-device.md)."""
+    channels (bass_acquire_devices; docs/multi-device.md), or with `channels` a list of one
+    count per device (bass_acquire_devices_channels)."""
     if device is None:
         raise TypeError("device must be a str, e.g. \"sim:pattern\", or a list of them")
     sample_rate = _uint(sample_rate, "sample_rate", "uint32_t")
     frames_per_chunk = _uint(frames_per_chunk, "frames_per_chunk", "uint32_t")
     chunks_on_port = _uint(chunks_on_port, "chunks_on_port", "uint32_t")
-    channels = _uint(channels, "channels", "uint32_t")
+    per_device = isinstance(channels, (list, tuple))
+    if per_device:
+        if not isinstance(device, (list, tuple)) or len(channels) != len(device):
+            raise ValueError(f"channels: a list of {len(channels)} count(s) needs as many devices, "
+                             f"got {len(device) if isinstance(device, (list, tuple)) else 'one'}")
+        counts = [_uint(c, f"channels[{i}]", "uint32_t") for i, c in enumerate(channels)]
+    else:
+        channels = _uint(channels, "channels", "uint32_t")
     epoch = ctypes.c_uint64()
     if isinstance(device, (list, tuple)):
         if not device:
             raise ValueError("device: an empty list (name the master first)")
         names = (ctypes.c_char_p * len(device))(*[_bytes(d, f"device[{i}]") for i, d in enumerate(device)])
+        if per_device:
+            _check("bass_acquire_devices_channels", _control("bass_acquire_devices_channels")(
+                _bytes(broker, "broker"), names, (ctypes.c_uint32 * len(counts))(*counts), len(device),
+                sample_rate, frames_per_chunk, chunks_on_port, ctypes.byref(epoch)))
+            return epoch.value
         _check("bass_acquire_devices", _control("bass_acquire_devices")(
             _bytes(broker, "broker"), names, len(device), sample_rate, frames_per_chunk, chunks_on_port,
             channels, ctypes.byref(epoch)))

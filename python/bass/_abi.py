@@ -267,5 +267,6 @@ SIGNATURES = {
     "bass_status": (c_int, [c_char_p, POINTER(Status)]),
     "bass_list_devices": (c_int, [c_char_p, POINTER(c_char), c_size_t, POINTER(c_size_t)]),
     "bass_acquire_devices": (c_int, [c_char_p, POINTER(c_char_p), c_size_t, c_uint32, c_uint32, c_uint32, c_uint32, POINTER(c_uint64)]),
+    "bass_acquire_devices_channels": (c_int, [c_char_p, POINTER(c_char_p), POINTER(c_uint32), c_size_t, c_uint32, c_uint32, c_uint32, POINTER(c_uint64)]),
     "bass_broker_device_info": (c_int, [c_char_p, c_uint32, POINTER(DeviceInfo)]),
 }

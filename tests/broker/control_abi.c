@@ -1,4 +1,4 @@
-/* The control-plane C ABI (bass_acquire, bass_acquire_devices, bass_stop, bass_status,
+/* The control-plane C ABI (bass_acquire, bass_acquire_devices[_channels], bass_stop, bass_status,
  * bass_broker_device_info, bass_replica_status, bass_list_devices) against real bassd processes started by tests/broker/run.sh: broker
  * "default" and broker "second" in $BASS_RUNTIME_DIR, both idle. Every check prints its name;
  * any failure exits 1. */
@@ -201,6 +201,21 @@ static void test_several_devices(void) {
   const char *bad[] = {"sim:field", "sim:field?ppm=fast"};
   r = bass_acquire_devices("second", bad, 2, 48000, 480, 20, 2, NULL);
   CHECK(r == BASS_ERR_BROKER && strstr(bass_last_error(), "ppm=\"fast\"") != NULL, "bad follower: %d", r);
+  /* A channel count per device: master 2, follower 4 (6 channels), follower 2 at 2 + 4. */
+  const uint32_t counts[] = {2, 4, 1};
+  r = bass_acquire_devices_channels("second", devices, counts, 3, 48000, 480, 20, &epoch);
+  CHECK(r == BASS_OK && epoch == 3, "acquire with per-device channels: %d, epoch %llu", r, (unsigned long long)epoch);
+  CHECK(bass_status("second", &st) == BASS_OK && st.channels == 7, "2 + 4 + 1 channels: %u", st.channels);
+  const uint32_t first[] = {0, 2, 6};
+  for (uint32_t i = 0; i < 3; i++) {
+    r = bass_broker_device_info("second", i, &d);
+    CHECK(r == BASS_OK && d.first_channel == first[i] && d.channels == counts[i], "device %u: %d first %u channels %u", i,
+          r, d.first_channel, d.channels);
+  }
+  CHECK(bass_acquire_devices_channels("second", devices, NULL, 3, 48000, 480, 20, NULL) == BASS_ERR_NULL_ARGUMENT,
+        "NULL channels");
+  r = bass_acquire_devices_channels("second", devices, counts, 9, 48000, 480, 20, NULL);
+  CHECK(r == BASS_ERR_INVALID_ARGUMENT && strstr(bass_last_error(), "devices_len = 9") != NULL, "9 devices: %d", r);
   CHECK(bass_stop("second") == BASS_OK, "second broker stop");
 }
 

@@ -58,4 +58,19 @@ PY
 then ok "per-device counters in bass status --json"; else bad "counters: $(cat "$work/status.json")"; fi
 out=$(bass status)
 if grep -q '^  follower sim:field?ppm=-143.*ch 4\.\.6: ' <<<"$out"; then ok "bass status per device"; else bad "status: $out"; fi
+
+# A channel count per device from Python (bass_acquire_devices_channels): 2 + 4 channels.
+if out=$(BASS_RUNTIME_DIR="$work" PYTHONPATH="$TOP/python" BASS_LIB="$BIN/libbassclient.so" python3 - <<'PY' 2>&1
+import bass
+bass.acquire(["sim:field", "sim:field?ppm=87"], 48000, 480, 100, channels=[2, 4], broker="multi")
+rows = [(d["role"], d["first_channel"], d["channels"]) for d in bass.devices("multi")]
+assert rows == [("master", 0, 2), ("follower", 2, 4)], rows
+try:
+    bass.acquire(["sim:field", "sim:field"], 48000, 480, 100, channels=[2], broker="multi")
+    raise SystemExit("a list of 1 count for 2 devices was accepted")
+except ValueError as e:
+    assert "a list of 1 count(s) needs as many devices" in str(e), e
+print("ok")
+PY
+); then ok "per-device channel counts from Python"; else bad "per-device channels: $out"; fi
 summary

@@ -428,6 +428,7 @@ fn follower_loop(shared: &Shared, multi: &Multi, i: usize, spec: &FollowerSpec, 
         }
         match d.read(&mut buf, period, &shared.stop) {
             ReadEvent::Frames { frames, first_mono_ns, .. } => {
+                tracing::trace!(follower = i, frames, first_mono_ns, "follower frames");
                 let samples = &buf[..frames * spec.channels];
                 multi.follower_chunk(
                     shared,

@@ -67,6 +67,23 @@ pub struct AlsaDevice {
     frame_bytes: usize,
     bytes: Vec<u8>,
     buffer: Frames,
+    /// Where the frame after the last read lies by that read's estimated stamp, while the
+    /// reads follow one another without a wait ([`continued_stamp`]).
+    continued_ns: Option<u64>,
+}
+
+/// The stamp of a read's first frame on a device without timestamps (`now − avail`): that
+/// estimate is late by the time since the frames arrived, which for a read that empties what
+/// a previous read of the same wake-up left behind (ALSA's jack plugin: 480 frames, then the
+/// period's last 32) is the whole time the thread spent in between, up to a period or more on
+/// a loaded machine. The previous read's stamp plus its frames is as late as that read's
+/// stamp only, and both are never early, so the earlier of the two is kept. Not carried
+/// across a wait: chained for ever, the nominal rate's error would accumulate.
+fn continued_stamp(fresh_ns: u64, estimated: bool, continued_ns: Option<u64>) -> u64 {
+    match continued_ns {
+        Some(c) if estimated => fresh_ns.min(c),
+        _ => fresh_ns,
+    }
 }
 
 /// Parameters for [`open`].
@@ -177,6 +194,7 @@ pub fn open(p: &OpenParams<'_>) -> Result<AlsaDevice, OpenError> {
         frame_bytes,
         bytes: vec![0; frame_bytes * (period.max(1) as usize).max(p.period as usize)],
         buffer,
+        continued_ns: None,
     })
 }
 
@@ -248,16 +266,20 @@ impl Capture for AlsaDevice {
             if stop.is_set() {
                 return ReadEvent::Stopped;
             }
-            let Some((first_ns, estimated)) = self.oldest_frame_time() else {
+            let Some((fresh_ns, estimated)) = self.oldest_frame_time() else {
+                self.continued_ns = None;
                 let e = alsa::Error::new(
                     "snd_pcm_status (more frames available than the buffer holds)",
                     -libc::EPIPE,
                 );
                 return self.recover(&e);
             };
+            let first_ns = continued_stamp(fresh_ns, estimated, self.continued_ns);
             let got = self.pcm.io_bytes().readi(&mut self.bytes[..frames * self.frame_bytes]);
             match got {
                 Ok(n) if n > 0 => {
+                    self.continued_ns = estimated
+                        .then(|| first_ns + (n as u64).saturating_mul(1_000_000_000) / u64::from(self.rate));
                     let samples = n * self.channels;
                     to_s32(self.format, &self.bytes[..n * self.frame_bytes], &mut out[..samples]);
                     return ReadEvent::Frames {
@@ -271,10 +293,15 @@ impl Capture for AlsaDevice {
                 Ok(_) => {}
                 Err(e) => match e.errno().abs() {
                     libc::EAGAIN => {}
-                    libc::EPIPE | libc::ESTRPIPE => return self.recover(&e),
+                    libc::EPIPE | libc::ESTRPIPE => {
+                        self.continued_ns = None;
+                        return self.recover(&e);
+                    }
                     _ => return self.lost("snd_pcm_readi", &e),
                 },
             }
+            // A wait: the next read's stamp is its own.
+            self.continued_ns = None;
             if polled {
                 return ReadEvent::Idle;
             }
@@ -312,5 +339,25 @@ impl Capture for AlsaDevice {
 
     fn format_name(&self) -> &'static str {
         self.format.name()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::continued_stamp;
+
+    /// The jack plugin's pattern, from a bassd trace: a wake-up reads 480 frames stamped
+    /// 366.450 ms, the period's last 32 are read 10.97 ms later (`now − avail` says 377.422 ms)
+    /// while they arrived with the others (366.450 + 10.000 ms).
+    #[test]
+    fn a_read_that_follows_a_read_without_a_wait_keeps_the_earlier_stamp() {
+        let first = 366_450_028;
+        let continued = first + 10_000_000;
+        assert_eq!(continued_stamp(377_422_432, true, Some(continued)), continued);
+        // A fresh estimate earlier than the continuation wins (the previous read's was late).
+        assert_eq!(continued_stamp(376_000_000, true, Some(continued)), 376_000_000);
+        // After a wait, or where the device gives timestamps, the read's own stamp stands.
+        assert_eq!(continued_stamp(377_422_432, true, None), 377_422_432);
+        assert_eq!(continued_stamp(377_422_432, false, Some(continued)), 377_422_432);
     }
 }

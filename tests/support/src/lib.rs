@@ -16,6 +16,8 @@ mod bassd;
 mod bins;
 mod cli;
 pub mod client;
+#[allow(unsafe_code)] // libjack through dlopen: the tone player's JACK client
+mod jack_tones;
 mod jackd;
 mod port;
 mod skip;
@@ -27,6 +29,7 @@ mod wait;
 pub use bassd::{Bassd, BassdBuilder};
 pub use bins::{bass_bin, bassd_bin, bin_path};
 pub use cli::{bass, bass_cmd, text};
+pub use jack_tones::{tone_sample, JackTones, TONES, TONES_RATE};
 pub use jackd::{jack_missing, JackRig, Jackd};
 pub use port::{acquire_req, read_frames, replay_args, wait_frame};
 pub use skip::{
