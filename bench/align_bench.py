@@ -5,7 +5,8 @@ against the analytic field (align::sim::Field::standard; docs/multi-device.md, "
 with ground truth"): lock (the mask bits, and the residual staying within 0.25 sample),
 residual alignment from the pilots' phase per 10 ms block after lock (RMS, p99.9, samples),
 SNR of the aligned channels against the field, ratio noise (Status ratio_ppm, 1 s windows),
-the delay from a chunk's first-frame stamp to its publication; and, for followers without
+the delay from a chunk's first-frame stamp plus its duration to the reader having it (chunks
+the reader waited for); and, for followers without
 slew, the floor: the same follower stream (the field at the card's own instants) resampled by
 PyPI soxr (VHQ) with the true constant ratio, against the field.
 
@@ -80,6 +81,7 @@ def main():
     ratios = [[] for _ in followers]
     nfr, lost = 1, 0
     while nfr <= end:
+        before = time.clock_gettime_ns(time.CLOCK_MONOTONIC)
         port.wait(nfr + NFPC - 1, timeout=10.0)
         now = time.clock_gettime_ns(time.CLOCK_MONOTONIC)
         d, nfr2, n, loss = port.get_audio_data_multi(NFPC, nfr)
@@ -90,7 +92,8 @@ def main():
         data[:, first - 1:first - 1 + n] = d[:, :n]
         info = port.chunk_info(first)
         masks.append((first, info.missing_channels | info.unaligned_channels))
-        if nfr2 - nfr <= 2 * NFPC:
+        if now - before > 500_000 and nfr2 - nfr <= NFPC:
+            # The reader was waiting for this chunk (not catching up): its publication delay.
             delays.append((now - info.mono_ns) * 1e-9 - NFPC / RATE)
         if len(masks) % 10 == 0:
             for i, dev in enumerate(bass.devices(name)[1:]):

@@ -127,7 +127,7 @@ const HOWTO: &str = "
   and `libpipewire-0.3-dev` (`scripts/install-deps.sh --with-bench`, which `scripts/bench.sh` runs); without
   them the part says why it did not run. Its PipeWire daemon lives in a private runtime directory under
   $TMPDIR and never touches a user's PipeWire session.
-- `target/release/bass-bench --parts 8 --docs /tmp/x` runs the several-device part alone (about 70 s: one
+- `target/release/bass-bench --parts 8 --docs /tmp/x` runs the several-device part alone (about 2 minutes: one
   one-device run and three three-follower runs of 16 s; needs python3 with numpy and soxr, which
   `scripts/install-deps.sh --with-bench` installs).
 - Ports live in a scratch directory under /dev/shm (`BASS_RUNTIME_DIR`), removed at the end.
