@@ -72,6 +72,11 @@ fi
 if ! python3 -c 'import importlib.metadata as m, pylsl; assert m.version("pylsl") == "1.18.6"' 2>/dev/null; then
   python3 -m pip install -q pylsl==1.18.6 2>/dev/null || python3 -m pip install -q --break-system-packages pylsl==1.18.6
 fi
+# make bench, part 8: PyPI soxr (libsoxr, VHQ), the ideal-clock floor the aligned follower's SNR
+# is compared with (bench/align_bench.py).
+if [[ -n "$with_bench" ]] && ! python3 -c 'import importlib.metadata as m, soxr; assert m.version("soxr") == "1.1.0"' 2>/dev/null; then
+  python3 -m pip install -q soxr==1.1.0 2>/dev/null || python3 -m pip install -q --break-system-packages soxr==1.1.0
+fi
 # ROS's own parser of package.xml, for the bass_msgs package (tests/bridge/cases/ros2.sh).
 if ! python3 -c 'import importlib.metadata as m, catkin_pkg; assert m.version("catkin_pkg") == "1.0.0"' 2>/dev/null; then
   python3 -m pip install -q catkin_pkg==1.0.0 2>/dev/null || python3 -m pip install -q --break-system-packages catkin_pkg==1.0.0

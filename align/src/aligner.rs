@@ -37,7 +37,7 @@ pub struct Config {
     pub max_chunk_frames: usize,
     /// Stamps a time line is fitted over, seconds.
     pub window_s: f64,
-    /// The controller's averaging period, seconds.
+    /// The controller's time constant, seconds (control.rs).
     pub control_period_s: f64,
     /// Error estimate below which a follower counts towards lock, samples.
     pub lock_threshold: f64,
@@ -63,7 +63,7 @@ impl Config {
             master_channels,
             max_chunk_frames: 1024,
             window_s: 4.0,
-            control_period_s: 0.5,
+            control_period_s: 0.25,
             lock_threshold: 0.25,
             lock_hold_s: 0.5,
             gap_timeout_s: 0.05,
@@ -418,11 +418,8 @@ impl Run {
         }
         let (stage, origin) = self.stage.as_mut()?;
         let error = target - (*origin as f64 + stage.next_position());
-        let corr = if cfg.controller {
-            self.ctl.update(error, (n - j0) as f64, cfg.control_period_s * cfg.nominal_hz)
-        } else {
-            1.0
-        };
+        let corr =
+            if cfg.controller { self.ctl.update(error, cfg.control_period_s * cfg.nominal_hz) } else { 1.0 };
         let step = slope * corr;
         stage.set_step(step).ok()?;
         let first = *origin as f64 + stage.next_position();

@@ -3,12 +3,13 @@
 //! Every comparison is measured side by side in one run and printed as a ratio of
 //! medians over several repetitions; the results go to docs/performance.md with PNG plots.
 //!
-//! Usage: `bass-bench [--quick] [--parts 1,2,3,4,5,6,7] [--docs DIR]`;
+//! Usage: `bass-bench [--quick] [--parts 1,2,3,4,5,6,7,8] [--docs DIR]`;
 //! `bass-bench child ROLE ARGS...` is this binary's own helper-process mode.
 // `unsafe` only in the modules marked below, each block with its SAFETY comment: the bench
 // measures the C ABI, raw futexes, the seed's own port and JACK at their edges.
 #![deny(unsafe_code)]
 
+mod align;
 mod callbacks;
 #[allow(unsafe_code)] // kill(2) on bassd
 mod e2e;
@@ -44,8 +45,8 @@ pub struct Opts {
     #[arg(long)]
     pub quick: bool,
     /// Parts to run, e.g. 1,3
-    #[arg(long, value_delimiter = ',', default_values_t = [1u32, 2, 3, 4, 5, 6, 7],
-          value_parser = clap::value_parser!(u32).range(1..=7))]
+    #[arg(long, value_delimiter = ',', default_values_t = [1u32, 2, 3, 4, 5, 6, 7, 8],
+          value_parser = clap::value_parser!(u32).range(1..=8))]
     pub parts: Vec<u32>,
     /// Where performance.md and the PNGs go
     #[arg(long, value_name = "DIR", default_value = "docs")]
@@ -99,6 +100,10 @@ fn main() {
     if opts.parts.contains(&7) {
         println!("part 7: bass vs PipeWire (Dummy-Driver), 1, 8 and 64 clients, interleaved round by round; callback streams vs JACK process callbacks");
         results.pipewire = Some(pipewire::run(2, if opts.quick { 1.5 } else { 5.0 }, !opts.quick));
+    }
+    if opts.parts.contains(&8) {
+        println!("part 8: several sound cards on one frame index through bassd (sim:field, 2 cores loaded)");
+        results.align = Some(align::run(opts.quick));
     }
     results.load_end = machine::loadavg();
     results.elapsed_s = started.elapsed().as_secs_f64();

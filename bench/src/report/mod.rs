@@ -43,6 +43,8 @@ pub struct Results {
     pub memory: Option<Vec<crate::memory::MemRow>>,
     /// Part 7.
     pub pipewire: Option<crate::pipewire::PwResults>,
+    /// Part 8.
+    pub align: Option<crate::align::AlignResults>,
     /// Load average at the end.
     pub load_end: String,
     /// Wall time of the run.
@@ -101,6 +103,7 @@ pub fn write(r: &Results, docs: &Path) {
     e2e_section(r, &mut md);
     memory_section(r, &mut md);
     pipewire::section(r, &mut md);
+    crate::align::section(r.align.as_ref(), &mut md);
     md.push_str(ANALYSIS);
     md.push_str(HOWTO);
     if made.is_empty() {
@@ -124,6 +127,9 @@ const HOWTO: &str = "
   and `libpipewire-0.3-dev` (`scripts/install-deps.sh --with-bench`, which `scripts/bench.sh` runs); without
   them the part says why it did not run. Its PipeWire daemon lives in a private runtime directory under
   $TMPDIR and never touches a user's PipeWire session.
+- `target/release/bass-bench --parts 8 --docs /tmp/x` runs the several-device part alone (about 2 minutes: one
+  one-device run and three three-follower runs of 16 s; needs python3 with numpy and soxr, which
+  `scripts/install-deps.sh --with-bench` installs).
 - Ports live in a scratch directory under /dev/shm (`BASS_RUNTIME_DIR`), removed at the end.
 - The bench is not part of `make test`; its own unit tests (statistics, part 7's parsing and goals) run with
   `cargo test -p bass-bench`.

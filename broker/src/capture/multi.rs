@@ -46,7 +46,7 @@ pub struct FollowerSpec {
 }
 
 /// How long a follower's error estimate must stay below the lock threshold, seconds.
-pub const LOCK_HOLD_S: f64 = 1.5;
+pub const LOCK_HOLD_S: f64 = 0.5;
 
 /// How often a lost follower is reopened.
 pub const REOPEN_NS: u64 = 250_000_000;
@@ -128,8 +128,8 @@ impl Multi {
     ) -> Result<Multi, String> {
         let mut cfg = Config::new(f64::from(rate), master_channels);
         cfg.max_chunk_frames = cfg.max_chunk_frames.max(nfpc);
-        // A longer hold than the aligner's default (0.5 s): its error estimate is low for a
-        // while after the lock in some runs (docs/multi-device.md, "Figures").
+        // The aligner's default hold. It was 1.5 s while the seed's integrating controller
+        // swung through zero just after the first lock (docs/multi-device.md, "Figures").
         cfg.lock_hold_s = LOCK_HOLD_S;
         let channels: Vec<usize> = followers.iter().map(|f| f.channels).collect();
         let aligner = Aligner::new(cfg, &channels).map_err(|e| e.to_string())?;
