@@ -175,7 +175,8 @@ struct Cli {
 
 /// serve's numeric options; every other option taking a value is text (a name, a path,
 /// an endpoint, a choice). A new option must be put in one list or the other.
-const NUMERIC: &[(&str, u64, u64)] = &[("queue", 1, 16), ("chunks-per-message", 1, 64)];
+const NUMERIC: &[(&str, u64, u64)] =
+    &[("queue", 1, 16), ("chunks-per-message", 1, 64), ("rt-priority", 0, 99)];
 const TEXT: &[&str] = &[
     "name",
     "zenoh-config",
@@ -213,7 +214,8 @@ fn every_numeric_option_refuses_inf_nan_and_out_of_range_values_naming_itself() 
     }
     for &(opt, lo, hi) in NUMERIC {
         let flag = format!("--{opt}");
-        let (below, above) = ((lo - 1).to_string(), (hi + 1).to_string());
+        let below = lo.checked_sub(1).map_or_else(|| "-1".to_string(), |b| b.to_string());
+        let above = (hi + 1).to_string();
         for v in
             ["inf", "-inf", "NaN", "1e300", "-1", "1.5", "", "0x10", "18446744073709551616", &below, &above]
         {
