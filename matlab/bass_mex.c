@@ -2,6 +2,7 @@
  *
  *   v                      = bass_mex('Version')
  *   epoch                  = bass_mex('Acquire', device, sampleRate, nFramesPerChunk, nChunksOnPort [, channels [, broker]])
+ *                            device: a string, or a cell array {master, follower, ...}; channels: one count, or one per device
  *                            bass_mex('Stop' [, broker])
  *   s                      = bass_mex('Status' [, broker])            struct
  *   devices                = bass_mex('ListDevices' [, broker])       n x 2 cell {name, description}; printed if nargout = 0
@@ -345,19 +346,58 @@ static mxArray *status_struct(const bass_broker_status *st, const bass_replica_i
     return s;
 }
 
+/* The channel counts of `n` devices: one count for all (a scalar) or one per device (a real
+ * double vector of n whole numbers); 0 means 2. */
+static void arg_channels(const mxArray *a, size_t n, uint32_t *out) {
+    if (mxGetNumberOfElements(a) == 1) {
+        uint32_t c = arg_u32(a, "channels");
+        for (size_t k = 0; k < n; k++) out[k] = c;
+        return;
+    }
+    if (!mxIsDouble(a) || mxIsComplex(a) || mxGetNumberOfElements(a) != n)
+        bad_argument("channels", "a whole number, or a real vector of one whole number per device");
+    const double *d = (const double *)mxGetData(a);
+    for (size_t k = 0; k < n; k++) {
+        if (!(d[k] >= 0 && d[k] <= (double)UINT32_MAX && d[k] == floor(d[k])))
+            bad_argument("channels", "whole numbers from 0 to 2^32 - 1, one per device");
+        out[k] = (uint32_t)d[k];
+    }
+}
+
+/* device: a string, or a cell array of strings (the master first, then its followers;
+ * docs/multi-device.md); channels: a scalar for every device or one count per device. */
 static void cmd_acquire(int nlhs, mxArray *plhs[], int nrhs, const mxArray *prhs[]) {
     if (nrhs < 5) usage("Acquire needs device, sampleRate, nFramesPerChunk, nChunksOnPort");
-    if (!mxIsChar(prhs[1]) || mxIsEmpty(prhs[1])) bad_argument("device", "a non-empty string");
+    size_t n = mxIsCell(prhs[1]) ? mxGetNumberOfElements(prhs[1]) : 1;
+    if (mxIsCell(prhs[1])) {
+        if (n == 0 || n > 64) bad_argument("device", "a cell array of 1 to 64 device names");
+        for (size_t k = 0; k < n; k++) {
+            const mxArray *c = mxGetCell(prhs[1], k);
+            if (!c || !mxIsChar(c) || mxIsEmpty(c)) bad_argument("device", "a cell array of non-empty strings");
+        }
+    } else if (!mxIsChar(prhs[1]) || mxIsEmpty(prhs[1])) {
+        bad_argument("device", "a non-empty string or a cell array of them");
+    }
     uint32_t rate = arg_u32(prhs[2], "sampleRate");
     uint32_t nfpc = arg_u32(prhs[3], "nFramesPerChunk");
     uint32_t ncop = arg_u32(prhs[4], "nChunksOnPort");
-    uint32_t channels = nrhs > 5 && !mxIsEmpty(prhs[5]) ? arg_u32(prhs[5], "channels") : 0;
+    uint32_t channels[64] = {0};
+    if (nrhs > 5 && !mxIsEmpty(prhs[5])) arg_channels(prhs[5], n, channels);
     if (nrhs > 6 && !mxIsEmpty(prhs[6]) && !mxIsChar(prhs[6])) bad_argument("broker", "a string");
-    char *device = opt_string(nrhs, prhs, 1);
     char *broker = opt_string(nrhs, prhs, 6);
     uint64_t epoch = 0;
-    bass_result r = bass_acquire(broker, device, rate, nfpc, ncop, channels, &epoch);
-    mxFree(device);
+    bass_result r;
+    if (mxIsCell(prhs[1])) {
+        char *names[64];
+        for (size_t k = 0; k < n; k++) names[k] = mxArrayToString(mxGetCell(prhs[1], k));
+        r = bass_acquire_devices_channels(broker, (const char *const *)names, channels, n, rate, nfpc, ncop,
+                                          &epoch);
+        for (size_t k = 0; k < n; k++) mxFree(names[k]);
+    } else {
+        char *device = opt_string(nrhs, prhs, 1);
+        r = bass_acquire(broker, device, rate, nfpc, ncop, channels[0], &epoch);
+        mxFree(device);
+    }
     if (broker) mxFree(broker);
     check("Acquire", r);
     if (nlhs > 0) plhs[0] = u64_scalar(epoch);

@@ -153,6 +153,39 @@ def test_octave_control_plane_and_pattern_reads_through_a_broker(mexdir, clients
     assert "control plane ok" in out
 
 
+def test_mex_acquires_several_devices_with_a_channel_count_each(mexdir, clients_env, broker):
+    """Acquire with a cell array of devices (master first) and one channel count per device:
+    the port has their sum, Status.devices gives each one's first channel and count; a count
+    list of the wrong length, a bad count and an empty device list are bass:badArgument."""
+    code = f"""
+    bass_mex('Acquire', {{'sim:field', 'sim:field?ppm=87&ch=2'}}, 48000, 480, 100, [2 1], '{broker}');
+    s = bass_mex('Status', '{broker}');
+    assert(s.channels == 3, sprintf('%d channels', s.channels));
+    assert(numel(s.devices) == 2);
+    m = s.devices{{1}}; f = s.devices{{2}};
+    assert(strcmp(m.role, 'master') && m.firstChannel == 0 && m.channels == 2);
+    assert(strcmp(f.role, 'follower') && f.firstChannel == 2 && f.channels == 1);
+    assert(strcmp(f.name, 'sim:field?ppm=87&ch=2'), f.name);
+    h = bass_mex('Open', '{broker}');
+    info = bass_mex('Info', h);
+    assert(info.channels == 3);
+    bass_mex('Close', h);
+    expect_error('bass:badArgument', @() bass_mex('Acquire', {{'sim:field', 'sim:field'}}, 48000, 480, 100, [2 1 1], '{broker}'));
+    expect_error('bass:badArgument', @() bass_mex('Acquire', {{'sim:field', 'sim:field'}}, 48000, 480, 100, [2 1.5], '{broker}'));
+    expect_error('bass:badArgument', @() bass_mex('Acquire', {{}}, 48000, 480, 100, 2, '{broker}'));
+    expect_error('bass:badArgument', @() bass_mex('Acquire', {{'sim:field', 42}}, 48000, 480, 100, 2, '{broker}'));
+    % one count for every device still works
+    bass_mex('Acquire', {{'sim:field', 'sim:field?ppm=-143'}}, 48000, 480, 100, 2, '{broker}');
+    s = bass_mex('Status', '{broker}');
+    assert(s.channels == 4 && s.devices{{2}}.firstChannel == 2 && s.devices{{2}}.channels == 2);
+    bass_mex('Stop', '{broker}');
+    disp('several devices ok');
+    """
+    rc, out, err = octave(clients_env, code)
+    assert rc == 0, out + err
+    assert "several devices ok" in out
+
+
 def test_mex_edge_cases_timeouts_ranges_and_handles_across_unloads(mexdir, clients_env, tmp_path):
     """tests/clients/octave/test_mex_edges.m: fractional/zero/negative/NaN/Inf Wait timeouts,
     bass:badArgument for every out-of-range or non-numeric argument, handles unique across
