@@ -64,7 +64,7 @@ impl Config {
             max_chunk_frames: 1024,
             window_s: 4.0,
             control_period_s: 0.25,
-            lock_threshold: 0.25,
+            lock_threshold: 0.5,
             lock_hold_s: 0.5,
             gap_timeout_s: 0.05,
             gap_jump_s: 0.02,
@@ -116,6 +116,9 @@ pub struct FollowerOutput {
     pub error_estimate: f64,
     /// The resampler's step: follower frames per master frame (0 without a run).
     pub step: f64,
+    /// The controller's error at the chunk's first frame: the lines' target position
+    /// minus the resampler's, samples (NaN without a run).
+    pub controller_error: f64,
 }
 
 /// Every follower on one master chunk.
@@ -349,6 +352,7 @@ impl Follower {
             locked: false,
             error_estimate: f64::INFINITY,
             step: 0.0,
+            controller_error: f64::NAN,
         };
         let mut i = 0;
         while i < self.closing.len() {
@@ -367,6 +371,7 @@ impl Follower {
             Some(r) => {
                 out.error_estimate = r.error.abs() + r.uncertainty;
                 out.step = r.step;
+                out.controller_error = r.error;
                 if out.error_estimate < cfg.lock_threshold {
                     self.good_frames += n as u64;
                 } else {

@@ -12,7 +12,7 @@
 //! What it shows (docs/multi-device.md, *The jack-plugin pair*): the follower is the master's
 //! signal at a delay within a fraction of a sample to a few samples that wanders slowly —
 //! the jitter of the jack plugin's timestamps on this machine — and the aligner seldom locks
-//! (its bound is 0.25 sample). The bounds below are that measured wander with a margin, not
+//! (its lock threshold is 0.5 sample of a p99.9 estimate). The bounds below are that measured wander with a margin, not
 //! the resampler's precision: the lock is reported, not asserted.
 
 use std::f64::consts::TAU;
