@@ -321,8 +321,10 @@ pub fn section(r: Option<&AlignResults>, md: &mut String) {
     let cpu = per_pair.iter().copied().fold(f64::NAN, f64::max);
     let v = |met: bool| if met { "**met**" } else { "**missed**" };
     let lines_cause = "the time lines' error at the newest frame (the lower envelope of 4 s of stamps, extrapolated \
-                       from the window's mean to its end): heavy-tailed, p99.9 about 35 × the mean gap / stamps (RSS of \
-                       the two cards), 0.3–0.5 sample with 100–200 µs of jitter (align/README.md)";
+                       from the window's mean to its end): 1.5× the smallest delay of the window's newer half less half \
+                       the older half's, exponential-tailed: p99.9 about 20 delay spreads / stamps per card, 0.3–0.5 sample \
+                       with 50–200 µs of jitter; a slope from a longer window would cut it but needs a better slew \
+                       estimate (align/README.md)";
     let _ = writeln!(md, "| goal | figure | verdict | cause of a miss |\n|---|---|---|---|");
     let _ = writeln!(
         md,
@@ -340,7 +342,7 @@ pub fn section(r: Option<&AlignResults>, md: &mut String) {
         md,
         "| lock ≤ 3 s | flag: worst {lock:.2} s; residual within 0.25 for good: worst {lock25:.2} s | {} | {} |",
         v(lock <= 3.0 && lock25 <= 3.0),
-        if lock <= 3.0 && lock25 <= 3.0 { "" } else { "the residual leaves 0.25 sample again after the lock when the lines' error does (the cause above); the flag's lock waits for the lines' uncertainty (0.25 sample, held 0.5 s)" }
+        if lock <= 3.0 && lock25 <= 3.0 { "" } else { "the residual leaves 0.25 sample again after the lock when the lines' error does (the cause above); the flag's lock waits for the honest error estimate (a p99.9 bound) to stay under 0.5 sample for 0.5 s" }
     );
     let _ = writeln!(
         md,

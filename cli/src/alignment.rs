@@ -2,7 +2,7 @@
 //! several-device acquisition's alignment over time (docs/multi-device.md, *Plotting the
 //! alignment*). It samples the broker's Status every `--interval` for `--seconds` and draws,
 //! per follower, its ratio against the master (ppm), its alignment error estimate (samples,
-//! with the 0.25-sample lock bound) and its state (waiting / aligning / locked / lost) as a
+//! with the 0.5-sample lock threshold) and its state (waiting / aligning / locked / lost) as a
 //! coloured band; `--csv` writes the same samples, one row per follower per sample.
 
 use std::io::Write;
@@ -20,7 +20,7 @@ pub const WIDTH: u32 = 1200;
 /// Height of one panel (pixels).
 pub const PANEL: u32 = 200;
 /// The lock bound drawn on the error panel (the aligner's `lock_threshold`), samples.
-const LOCK_BOUND: f64 = 0.25;
+const LOCK_BOUND: f64 = 0.5;
 /// Most samples taken (a guard on memory: one per interval).
 pub const MAX_SAMPLES: f64 = 100_000.0;
 
