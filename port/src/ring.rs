@@ -63,9 +63,10 @@ pub fn slot(frame: u64, frames_on_port: u64) -> u64 {
     }
 }
 
-/// Asks the CPU to fetch the cache line holding `*r` for writing (x86-64: `prefetchw`; a
-/// no-op on other targets, under loom and under Miri). Only a hint: it reads and writes no
-/// memory, so it changes nothing any reader can see.
+/// Asks the CPU to fetch the cache line holding `*r`, which the caller is about to write
+/// (x86-64: `prefetchw` where the build enables `prfchw`, `prefetcht0` on the baseline
+/// target; a no-op on other targets, under loom and under Miri). Only a hint: it reads and
+/// writes no memory, so it changes nothing any reader can see.
 #[inline(always)]
 pub fn prefetch_write<T>(r: &T) {
     #[cfg(all(target_arch = "x86_64", not(loom), not(miri)))]
