@@ -63,6 +63,28 @@ pub fn slot(frame: u64, frames_on_port: u64) -> u64 {
     }
 }
 
+/// Asks the CPU to fetch the cache line holding `*r`, which the caller is about to write
+/// (x86-64: `prefetchw` where the build enables `prfchw`, `prefetcht0` on the baseline
+/// target; a no-op on other targets, under loom and under Miri). Only a hint: it reads and
+/// writes no memory, so it changes nothing any reader can see.
+#[inline(always)]
+pub fn prefetch_write<T>(r: &T) {
+    #[cfg(all(target_arch = "x86_64", not(loom), not(miri)))]
+    // SAFETY: a prefetch cannot fault and accesses no memory; `r` is a valid reference anyway.
+    unsafe {
+        use core::arch::x86_64::{_mm_prefetch, _MM_HINT_ET0};
+        _mm_prefetch::<_MM_HINT_ET0>((r as *const T).cast::<i8>());
+    }
+    #[cfg(not(all(target_arch = "x86_64", not(loom), not(miri))))]
+    let _ = r;
+}
+
+/// Frames per channel whose sample lines [`Ring::prefetch_publish`] asks for (512 bytes, 8
+/// lines): all of a small chunk, and no more of a long one, whose later lines the processor's
+/// own prefetcher streams in (asking for all 2205 frames of a 2205-frame chunk made its publish
+/// 11–15 % dearer, measured side by side).
+pub const PREFETCH_FRAMES: usize = 128;
+
 /// Number of words holding `samples` samples.
 #[inline]
 pub const fn words_for(samples: u64) -> u64 {
@@ -319,6 +341,30 @@ impl<'a> Ring<'a> {
     #[inline]
     fn slot(&self, frame: u64) -> usize {
         slot(frame, self.frames_on_port) as usize
+    }
+
+    /// Asks the CPU to fetch, for writing, the cache lines of the first samples of each channel
+    /// that a publish of `count` frames after frame `lfi` stores: at most
+    /// [`PREFETCH_FRAMES`] per channel (writer only; a hint, see [`prefetch_write`]). The writer
+    /// issues it before it stores anything, so that the lines, usually cold after the writer
+    /// slept, arrive together rather than one miss after another.
+    #[inline]
+    pub fn prefetch_publish(&self, lfi: u64, count: usize, channels: usize) {
+        let n = self.frames_on_port as usize;
+        let start = self.slot(lfi + 1);
+        let len = count.min(n - start).min(PREFETCH_FRAMES);
+        if len == 0 {
+            return;
+        }
+        for c in 0..channels {
+            let (first, last) = ((c * n + start) / 2, (c * n + start + len - 1) / 2);
+            // A word every 64 bytes, and the last word (the run need not start on a line).
+            for w in (first..=last).step_by(8).chain([last]) {
+                if let Some(w) = self.samples.get(w) {
+                    prefetch_write(w);
+                }
+            }
+        }
     }
 
     /// Publishes `count` frames after frame `lfi`, the current last frame index (writer only,

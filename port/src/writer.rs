@@ -14,7 +14,7 @@ use crate::format::{self, ChunkEntry, ChunkExt, Geometry, Header, Layout, State}
 use crate::memfd;
 use crate::paths;
 use crate::portfile;
-use crate::ring::{Ring, Source};
+use crate::ring::{self, Ring, Source};
 use crate::shm::Mapping;
 use crate::sys;
 use crate::waker::Waker;
@@ -327,8 +327,16 @@ impl Writer {
             samples: self.mapping.samples(&self.layout, self.geometry.channels),
             frames_on_port: self.layout.frames_on_port,
         };
-        let now_mono = sys::monotonic_ns();
-        let mono = if meta.mono_ns == 0 { now_mono } else { meta.mono_ns };
+        // The lines this publish writes, fetched together before the first store (after the
+        // writer slept they are usually cold, and each would otherwise be a miss of its own
+        // between the caller's stamp and the readers' wake).
+        ring::prefetch_write(&h.futex);
+        ring::prefetch_write(entry);
+        if let Some(x) = ext {
+            ring::prefetch_write(x);
+        }
+        ring.prefetch_publish(lfi, nfpc, channels);
+        let mono = if meta.mono_ns == 0 { sys::monotonic_ns() } else { meta.mono_ns };
         let real = if meta.realtime_ns == 0 { sys::realtime_ns() } else { meta.realtime_ns };
         let new_lfi = ring.publish(lfi, nfpc, channels, &src, || {
             write_entry(entry, ext, lfi + 1, Stamp { mono, real, meta: &meta }, nfpc as u32);
@@ -337,7 +345,6 @@ impl Writer {
         if matches!(src, Source::Zeros) {
             h.gap_frames.fetch_add(nfpc as u64, Relaxed);
         }
-        h.heartbeat_mono_ns.store(now_mono, Relaxed);
         let bits = if matches!(State::from_u32(h.state.load(Relaxed)), Some(State::Idle | State::Starting)) {
             h.state.store(State::Capturing as u32, Release);
             u32::MAX
@@ -346,6 +353,10 @@ impl Writer {
         };
         h.futex.fetch_add(1, Release);
         self.waker.wake(bits);
+        // After the wake, so that its clock read is not between the frames and the readers:
+        // the heartbeat is a liveness sign, which waiting readers look at once per liveness
+        // slice (100 ms), not a timestamp of the chunk.
+        h.heartbeat_mono_ns.store(sys::monotonic_ns(), Relaxed);
         self.check_intact()?;
         Ok(new_lfi)
     }
