@@ -10,36 +10,54 @@
 //!   y(x) = a + b*(x - xc) + c*(x - xc)^2
 //! ```
 //!
-//! has `a, b` from the lower envelope of `y - c*(x-xc)^2`: the line under every point that
+//! fitted to the points of a long window ([`LONG_WINDOWS`] × `window_s`, 20 s by default):
+//! `c` (a rate slewing linearly) is the curvature whose lower envelope has the smallest
+//! mean gap — the lower envelope of `y - c*(x-xc)^2` being the line under every point that
 //! minimises the sum of the gaps (a linear programme, solved by the edge of the lower
-//! convex hull above the mean `x`). Its slope is the card's rate at the window centre
-//! whatever `c` (a chord of a parabola over a symmetric window has the centre's slope), so
-//! `c`, a rate slewing linearly, is half the drift of that slope over the recent fits (a
-//! least-squares line over the fits of full windows, clamped to ±[`MAX_SLEW_PPM_PER_S`]), once the fits span
-//! [`CURVE_MIN_SPAN_S`]; 0 before. Its error shrinks like the delay spread over the number of
-//! stamps, against the spread over the square root of it for a least-squares or DLL line,
-//! which is what gives sub-microsecond lines from 50–200 µs of wake-up jitter. A smallest
-//! delay common to two cards cancels between their lines; a difference between the cards'
-//! smallest delays cannot be seen from stamps and is an offset of the alignment.
+//! convex hull above the mean `x`), and that smallest sum a convex function of `c`
+//! (golden-section search, every [`CURVE_SEARCH_EVERY`] stamps, once the stamps span
+//! [`CURVE_MIN_SPAN_S`]; 0 before); `b` is that envelope's slope; `a` puts the curve under
+//! the newest `window_s` of points, touching the lowest. Its error shrinks like the delay
+//! spread over the number of stamps, against the spread over the square root of it for a
+//! least-squares or DLL line, which is what gives sub-microsecond lines from 50–200 µs of
+//! wake-up jitter.
+//!
+//! Why a long window for the shape and a short one for the offset: the error at the newest
+//! frame of a line fitted over one window is about 1.5× the smallest delay of the window's
+//! newer half less half that of the older half (the extrapolation from the window's mean to
+//! its end); with the slope from a window five times longer it is the smallest delay of the
+//! newest window plus a little of the slope's error. In the simulator (`examples/honesty.rs`,
+//! 20 seeds, 1 ppm/s): one window with the curvature from its slopes' drift (until
+//! 2026-12-04) 0.100 sample RMS aligned after lock; this, 0.079, and 0.043 once the long
+//! window is full. The curvature must come from the long window itself: from the slopes'
+//! drift it was not good enough to carry 12 s at 1 ppm/s (RMS 0.143).
+//!
+//! A smallest delay common to two cards cancels between their lines; a difference between
+//! the cards' smallest delays cannot be seen from stamps and is an offset of the alignment.
 
 use std::collections::VecDeque;
 
-/// Window span from which the curvature (slew) is estimated, seconds.
-pub const CURVE_MIN_SPAN_S: f64 = 2.0;
-/// How many window lengths of slope history the curvature is fitted over.
-const SLOPE_HISTORY_WINDOWS: f64 = 3.0;
+/// The long window the curvature and slope are fitted over, in windows.
+pub const LONG_WINDOWS: f64 = 5.0;
+/// The curvature is searched once the stamps span this, seconds (0 before).
+pub const CURVE_MIN_SPAN_S: f64 = 6.0;
+/// The curvature is searched every this many refits (a slew moves it slowly); the line
+/// under it is refitted with every stamp.
+const CURVE_SEARCH_EVERY: u64 = 10;
+/// Golden-section steps of the curvature search (the range shrinks 0.618× per step).
+const CURVE_SEARCH_STEPS: usize = 48;
 /// The largest slew the curvature may express, ppm/s (the search range).
 pub const MAX_SLEW_PPM_PER_S: f64 = 4.0;
-/// A line's uncertainty is this many mean gaps over the number of stamps: a bound that
-/// the line's error at the newest frames exceeds in about 0.1 % of chunks, not a typical
-/// error. The lower envelope extrapolated from the window's mean to its end errs by about
-/// 1.5× the smallest delay of the window's newer half less half that of the older half,
-/// an exponential-tailed quantity whose p99.9 is ~20 spreads/n (~40 gaps/n) per card; two
-/// cards' errors are independent and partly cancel. Calibrated on the simulator
-/// (`examples/honesty.rs`, uniform delays, 20 seeds × +87/+1000 ppm × slew 0/1 ppm/s:
-/// 24 gives 0.100 % of locked chunks whose true misalignment exceeds the estimate, and
-/// 0.006 % on 20 other seeds at −143/+1000 ppm). Until 2026-12-04 the factor was 4, a
-/// typical error: 25–40 % of locked chunks were outside the estimate.
+/// A line's uncertainty is this many mean gaps of the newest window's stamps over their
+/// number: a bound that the line's error at the newest frames exceeds in about 0.1 % of
+/// chunks, not a typical error (the error is exponential-tailed: the smallest of the
+/// newest stamps' delays, plus the shape's error; two cards' errors are independent and
+/// partly cancel). Calibrated on the simulator (`examples/honesty.rs`, uniform 50–200 µs
+/// delays; true misalignment against the estimate of every locked chunk): 0.025 % over it on
+/// 80 runs (seeds 1–20 × +87/+1000 ppm × slew 0/1 ppm/s), 0.069 % on 120 others (seeds
+/// 21–40 × −143/+1000 ppm × slew 0/0.5/1; 18 gave 0.48 % there, 28 no lock in 4 runs).
+/// Until 2026-12-04 the factor was 4, a typical error: 25–40 % of locked chunks were
+/// outside the estimate.
 pub const BOUND_GAPS: f64 = 24.0;
 
 /// The lower-envelope line through points sorted by `x`, taken at `at`: `(value at
@@ -90,9 +108,10 @@ pub struct TimeLine {
     window_s: f64,
     origin_ns: u64,
     pts: VecDeque<(f64, f64)>,
-    /// (window centre, slope there, weight) of the recent fits.
-    slopes: VecDeque<(f64, f64, f64)>,
     line: Option<Line>,
+    /// The last searched curvature, and refits since the search began.
+    curve: Option<f64>,
+    refits: u64,
 }
 
 impl TimeLine {
@@ -100,14 +119,7 @@ impl TimeLine {
     /// stamps, with times measured from `origin_ns` (a CLOCK_MONOTONIC instant shared by
     /// the cards that are aligned).
     pub fn new(nominal_hz: f64, window_s: f64, origin_ns: u64) -> TimeLine {
-        TimeLine {
-            nominal_hz,
-            window_s,
-            origin_ns,
-            pts: VecDeque::new(),
-            slopes: VecDeque::new(),
-            line: None,
-        }
+        TimeLine { nominal_hz, window_s, origin_ns, pts: VecDeque::new(), line: None, curve: None, refits: 0 }
     }
 
     /// Stamps in the window.
@@ -125,7 +137,7 @@ impl TimeLine {
         let x = frame / self.nominal_hz;
         let t = (stamp_ns as f64 - self.origin_ns as f64) * 1e-9;
         self.pts.push_back((x, t - x));
-        while self.pts.front().is_some_and(|p| x - p.0 > self.window_s) {
+        while self.pts.front().is_some_and(|p| x - p.0 > LONG_WINDOWS * self.window_s) {
             self.pts.pop_front();
         }
         self.refit();
@@ -146,42 +158,56 @@ impl TimeLine {
         (ym + b * (xc - xm), b, mean - ym)
     }
 
+    /// The quadratic lower envelope over the long window: the curvature `c` minimising the
+    /// mean gap (a convex function of `c`: golden-section search), the line under the
+    /// flattened points at their mean, and the offset from the newest `window_s` of points.
     fn refit(&mut self) {
-        let c = self.curvature();
         let pts = self.pts.make_contiguous();
         let n = pts.len();
         let (x0, x1) = (pts[0].0, pts[n - 1].0);
         let xc = 0.5 * (x0 + x1);
         let xm = pts.iter().map(|p| p.0).sum::<f64>() / n as f64;
         let mut flat = Vec::with_capacity(n);
-        let (a, b, gap) = Self::envelope_for(pts, xc, xm, c, &mut flat);
-        if x1 - x0 >= 0.95 * self.window_s {
-            // Only full windows: the slope of a short one is too noisy to be differentiated.
-            self.slopes.push_back((xc, b, 1.0));
-            while self.slopes.front().is_some_and(|p| xc - p.0 > SLOPE_HISTORY_WINDOWS * self.window_s) {
-                self.slopes.pop_front();
+        let c = if x1 - x0 < CURVE_MIN_SPAN_S {
+            0.0
+        } else if let (Some(c), false) = (self.curve, self.refits % CURVE_SEARCH_EVERY == 0) {
+            c
+        } else {
+            let max_c = 0.5 * MAX_SLEW_PPM_PER_S * 1e-6;
+            let mut gap = |c: f64| Self::envelope_for(pts, xc, xm, c, &mut flat).2;
+            let (mut lo, mut hi) = (-max_c, max_c);
+            let r = 0.5 * (5f64.sqrt() - 1.0);
+            let (mut m1, mut m2) = (hi - r * (hi - lo), lo + r * (hi - lo));
+            let (mut g1, mut g2) = (gap(m1), gap(m2));
+            for _ in 0..CURVE_SEARCH_STEPS {
+                if g1 <= g2 {
+                    hi = m2;
+                    (m2, g2) = (m1, g1);
+                    m1 = hi - r * (hi - lo);
+                    g1 = gap(m1);
+                } else {
+                    lo = m1;
+                    (m1, g1) = (m2, g2);
+                    m2 = lo + r * (hi - lo);
+                    g2 = gap(m2);
+                }
             }
-        }
-        self.line = Some(Line { a, b, c, xc, uncertainty_s: BOUND_GAPS * gap.max(0.0) / n as f64 });
-    }
-
-    /// Half the drift of the slope at the window centre over the recent fits (a
-    /// least-squares line through them), once they span [`CURVE_MIN_SPAN_S`].
-    fn curvature(&self) -> f64 {
-        let (first, last) = match (self.slopes.front(), self.slopes.back()) {
-            (Some(f), Some(l)) => (f.0, l.0),
-            _ => return 0.0,
+            0.5 * (lo + hi)
         };
-        if last - first < CURVE_MIN_SPAN_S {
-            return 0.0;
+        if x1 - x0 >= CURVE_MIN_SPAN_S {
+            self.curve = Some(c);
+            self.refits += 1;
         }
-        let w: f64 = self.slopes.iter().map(|p| p.2).sum();
-        let xm = self.slopes.iter().map(|p| p.2 * p.0).sum::<f64>() / w;
-        let bm = self.slopes.iter().map(|p| p.2 * p.1).sum::<f64>() / w;
-        let sxy: f64 = self.slopes.iter().map(|p| p.2 * (p.0 - xm) * (p.1 - bm)).sum();
-        let sxx: f64 = self.slopes.iter().map(|p| p.2 * (p.0 - xm) * (p.0 - xm)).sum();
-        let max_c = 0.5 * MAX_SLEW_PPM_PER_S * 1e-6;
-        (0.5 * sxy / sxx).clamp(-max_c, max_c)
+        let (_, b, _) = Self::envelope_for(pts, xc, xm, c, &mut flat);
+        // The offset: the lowest of the newest window's points under the long window's shape,
+        // and their mean gap above it.
+        let from = x1 - self.window_s;
+        let rest = |&(x, y): &(f64, f64)| y - b * (x - xc) - c * (x - xc) * (x - xc);
+        let recent = || pts.iter().filter(|p| p.0 >= from).map(rest);
+        let a = recent().fold(f64::INFINITY, f64::min);
+        let (sum, m) = recent().fold((0.0, 0usize), |(s, m), r| (s + r - a, m + 1));
+        let gap = sum / m as f64;
+        self.line = Some(Line { a, b, c, xc, uncertainty_s: BOUND_GAPS * gap.max(0.0) / m as f64 });
     }
 
     /// The fitted line, once a stamp was pushed.
@@ -242,5 +268,31 @@ mod tests {
             }
         }
         assert!(worst < 8e-6, "the line was {:.2} µs off", worst * 1e6);
+    }
+
+    /// The long window's shape: over 20 seeds of a card 87 ppm fast slewing 1 ppm/s
+    /// (50–200 µs delays), once the 20 s window is full, the line's error at the newest
+    /// frame is under 1 µs RMS (0.64 µs measured; one 4 s window with the curvature from its
+    /// slopes' drift, before 2026-12-04: 1.51 µs).
+    #[test]
+    fn the_long_window_puts_the_newest_frame_within_a_microsecond() {
+        let clock = crate::sim::Clock { nominal_hz: 48_000.0, ppm: 87.0, slew_ppm_per_s: 1.0, start_s: 0.0 };
+        let (mut sum, mut n) = (0.0, 0);
+        for seed in 1..=20 {
+            let mut line = TimeLine::new(48_000.0, 4.0, 0);
+            let mut rng = Rng::new(seed);
+            for k in 0..3000u64 {
+                let frame = (k * 480) as f64;
+                let t = clock.instant(frame) + 50e-6 + rng.next_f64() * 150e-6;
+                line.push(frame, (t * 1e9) as u64);
+                if k >= 2100 {
+                    let err = line.time_of(frame).unwrap() - clock.instant(frame) - 50e-6;
+                    sum += err * err;
+                    n += 1;
+                }
+            }
+        }
+        let rms = (sum / n as f64).sqrt();
+        assert!(rms < 1e-6, "the newest frame was {:.3} µs RMS off", rms * 1e6);
     }
 }
