@@ -30,6 +30,10 @@ TONES = [(997.0, 0.25, 0.3, 0.7), (3000.0, 0.2, 1.1, 1.9), (211.0, 0.12, 2.0, 0.
 FULL = 2.0 ** 31
 
 
+# The residual "settled": from when the aligner's 20 s long window of stamps is full.
+SETTLED_S = 22.0
+
+
 def field(ch, t):
     return sum(a * np.sin(2 * np.pi * hz * t + ph + ch * cph) for hz, a, ph, cph in TONES)
 
@@ -128,6 +132,10 @@ def main():
         after = res[blocks_t >= r["lock_s"]]
         r["rms"] = float(np.sqrt(np.mean(after ** 2)))
         r["p999"] = float(np.quantile(np.abs(after), 0.999))
+        # Once the aligner's long window (20 s of stamps, align/src/timeline.rs) is full.
+        settled = res[blocks_t >= SETTLED_S]
+        r["rms_settled"] = float(np.sqrt(np.mean(settled ** 2))) if len(settled) else None
+        r["p999_settled"] = float(np.quantile(np.abs(settled), 0.999)) if len(settled) else None
         ys, es = [], []
         for c in range(2):
             ys.append(data[pc + c, lock:] / FULL)
