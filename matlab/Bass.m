@@ -8,6 +8,7 @@
 %   lfi = bass.Wait(frame, timeoutSeconds)      % blocks until frame is published (Ctrl-C safe)
 %   c = bass.ChunkInfo(frame)                   % the chunk holding frame: timestamps, c.gap, c.late, ...
 %   s = bass.Status()
+%   d = bass.Devices()                          % per device (several cards): ratio, lock, losses
 %   bass.Stop()
 %
 % Samples are int32 columns; frame indices (nfr, lastFrameIndex) are uint64 and frames are
@@ -45,15 +46,20 @@ classdef Bass < handle
     end
 
     function epoch = Acquire(obj, varargin)
-      % Acquire(device = 'hw:1,0', sampleRate = 44100, nFramesPerChunk = 2205, nChunksOnPort = 20)
-      % starts (or restarts) the acquisition. A leading '-a' (genomix's asynchronous flag) is
-      % accepted and ignored: the broker always acquires in the background.
+      % Acquire(device = 'hw:1,0', sampleRate = 44100, nFramesPerChunk = 2205, nChunksOnPort = 20,
+      % channels = 2) starts (or restarts) the acquisition. `device` may be a cell array of
+      % devices, the master first (docs/multi-device.md), and `channels` then one count for every
+      % device or a vector of one count per device. A leading '-a' (genomix's asynchronous flag)
+      % is accepted and ignored: the broker always acquires in the background.
       if ~isempty(varargin) && ischar(varargin{1}) && strcmp(varargin{1}, '-a')
         varargin(1) = [];
       end
-      defaults = {'hw:1,0', 44100, 2205, 20};
+      if numel(varargin) > 5
+        error('bass:badArgument', 'Acquire takes at most 5 arguments (device, rate, nFPC, nCOP, channels), not %d', numel(varargin));
+      end
+      defaults = {'hw:1,0', 44100, 2205, 20, 2};
       defaults(1:numel(varargin)) = varargin;
-      epoch = bass_mex('Acquire', defaults{:}, 2, obj.broker);
+      epoch = bass_mex('Acquire', defaults{:}, obj.broker);
       obj.closePort();   % the new acquisition has a new port
     end
 
@@ -72,6 +78,14 @@ classdef Bass < handle
 
     function s = Status(obj)
       s = bass_mex('Status', obj.broker);
+    end
+
+    function d = Devices(obj)
+      % The acquisition's devices, master first: a cell array of structs (name, role,
+      % firstChannel, channels, state, ratioPpm, errorEstimate, locks, xruns, unplugs,
+      % missingFrames, unalignedFrames; docs/multi-device.md), as Status().devices.
+      s = bass_mex('Status', obj.broker);
+      d = s.devices;
     end
 
     function info = PortInfo(obj)

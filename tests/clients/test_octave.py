@@ -156,7 +156,8 @@ def test_octave_control_plane_and_pattern_reads_through_a_broker(mexdir, clients
 def test_mex_acquires_several_devices_with_a_channel_count_each(mexdir, clients_env, broker):
     """Acquire with a cell array of devices (master first) and one channel count per device:
     the port has their sum, Status.devices gives each one's first channel and count; a count
-    list of the wrong length, a bad count and an empty device list are bass:badArgument."""
+    list of the wrong length, a bad count and an empty device list are bass:badArgument; the
+    Bass class does the same with Acquire's fifth argument, and Devices() gives the rows."""
     code = f"""
     bass_mex('Acquire', {{'sim:field', 'sim:field?ppm=87&ch=2'}}, 48000, 480, 100, [2 1], '{broker}');
     s = bass_mex('Status', '{broker}');
@@ -178,6 +179,14 @@ def test_mex_acquires_several_devices_with_a_channel_count_each(mexdir, clients_
     bass_mex('Acquire', {{'sim:field', 'sim:field?ppm=-143'}}, 48000, 480, 100, 2, '{broker}');
     s = bass_mex('Status', '{broker}');
     assert(s.channels == 4 && s.devices{{2}}.firstChannel == 2 && s.devices{{2}}.channels == 2);
+    % the Bass class: a device list and a count per device, and its Devices()
+    b = Bass('{broker}');
+    b.Acquire({{'sim:field', 'sim:field?ppm=87&ch=2'}}, 48000, 480, 100, [2 1]);
+    d = b.Devices();
+    assert(numel(d) == 2 && d{{2}}.channels == 1 && strcmp(d{{2}}.role, 'follower'));
+    assert(isfield(d{{2}}, 'xruns') && isfield(d{{2}}, 'ratioPpm') && isfield(d{{2}}, 'locks'));
+    expect_error('bass:badArgument', @() b.Acquire('sim:field', 48000, 480, 100, 2, 7));
+    clear b;
     bass_mex('Stop', '{broker}');
     disp('several devices ok');
     """
