@@ -15,7 +15,7 @@
 //! mean gap — the lower envelope of `y - c*(x-xc)^2` being the line under every point that
 //! minimises the sum of the gaps (a linear programme, solved by the edge of the lower
 //! convex hull above the mean `x`), and that smallest sum a convex function of `c`
-//! (golden-section search, every [`CURVE_SEARCH_EVERY`] stamps, once the stamps span
+//! (golden-section search, every [`CURVE_SEARCH_EVERY`] refits, once the stamps span
 //! [`CURVE_MIN_SPAN_S`]; 0 before); `b` is that envelope's slope; `a` puts the curve under
 //! the newest `window_s` of points, touching the lowest. Its error shrinks like the delay
 //! spread over the number of stamps, against the spread over the square root of it for a
@@ -42,7 +42,7 @@ pub const LONG_WINDOWS: f64 = 5.0;
 /// The curvature is searched once the stamps span this, seconds (0 before).
 pub const CURVE_MIN_SPAN_S: f64 = 6.0;
 /// The curvature is searched every this many refits (a slew moves it slowly); the line
-/// under it is refitted with every stamp.
+/// under it is refitted with every new group of stamps ([`GROUP_S`]).
 const CURVE_SEARCH_EVERY: u64 = 10;
 /// Stamps within this span of frames (seconds) are one group, of which the lowest is kept
 /// (10 ms: every stamp of a 480-frame chunk at 48 kHz is its own group).
@@ -99,8 +99,8 @@ pub struct Line {
     pub c: f64,
     /// Centre of the window, seconds of nominal frames.
     pub xc: f64,
-    /// Uncertainty of the line, seconds: [`BOUND_GAPS`] mean gaps over the number of
-    /// stamps (a p99.9 bound, see there).
+    /// Uncertainty of the line, seconds: [`BOUND_GAPS`] mean gaps of the newest window's
+    /// points over their number (a p99.9 bound, see there).
     pub uncertainty_s: f64,
 }
 
