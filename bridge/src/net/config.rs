@@ -98,8 +98,9 @@ pub(super) fn guard_namespace(
 /// dead link's transport, which is then never closed; and a mirror reconnecting while a
 /// transport is being closed can get a session on which nothing from serve arrives.)
 /// - `wait_before_drop` 50 ms (Zenoh: 1 ms): a put waits that long for room before Zenoh drops
-///   it, so on a slow link serve's own bounded queue fills and serve counts its drops (the
-///   SOURCE_LOSS mark); what Zenoh drops shows as a sequence gap at the mirror;
+///   it, so on a slow link serve's own bounded queue fills and serve counts its drops once a
+///   chunk is [`crate::patience::LIVE_PATIENCE`] behind (the SOURCE_LOSS mark); what Zenoh
+///   drops shows as a sequence gap at the mirror;
 /// - lease 2 s (keep-alives every 0.5 s; Zenoh: 10 s): a dead link's transport is closed on
 ///   both sides 2 s after it died, so a link that returns later is a fresh connection, not a
 ///   TCP connection waiting out its retransmission back-off;

@@ -23,10 +23,10 @@ pub mod latched;
 pub mod names;
 pub mod typehash;
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use anyhow::{anyhow, Context, Result};
 use basskit::ros2::{self as msgs, AudioDataStamped, AudioInfo, ChunkInfo, Header, Time, Topics};
@@ -117,9 +117,6 @@ pub const QUEUE: usize = 16;
 
 /// Depth of the audio and chunk_info publishers (rclcpp's usual `QoS(10)`).
 pub const DEPTH: u32 = 10;
-
-/// Longest wait for room in the queue while a new port's backlog goes out (as serve's chunks).
-use crate::patience::CATCH_UP_PATIENCE;
 
 /// One topic's publisher, its GID and the entity behind its token.
 struct Publisher {
@@ -338,9 +335,16 @@ fn publish_loop(
 impl Exporter {
     /// Hands one chunk (header `h`, samples planar as in the port) to the ROS thread. A GAP
     /// chunk is not published (its frames count in the next message's `lost_before`); a full
-    /// queue drops the chunk, counted, except while `catching_up` (a new port's backlog),
-    /// when it waits for room up to [`CATCH_UP_PATIENCE`] or until `term`.
-    pub fn offer(&mut self, h: &wire::Header, planar: &[i32], catching_up: bool, term: &AtomicBool) {
+    /// queue drops the chunk, counted, once `may_wait()` says so (serve's reader: live, once
+    /// the chunk fell [`crate::patience::LIVE_PATIENCE`] behind the port; a new port's
+    /// backlog, after [`crate::patience::CATCH_UP_PATIENCE`]) or `term` is set.
+    pub fn offer(
+        &mut self,
+        h: &wire::Header,
+        planar: &[i32],
+        term: &AtomicBool,
+        may_wait: impl FnMut() -> bool,
+    ) {
         if h.flags & wire::flags::GAP != 0 {
             return;
         }
@@ -355,7 +359,7 @@ impl Exporter {
         let mut buf = self.free.try_recv().unwrap_or_default();
         buf.clear();
         buf.extend_from_slice(planar);
-        let mut item = Item {
+        let item = Item {
             epoch: h.epoch,
             first_frame: h.first_frame,
             frames: h.frames,
@@ -370,30 +374,15 @@ impl Exporter {
         };
         // A dropped message keeps its number: ROS subscribers see the gap (MESSAGE_LOST).
         self.sequence += 1;
-        let since = Instant::now();
-        loop {
-            match self.tx.try_send(item) {
-                Ok(()) => {
-                    self.next_frame = h.first_frame + u64::from(h.frames);
-                    return;
-                }
-                Err(TrySendError::Full(back))
-                    if catching_up
-                        && since.elapsed() < CATCH_UP_PATIENCE
-                        && !term.load(Ordering::Relaxed) =>
-                {
-                    item = back;
-                    std::thread::sleep(Duration::from_micros(200));
-                }
-                Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
-                    self.dropped += 1;
-                    if self.dropped.is_power_of_two() {
-                        tracing::warn!(
-                            dropped = self.dropped,
-                            "ROS 2 export: queue full, message dropped (counted in the next lost_before)"
-                        );
-                    }
-                    return;
+        match crate::patience::send_or_give_back(&self.tx, item, term, may_wait) {
+            Ok(()) => self.next_frame = h.first_frame + u64::from(h.frames),
+            Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
+                self.dropped += 1;
+                if self.dropped.is_power_of_two() {
+                    tracing::warn!(
+                        dropped = self.dropped,
+                        "ROS 2 export: queue full, message dropped (counted in the next lost_before)"
+                    );
                 }
             }
         }

@@ -12,6 +12,7 @@ use bassport::{Error as PortError, Port};
 use super::state::{current_state, state_of, Followed};
 use super::{Outgoing, CATCH_UP_PATIENCE, STATE_REFRESH};
 use crate::net::{BridgeState, SourceState};
+use crate::patience::{live_patience_frames, send_or_give_back};
 use crate::wire;
 
 /// The iceoryx2 export, if serve offers one.
@@ -64,6 +65,11 @@ pub struct Reader<'a> {
     pub started: bool,
     /// Sending the port's backlog: blocking sends until the reader has caught up.
     pub catching_up: bool,
+    /// How far behind the port's newest frame a live chunk may fall while waiting for room
+    /// ([`crate::patience::LIVE_PATIENCE`] in the current port's frames).
+    pub patience_frames: u64,
+    /// The newest frame of the chunks waiting in `batch`.
+    batch_last: u64,
     /// The ROS 2 export (`serve --ros2`), if any.
     pub ros2: Option<crate::ros2::Exporter>,
     /// The clock the chunks' stamps are given on: the real one but in the fault build's tests.
@@ -105,6 +111,8 @@ impl<'a> Reader<'a> {
             dropped: 0,
             started: false,
             catching_up: false,
+            patience_frames: 0,
+            batch_last: 0,
             ros2: None,
             clock: crate::fault::SourceClock::default(),
         }
@@ -121,15 +129,15 @@ impl<'a> Reader<'a> {
                 Ok(_) => {}
                 Err(PortError::Timeout { .. }) => {
                     // No chunk for a while: what waits in a batch goes now.
-                    self.flush()?;
+                    self.flush(port)?;
                     self.report(port, &f, publish_state)?;
                     continue;
                 }
-                Err(PortError::Restarted) => return self.flush(),
+                Err(PortError::Restarted) => return self.flush(port),
                 Err(PortError::Stopped { .. })
                 | Err(PortError::Device { .. })
                 | Err(PortError::WriterGone { .. }) => {
-                    self.flush()?;
+                    self.flush(port)?;
                     self.report(port, &f, publish_state)?;
                     std::thread::sleep(Duration::from_millis(100));
                     // A new acquisition replaces the file: reopen when the epoch changed.
@@ -158,7 +166,7 @@ impl<'a> Reader<'a> {
                 last_refresh = Instant::now();
             }
         }
-        self.flush()
+        self.flush(port)
     }
 
     /// Starts on a port: from its oldest frame still in the window (chunk-aligned), as a new
@@ -170,6 +178,7 @@ impl<'a> Reader<'a> {
         let oldest = (info.last_frame_index + 1).saturating_sub(info.frames_on_port).max(1);
         let nfr = (oldest - 1).div_ceil(nfpc) * nfpc + 1;
         (self.sent, self.dropped, self.started, self.catching_up) = (0, 0, false, true);
+        self.patience_frames = live_patience_frames(g.sample_rate, info.frames_on_port);
         if nfr <= info.last_frame_index {
             tracing::info!(
                 epoch = info.epoch,
@@ -270,56 +279,65 @@ impl<'a> Reader<'a> {
             }
             x.publish(&h, &f.interleaved);
         }
+        let last = first + f.nfpc as u64 - 1;
         if let Some(r) = self.ros2.as_mut() {
-            r.offer(&h, &f.planar, self.catching_up, self.term);
+            r.offer(&h, &f.planar, self.term, may_wait(port, self.catching_up, last, self.patience_frames));
         }
         let gap = h.flags & wire::flags::GAP != 0;
         self.started = true;
+        self.batch_last = last;
         if self.batch.push(&h, if gap { &[] } else { &f.planar }) {
-            self.flush()?;
+            self.flush(port)?;
         }
         self.sequence += 1;
         Ok(())
     }
 
-    /// Hands the waiting chunks to the sender thread; a full queue drops them, counted —
-    /// except while catching up, when it waits for room (up to [`CATCH_UP_PATIENCE`], and
-    /// never past termination).
-    pub fn flush(&mut self) -> Result<()> {
+    /// Hands the waiting chunks to the sender thread. While the queue is full it waits for
+    /// room as long as [`may_wait`] says (the live stream: while their newest frame is less
+    /// than `patience_frames` behind the port's newest, the port holding the frames
+    /// meanwhile; the backlog: up to [`CATCH_UP_PATIENCE`]), never past termination; then
+    /// they are dropped, counted.
+    pub fn flush(&mut self, port: &Port) -> Result<()> {
         let Some(t) = self.batch.take() else { return Ok(()) };
-        let mut out = Outgoing { sequence: t.first_sequence, bytes: t.bytes };
-        let since = Instant::now();
-        loop {
-            match self.tx.try_send(out) {
-                Ok(()) => {
-                    self.sent += t.chunks;
-                    self.pending_loss = false;
-                    return Ok(());
-                }
-                Err(TrySendError::Full(back))
-                    if self.catching_up
-                        && since.elapsed() < CATCH_UP_PATIENCE
-                        && !self.term.load(Ordering::Relaxed) =>
-                {
-                    out = back;
-                    std::thread::sleep(Duration::from_micros(200));
-                }
-                Err(TrySendError::Full(_)) => {
-                    if self.catching_up && !self.term.load(Ordering::Relaxed) {
-                        tracing::warn!(
-                            "the network took no chunk for {} ms while sending the port's backlog: \
-                             dropping (counted) from here on",
-                            CATCH_UP_PATIENCE.as_millis()
-                        );
-                        self.catching_up = false;
-                    }
-                    self.dropped += t.chunks;
-                    self.lost_frames += t.frames;
-                    self.pending_loss = true;
-                    return Ok(());
-                }
-                Err(TrySendError::Disconnected(_)) => return Err(anyhow!("the sender thread ended")),
+        let out = Outgoing { sequence: t.first_sequence, bytes: t.bytes };
+        let wait = may_wait(port, self.catching_up, self.batch_last, self.patience_frames);
+        match send_or_give_back(self.tx, out, self.term, wait) {
+            Ok(()) => {
+                self.sent += t.chunks;
+                self.pending_loss = false;
+                Ok(())
             }
+            Err(TrySendError::Full(_)) => {
+                if self.catching_up && !self.term.load(Ordering::Relaxed) {
+                    tracing::warn!(
+                        "the network took no chunk for {} ms while sending the port's backlog: \
+                         dropping (counted) from here on",
+                        CATCH_UP_PATIENCE.as_millis()
+                    );
+                    self.catching_up = false;
+                }
+                self.dropped += t.chunks;
+                self.lost_frames += t.frames;
+                self.pending_loss = true;
+                Ok(())
+            }
+            Err(TrySendError::Disconnected(_)) => Err(anyhow!("the sender thread ended")),
+        }
+    }
+}
+
+/// Whether a chunk whose newest frame is `last` may still wait for room in a full queue: while
+/// catching up, for [`CATCH_UP_PATIENCE`] from now; live, while it is less than `patience`
+/// frames behind the port's newest frame (read afresh at each try; a port that cannot be read
+/// ends the wait).
+fn may_wait(port: &Port, catching_up: bool, last: u64, patience: u64) -> impl FnMut() -> bool + '_ {
+    let since = Instant::now();
+    move || {
+        if catching_up {
+            since.elapsed() < CATCH_UP_PATIENCE
+        } else {
+            port.wait(0, Duration::ZERO).is_ok_and(|newest| newest.saturating_sub(last) < patience)
         }
     }
 }

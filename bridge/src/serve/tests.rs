@@ -232,3 +232,105 @@ fn every_numeric_option_refuses_inf_nan_and_out_of_range_values_naming_itself() 
         }
     }
 }
+
+/// What `Reader::follow` sends of a live port (48 kHz, 480-frame chunks every 10 ms, a 1 s
+/// window: a live patience of 250 ms) through a queue of one message to a network that takes
+/// every message at once but stops taking any for `stall` once 20 chunks arrived. Returns the
+/// chunks received until 100 arrived (or 10 s passed) and the reader's (dropped, lost frames).
+fn follow_a_live_port(tag: &str, stall: Duration) -> (Vec<Got>, u64, u64) {
+    let dir = TempDir::shm(tag);
+    let geometry = Geometry { channels: 2, sample_rate: 48000, frames_per_chunk: 480, chunks_on_port: 100 };
+    let path = dir.join("bass-src.port");
+    let mut w =
+        Writer::create_at(&path, &PortParams { geometry, device: "test".into(), group: None }).unwrap();
+    let mut s = vec![0; 960];
+    fill_pattern_interleaved(&mut s, 2, 1);
+    w.publish(Source::Interleaved(&s), ChunkMeta::default()).unwrap();
+    let port = Port::open_path(&path).unwrap();
+    let done = Arc::new(AtomicBool::new(false));
+    let writer = {
+        let done = done.clone();
+        std::thread::spawn(move || {
+            let t0 = Instant::now();
+            for k in 1u32.. {
+                if done.load(Ordering::Relaxed) {
+                    break;
+                }
+                if let Some(d) = (t0 + Duration::from_millis(10) * k).checked_duration_since(Instant::now()) {
+                    std::thread::sleep(d);
+                }
+                fill_pattern_interleaved(&mut s, 2, w.last_frame_index() + 1);
+                w.publish(Source::Interleaved(&s), ChunkMeta::default()).unwrap();
+            }
+            w
+        })
+    };
+    let (dropped, lost, got) = follow(&port, move |rx, stop| {
+        let (mut got, t0, mut stalled) = (Vec::<Got>::new(), Instant::now(), false);
+        while got.len() < 100 && t0.elapsed() < Duration::from_secs(10) {
+            if got.len() >= 20 && !stalled {
+                std::thread::sleep(stall);
+                stalled = true;
+            }
+            if let Ok(out) = rx.recv_timeout(Duration::from_millis(50)) {
+                got.extend(wire::decode_batch(&out.bytes).unwrap().map(|c| (c.header, c.planar())));
+            }
+        }
+        stop.store(true, Ordering::Relaxed);
+        // The queue stays open until the reader has seen `stop`.
+        (got, rx)
+    });
+    let got = got.0;
+    done.store(true, Ordering::Relaxed);
+    writer.join().unwrap().remove().unwrap();
+    (got, dropped, lost)
+}
+
+/// Every chunk of `got` has the pattern's samples at its frames (480-frame chunks, planar).
+fn check_pattern(got: &[Got]) {
+    for (h, planar) in got {
+        for i in 0..480 {
+            let g = h.first_frame + i as u64;
+            assert_eq!(
+                [planar[i], planar[480 + i]],
+                [pattern_expected(g, 0), pattern_expected(g, 1)],
+                "frame {g}"
+            );
+        }
+    }
+}
+
+/// A network (or serve's own sender) that takes nothing for 100 ms — less than the live
+/// patience of 250 ms — costs no chunk: the port holds the frames meanwhile. (Before, the
+/// reader dropped every chunk it found the queue full for: a 50 ms stall of serve lost
+/// chunks on a clean link, seen as GAP frames in the replica.)
+#[test]
+fn a_stall_shorter_than_the_live_patience_loses_nothing() {
+    let (got, dropped, lost) = follow_a_live_port("serve-stall", Duration::from_millis(100));
+    assert_eq!((dropped, lost), (0, 0), "dropped chunks, lost frames");
+    assert_eq!(got.len(), 100);
+    for (k, (h, _)) in got.iter().enumerate() {
+        assert_eq!(h.first_frame, got[0].0.first_frame + 480 * k as u64, "chunk {k}");
+        assert_eq!(h.flags & wire::flags::SOURCE_LOSS, 0, "chunk {k} flagged as after a loss");
+    }
+    check_pattern(&got);
+}
+
+/// A network that takes nothing for 600 ms — longer than the live patience of 250 ms, shorter
+/// than the 1 s window — makes serve drop what falls further behind, counted, and the port
+/// never laps it: every frame not sent is a dropped chunk's, the chunk after the drops says
+/// so, and the chunks received are the pattern at their frames.
+#[test]
+fn a_stall_longer_than_the_live_patience_drops_counted_and_the_lag_stays_bounded() {
+    let (got, dropped, lost) = follow_a_live_port("serve-stall-long", Duration::from_millis(600));
+    assert!(dropped > 0, "a 600 ms stall dropped nothing");
+    assert_eq!(lost, 480 * dropped, "lost frames are the dropped chunks' (the port never lapped serve)");
+    let jumps: Vec<_> = got.windows(2).filter(|p| p[1].0.first_frame != p[0].0.first_frame + 480).collect();
+    assert!(!jumps.is_empty(), "no jump in the frames received");
+    for p in &jumps {
+        assert_ne!(p[1].0.flags & wire::flags::SOURCE_LOSS, 0, "chunk after a drop not flagged");
+    }
+    let missing: u64 = jumps.iter().map(|p| p[1].0.first_frame - p[0].0.first_frame - 480).sum();
+    assert!(missing <= lost, "{missing} frames missing, {lost} counted");
+    check_pattern(&got);
+}
