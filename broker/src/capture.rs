@@ -190,6 +190,18 @@ impl Acquisition {
         }
     }
 
+    /// When [`Acquisition::check_stall`] fires if the device delivers nothing more
+    /// (CLOCK_MONOTONIC ns), or None when there is nothing to watch: the control loop sleeps
+    /// no longer than this, so a stall is reported when due, however long its ticks are.
+    pub fn stall_due_ns(&self) -> Option<u64> {
+        if self.thread.is_none() || self.shared.ended.load(Ordering::Acquire) || self.shared.stop.is_set() {
+            return None;
+        }
+        let limit = if self.shared.got_data.load(Ordering::Acquire) { self.stall_ns } else { self.grace_ns };
+        // check_stall fires once the silence is longer than the limit.
+        Some(self.shared.progress_ns.load(Ordering::Acquire).saturating_add(limit).saturating_add(1))
+    }
+
     /// Stores a heartbeat: the broker is alive even while its device is silent or the
     /// acquisition has ended. Readers in another pid namespace, which cannot look its pid up,
     /// go by it. Called by the control loop at every tick; a publish (which stores one

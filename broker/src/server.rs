@@ -48,10 +48,23 @@ const STOP_TIMEOUT: Duration = Duration::from_millis(500);
 /// The same on SIGTERM: bassd ends within 1 s in every state (a thread stuck in a device is
 /// left behind; the process exits).
 const SHUTDOWN_STOP_TIMEOUT: Duration = Duration::from_millis(400);
-/// Period of the stall watchdog.
+/// The control loop's tick while a device open or the configured acquisition's start is
+/// pending (their time-outs and retries are checked at every tick).
 const TICK: Duration = Duration::from_millis(25);
+/// The control loop's longest sleep otherwise: it wakes sooner when something is due (a
+/// stall, a watchdog ping or STATUS, an idle connection's close, a prune, the end of an
+/// accept back-off), and at least this often to store the heartbeat, which keeps it under
+/// the 100 ms within which readers take a heartbeat for a live writer without looking its
+/// process up. 12.5 wakes a second instead of 40 at a 25 ms tick: on a VM whose idle is HLT
+/// only, a wake-up costs ~25 µs of CPU (docs/performance.md, part 7).
+const IDLE_TICK_NS: u64 = 80_000_000;
+/// The shortest sleep of the control loop (a due time already past is handled at the next
+/// wake-up; this keeps the loop from spinning on one).
+const MIN_SLEEP_NS: u64 = 1_000_000;
 /// A gap between two watchdog ticks longer than this means the broker was frozen.
 const FROZEN_NS: u64 = 200_000_000;
+// A frozen broker is told from a long sleep by the gap: at least twice the longest sleep.
+const _: () = assert!(FROZEN_NS >= 2 * IDLE_TICK_NS);
 /// How often superseded ports are checked for remaining readers.
 const PRUNE_NS: u64 = 1_000_000_000;
 /// The broker's state.
@@ -260,6 +273,26 @@ impl Broker {
         }
     }
 
+    /// How long the control loop may sleep from `now` until something of the broker's own is
+    /// due ([`TICK`] while an open or the configured start is pending).
+    fn sleep_ns(&self, now: u64) -> u64 {
+        if self.opening.is_some() || self.startup.is_some() {
+            return TICK.as_nanos() as u64;
+        }
+        let mut due = now.saturating_add(IDLE_TICK_NS);
+        if let Some(d) = self.current.as_ref().and_then(Acquisition::stall_due_ns) {
+            due = due.min(d);
+        }
+        if !self.pins.is_empty() {
+            due = due.min(self.last_prune_ns.saturating_add(PRUNE_NS + 1));
+        }
+        let healthy = self.current.as_ref().map_or(true, Acquisition::healthy);
+        if let Some(d) = self.sup.next_due_ns(healthy) {
+            due = due.min(d);
+        }
+        due.saturating_sub(now).max(MIN_SLEEP_NS)
+    }
+
     /// Stops everything (on SIGTERM / SIGINT), within [`SHUTDOWN_STOP_TIMEOUT`]: a pending
     /// Acquire is cancelled, threads stuck in a device are left behind.
     pub fn shutdown(&mut self) {
@@ -329,7 +362,16 @@ pub fn run(cfg: Config) -> anyhow::Result<()> {
         fds.extend(
             clients.iter().map(|c| os::pollin(if Some(c.id) == parked { -1 } else { c.fd.as_raw_fd() })),
         );
-        os::poll(&mut fds, Some(TICK)).context("poll")?;
+        let now = monotonic_ns();
+        let mut sleep = broker.sleep_ns(now);
+        if !listening {
+            sleep = sleep.min(acceptor.paused_until_ns.saturating_sub(now).max(MIN_SLEEP_NS));
+        }
+        for c in clients.iter().filter(|c| Some(c.id) != parked) {
+            let idle_end = c.last_ns.saturating_add(idle_ns);
+            sleep = sleep.min(idle_end.saturating_sub(now).max(MIN_SLEEP_NS));
+        }
+        os::poll(&mut fds, Some(Duration::from_nanos(sleep))).context("poll")?;
         broker.tick();
         broker.poll_open();
         broker.tick_configured(monotonic_ns());

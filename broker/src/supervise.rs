@@ -258,6 +258,18 @@ impl Supervisor {
         self.notify && now_ns.saturating_sub(self.last_status_ns) >= 1_000_000_000
     }
 
+    /// When [`Supervisor::tick`] has something to send next (CLOCK_MONOTONIC ns): the next
+    /// STATUS check and, while `healthy`, the next watchdog ping. None without a service
+    /// manager.
+    pub fn next_due_ns(&self, healthy: bool) -> Option<u64> {
+        if !self.notify {
+            return None;
+        }
+        let status = self.last_status_ns.saturating_add(1_000_000_000);
+        let ping = self.ping_ns.filter(|_| healthy).map_or(u64::MAX, |p| self.last_ping_ns.saturating_add(p));
+        Some(status.min(ping))
+    }
+
     /// Called on every control-loop tick: WATCHDOG=1 while `healthy` (the capture makes
     /// progress, or nothing is capturing) at half the watchdog interval, and `status` (when
     /// [`Supervisor::status_due`]) if it changed.

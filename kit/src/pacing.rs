@@ -52,24 +52,35 @@ pub const CAPTURE_TIMER_SLACK_NS: u64 = 1;
 /// an ALSA `poll`'s timeout — end when they are due. Called once by the capture thread. A
 /// SCHED_FIFO thread has no slack anyway; this is for the capture thread that runs without.
 ///
-/// Measured on the bench machine (2-core VM), the two-stage pacing below with 50 µs slack:
-/// wake-up p50 65–74 µs after the deadline; with 1 ns: 13–21 µs, at the same CPU per wake.
-/// An absolute `timerfd` polled with the stop's eventfd (no slack by construction, one wake-up
-/// instead of two) used 5–6 µs less CPU per wait but woke 38–60 µs late: the vCPU sleeps
-/// through the whole period and wakes from a deeper idle state, while the last 1 ms stretch of
-/// [`sleep_until`] finds it lightly idle. So the pacing keeps its two stages, without slack.
+/// Measured on the bench machine (2-core VM), the sleep below with 50 µs slack: wake-up p50
+/// 65–74 µs after the deadline; with 1 ns: 13–21 µs, at the same CPU per wake.
 pub fn precise_timers() -> std::io::Result<()> {
     let slack = std::num::NonZeroU64::new(CAPTURE_TIMER_SLACK_NS);
     Ok(rustix::thread::set_current_timer_slack(slack)?)
 }
 
-/// Sleeps until CLOCK_MONOTONIC `deadline` (ns) — in `poll` on the stop's eventfd while more
-/// than 2 ms remain, then with an absolute-deadline sleep for the last stretch — and returns
-/// false as soon as the stop fires. The pacing of the simulated and replayed devices; called
-/// on the capture thread, whose timer slack [`precise_timers`] has set to 1 ns, so the last
-/// stretch ends within µs of the deadline.
+/// The longest wait [`sleep_until`] spends in one absolute sleep, which a stop does not end:
+/// a stop waits at most this long. Every chunk period up to it (50 chunks a second and more)
+/// costs the capture thread one wake-up.
+pub const ONE_SLEEP_MAX_NS: u64 = 20_000_000;
+
+/// Sleeps until CLOCK_MONOTONIC `deadline` (ns) and returns false as soon as the stop fires
+/// (true at the deadline). A wait of at most [`ONE_SLEEP_MAX_NS`] is one absolute-deadline
+/// sleep (a stop is seen when it ends); a longer one waits in `poll` on the stop's eventfd
+/// until 1 ms before the deadline, then sleeps the rest. The pacing of the simulated and
+/// replayed devices; called on the capture thread, whose timer slack [`precise_timers`] has
+/// set to 1 ns, so the sleep ends within µs of the deadline.
+///
+/// One wake-up per chunk, not two: the pacing used to poll until 1 ms before every deadline
+/// and sleep the last stretch, a second sleep that woke 5–7 µs closer to the deadline (from
+/// a vCPU lightly idle) but cost a wake-up, ~25 µs of CPU on a VM whose idle is HLT only.
+/// Measured in part 7 of the bench (Intel Xeon VM, 2026-12-04, 256-frame chunks): timer part
+/// p50 34–42 µs with two wake-ups, 41–50 µs with one (PipeWire's timerfd in the same runs
+/// 39–50 µs); bassd's CPU at one client 0.85–1.04 % of a core with two, 0.47–0.72 % with one
+/// (pipewire 0.50–0.75 %). An absolute `timerfd` polled with the eventfd (interruptible, one
+/// wake-up) was measured earlier at the same lateness as one sleep, plus a syscall.
 pub fn sleep_until(deadline: u64, stop: &StopSignal) -> bool {
-    const MS: u64 = 1_000_000;
+    const LEAD_NS: u64 = 1_000_000;
     loop {
         if stop.is_set() {
             return false;
@@ -79,9 +90,9 @@ pub fn sleep_until(deadline: u64, stop: &StopSignal) -> bool {
             return true;
         }
         let remaining = deadline - now;
-        if remaining > 2 * MS {
+        if remaining > ONE_SLEEP_MAX_NS {
             let mut fds = [PollFd::new(&stop.efd, PollFlags::IN)];
-            let wait = Duration::from_nanos(remaining - MS);
+            let wait = Duration::from_nanos(remaining - LEAD_NS);
             let timeout = Timespec { tv_sec: wait.as_secs() as i64, tv_nsec: wait.subsec_nanos() as _ };
             // EINTR: the loop looks again.
             let _ = rustix::event::poll(&mut fds, Some(&timeout));

@@ -143,4 +143,27 @@ mod tests {
         stop.signal();
         assert!(!sleep_until(bassport::sys::monotonic_ns() + 10_000_000_000, &stop));
     }
+
+    #[test]
+    fn a_stop_ends_a_long_wait_and_a_short_one_ends_at_its_deadline() {
+        let stop = StopSignal::new().expect("eventfd");
+        std::thread::scope(|s| {
+            let t0 = std::time::Instant::now();
+            s.spawn(|| {
+                std::thread::sleep(std::time::Duration::from_millis(50));
+                stop.signal();
+            });
+            assert!(!sleep_until(bassport::sys::monotonic_ns() + 10_000_000_000, &stop));
+            let waited = t0.elapsed();
+            assert!(
+                waited < std::time::Duration::from_secs(5),
+                "a stop ended a 10 s wait only after {waited:?}"
+            );
+        });
+        // A wait within one sleep (ONE_SLEEP_MAX_NS) is not cut short.
+        let fresh = StopSignal::new().expect("eventfd");
+        let deadline = bassport::sys::monotonic_ns() + basskit::pacing::ONE_SLEEP_MAX_NS / 2;
+        assert!(sleep_until(deadline, &fresh));
+        assert!(bassport::sys::monotonic_ns() >= deadline);
+    }
 }

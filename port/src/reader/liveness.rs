@@ -135,7 +135,7 @@ impl super::Port {
     /// Whether the writer process is running. In this pid namespace: its pidfd (see
     /// `reader/liveness.rs`). A writer in another pid namespace (`writer_pid_ns`, minor 3)
     /// cannot be looked up by pid: it counts as running while its heartbeat is younger than
-    /// [`FOREIGN_WRITER_SILENCE`] plus two chunk periods (bassd refreshes it every 25 ms, also
+    /// [`FOREIGN_WRITER_SILENCE`] plus two chunk periods (bassd refreshes it at least every 80 ms, also
     /// while its device is silent). `now` gives CLOCK_MONOTONIC (ns), read only for such a
     /// writer (the pidfd path needs no clock).
     pub(crate) fn writer_alive(&self, now: impl FnOnce() -> u64) -> bool {
