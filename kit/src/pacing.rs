@@ -75,8 +75,8 @@ pub const ONE_SLEEP_MAX_NS: u64 = 20_000_000;
 /// and sleep the last stretch, a second sleep that woke 5–7 µs closer to the deadline (from
 /// a vCPU lightly idle) but cost a wake-up, ~25 µs of CPU on a VM whose idle is HLT only.
 /// Measured in part 7 of the bench (Intel Xeon VM, 2026-12-04, 256-frame chunks): timer part
-/// p50 34–42 µs with two wake-ups, 41–50 µs with one (PipeWire's timerfd in the same runs
-/// 39–50 µs); bassd's CPU at one client 0.85–1.04 % of a core with two, 0.47–0.72 % with one
+/// p50 34–42 µs with two wake-ups, 40–50 µs with one (PipeWire's timerfd in the same runs
+/// 39–54 µs); bassd's CPU at one client 0.84–1.15 % of a core with two, 0.43–0.72 % with one
 /// (pipewire 0.50–0.75 %). An absolute `timerfd` polled with the eventfd (interruptible, one
 /// wake-up) was measured earlier at the same lateness as one sleep, plus a syscall.
 pub fn sleep_until(deadline: u64, stop: &StopSignal) -> bool {
