@@ -178,10 +178,7 @@ impl Acquisition {
     /// The stall watchdog: ends the acquisition with DEVICE_STALLED when the device has
     /// delivered nothing for too long. Called periodically by the control loop.
     pub fn check_stall(&self, now_ns: u64) {
-        if self.thread.is_none() || self.shared.ended.load(Ordering::Acquire) || self.shared.stop.is_set() {
-            return;
-        }
-        let limit = if self.shared.got_data.load(Ordering::Acquire) { self.stall_ns } else { self.grace_ns };
+        let Some(limit) = self.stall_limit() else { return };
         let idle = now_ns.saturating_sub(self.shared.progress_ns.load(Ordering::Acquire));
         if idle > limit {
             let msg =
@@ -194,12 +191,19 @@ impl Acquisition {
     /// (CLOCK_MONOTONIC ns), or None when there is nothing to watch: the control loop sleeps
     /// no longer than this, so a stall is reported when due, however long its ticks are.
     pub fn stall_due_ns(&self) -> Option<u64> {
+        let limit = self.stall_limit()?;
+        // check_stall fires once the silence is longer than the limit.
+        Some(self.shared.progress_ns.load(Ordering::Acquire).saturating_add(limit).saturating_add(1))
+    }
+
+    /// The silence (ns) the stall watchdog allows now — the stall limit once data came, the
+    /// start-up grace before — or None while there is nothing to watch (no capture thread, or
+    /// it ended or is stopping).
+    fn stall_limit(&self) -> Option<u64> {
         if self.thread.is_none() || self.shared.ended.load(Ordering::Acquire) || self.shared.stop.is_set() {
             return None;
         }
-        let limit = if self.shared.got_data.load(Ordering::Acquire) { self.stall_ns } else { self.grace_ns };
-        // check_stall fires once the silence is longer than the limit.
-        Some(self.shared.progress_ns.load(Ordering::Acquire).saturating_add(limit).saturating_add(1))
+        Some(if self.shared.got_data.load(Ordering::Acquire) { self.stall_ns } else { self.grace_ns })
     }
 
     /// Stores a heartbeat: the broker is alive even while its device is silent or the
