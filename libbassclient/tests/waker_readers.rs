@@ -1,6 +1,6 @@
 //! Many readers waiting on one port: while more than `DIRECT_ALL_MAX` (8) readers are woken
-//! per publish, the writer wakes `SPLIT_DIRECT` (2) itself and hands the rest to the wake
-//! thread, and it wakes everyone itself again when they are gone.
+//! per publish, the writer hands the wakes to the wake thread, and it wakes everyone itself
+//! again when they are gone.
 //! Every reader still gets every frame with its exact samples and exact accounting; no reader
 //! is left sleeping (the waits have a 20 s guard, far above the run's length).
 
@@ -71,8 +71,8 @@ fn many_waiting_readers_get_every_frame_through_the_wake_thread_and_few_get_dire
         saw_helper.load(Ordering::Relaxed),
         "{READERS} waiting readers never moved the wakes to the wake thread"
     );
-    // The readers are gone: the writer's own wake finds fewer than SPLIT_DIRECT waiting, so it
-    // takes the wakes back within a few publishes.
+    // The readers are gone: the wake thread's next wake finds at most DIRECT_ALL_MAX waiting,
+    // so the writer takes the wakes back within a few publishes.
     let mut back = false;
     for k in CHUNKS..CHUNKS + 200 {
         fill_pattern_interleaved(&mut chunk, 2, k * u64::from(NFPC) + 1);

@@ -1,20 +1,20 @@
 //! Waking a port's readers at a cost to the writer that does not grow with their number.
 //!
-//! `FUTEX_WAKE` costs its caller about 1 µs per process it wakes, and the caller is the
+//! `FUTEX_WAKE` costs its caller about 1–3 µs per process it wakes, and the caller is the
 //! capture thread. So the writer wakes every reader itself only while the last wake woke at
-//! most [`DIRECT_ALL_MAX`] of them (up to ~8 µs per chunk, 0.6 % of a 64-frame chunk's
-//! period; the usual one to a handful of readers get no hop through another thread). When a
-//! wake woke more, the writer switches to split wakes: it wakes [`SPLIT_DIRECT`] readers
-//! itself, straight away, and if that many were waiting hands the rest to a helper thread: it
+//! most [`DIRECT_ALL_MAX`] of them (the usual one to a handful of readers get no hop through
+//! another thread). When a wake woke more, the writer hands the wakes to a helper thread: it
 //! ORs the chunk's futex bits into a pending word and, only when that word was empty, wakes
-//! the helper (one process-local futex wake of one thread). The helper issues the
-//! `FUTEX_WAKE_BITSET` on the port's futex word for all pending bits. The writer goes back to
-//! waking everyone itself as soon as its own wake found fewer than [`SPLIT_DIRECT`] waiting,
-//! or the helper's last wake found so few that all of them together are at most
-//! [`DIRECT_ALL_MAX`]. So with many readers the capture thread pays [`SPLIT_DIRECT`] wakes and
-//! one hand-over per chunk however many wait, and the first readers still get no hop.
-//! docs/performance.md (part 2, part 3, and the analysis) has the measurements behind both
-//! numbers.
+//! the helper (one futex wake of one thread of its own process, the cost of waking a single
+//! reader). The helper issues the `FUTEX_WAKE_BITSET` on the port's futex word for all
+//! pending bits. The writer goes back to waking everyone itself as soon as the helper's last
+//! wake found at most [`DIRECT_ALL_MAX`] readers. So with many readers the capture thread
+//! pays one wake per chunk however many wait: 64 readers cost it what one does.
+//!
+//! Until 2026-12 the writer still woke the first 2 readers itself before the hand-over, so
+//! that they had no hop; that made the capture thread pay three wakes per chunk (64 readers
+//! 1.45–1.75× one reader) and bought nothing measurable: the 64 readers' wake latency against
+//! a raw futex was the same both ways (docs/performance.md, part 2, part 3 and the analysis).
 //!
 //! The helper is spawned the first time it is needed, from the writer's thread, so it
 //! inherits that thread's scheduling class (the capture thread's SCHED_FIFO priority); it is
@@ -30,9 +30,6 @@ use crate::sys;
 
 /// The writer wakes everyone itself while the last wake woke at most this many readers.
 pub(crate) const DIRECT_ALL_MAX: u32 = 8;
-
-/// With more readers, the writer wakes this many itself and hands the rest to the helper.
-pub(crate) const SPLIT_DIRECT: u32 = 2;
 
 /// Wakes the readers of one port (owned by its writer).
 pub struct Waker {
@@ -82,16 +79,13 @@ impl Waker {
             self.direct = true;
             return self.wake(bits);
         };
-        // The first readers straight away; the helper wakes the rest, if there may be more.
-        if sys::futex_wake_bits_n(&self.mapping.header().futex, bits, SPLIT_DIRECT) < SPLIT_DIRECT {
-            // Nobody else waited: the writer alone is enough again.
-            self.direct = true;
-            return;
-        }
+        // Many readers: the helper wakes them all. The writer wakes the helper only when no
+        // earlier hand-over is still pending (the helper takes every pending bit at once).
         let shared = &helper.shared;
         if shared.pending.fetch_or(bits, Ordering::Release) == 0 {
             sys::futex_wake_bits(&shared.pending, u32::MAX);
         }
+        // The helper's last wake found few readers: the writer alone is enough again.
         if shared.woke_few.swap(false, Ordering::Relaxed) {
             self.direct = true;
         }
@@ -128,7 +122,7 @@ fn run_helper(shared: &Shared, mapping: &Mapping) {
         }
         let bits = shared.pending.swap(0, Ordering::Acquire);
         if bits != 0 {
-            if sys::futex_wake_bits(futex, bits) <= DIRECT_ALL_MAX - SPLIT_DIRECT {
+            if sys::futex_wake_bits(futex, bits) <= DIRECT_ALL_MAX {
                 shared.woke_few.store(true, Ordering::Relaxed);
             }
             continue;
