@@ -1,6 +1,7 @@
 //! Many readers waiting on one port: while more than `DIRECT_ALL_MAX` (8) readers are woken
-//! per publish, the writer hands the wakes to the wake thread, and it wakes everyone itself
-//! again when they are gone.
+//! per publish, the writer hands the wakes to the wake thread (its own thread then wakes no
+//! reader: it did wake 2 per publish before 2026-12-07, which this test counts), and it wakes
+//! everyone itself again when they are gone.
 //! Every reader still gets every frame with its exact samples and exact accounting; no reader
 //! is left sleeping (the waits have a 20 s guard, far above the run's length).
 
@@ -51,9 +52,17 @@ fn many_waiting_readers_get_every_frame_through_the_wake_thread_and_few_get_dire
     start.wait();
     let mut chunk = vec![0i32; 2 * NFPC as usize];
     let saw_helper = Arc::new(AtomicBool::new(false));
+    // Publishes made while the wakes were already handed over, and the readers the writer's
+    // own thread woke during them: the capture thread pays one hand-over, never a reader wake.
+    let (mut handed_over, mut woken_by_writer_then) = (0u64, 0u64);
     for k in 0..CHUNKS {
         fill_pattern_interleaved(&mut chunk, 2, k * u64::from(NFPC) + 1);
+        let (before, was_handed_over) = (w.readers_woken_by_writer(), w.wakes_through_helper());
         w.publish(Source::Interleaved(&chunk), ChunkMeta::default()).unwrap();
+        if was_handed_over && w.wakes_through_helper() {
+            handed_over += 1;
+            woken_by_writer_then += w.readers_woken_by_writer() - before;
+        }
         if w.wakes_through_helper() {
             saw_helper.store(true, Ordering::Relaxed);
         }
@@ -70,6 +79,11 @@ fn many_waiting_readers_get_every_frame_through_the_wake_thread_and_few_get_dire
     assert!(
         saw_helper.load(Ordering::Relaxed),
         "{READERS} waiting readers never moved the wakes to the wake thread"
+    );
+    assert!(handed_over >= 10, "the wakes were handed over for only {handed_over} of {CHUNKS} publishes");
+    assert_eq!(
+        woken_by_writer_then, 0,
+        "the writer woke {woken_by_writer_then} readers itself in {handed_over} publishes after handing the wakes over"
     );
     // The readers are gone: the wake thread's next wake finds at most DIRECT_ALL_MAX waiting,
     // so the writer takes the wakes back within a few publishes.

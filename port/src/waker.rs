@@ -36,6 +36,8 @@ pub struct Waker {
     mapping: Arc<Mapping>,
     direct: bool,
     helper: Option<Helper>,
+    /// Readers the writer woke itself, over the waker's life (for tests and the benchmark).
+    woken_by_writer: u64,
 }
 
 struct Helper {
@@ -57,7 +59,12 @@ struct Shared {
 impl Waker {
     /// A waker for the port mapped by `mapping` (wakes directly until readers pile up).
     pub fn new(mapping: Arc<Mapping>) -> Waker {
-        Waker { mapping, direct: true, helper: None }
+        Waker { mapping, direct: true, helper: None, woken_by_writer: 0 }
+    }
+
+    /// How many reader wake-ups the writer made itself (not through the helper) so far.
+    pub fn woken_by_writer(&self) -> u64 {
+        self.woken_by_writer
     }
 
     /// Whether the next wake is made by the writer itself (for tests and the benchmark).
@@ -70,6 +77,7 @@ impl Waker {
     pub fn wake(&mut self, bits: u32) {
         if self.direct {
             let woken = sys::futex_wake_bits(&self.mapping.header().futex, bits);
+            self.woken_by_writer += u64::from(woken);
             if woken > DIRECT_ALL_MAX && self.ensure_helper() {
                 self.direct = false;
             }

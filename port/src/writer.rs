@@ -380,6 +380,12 @@ impl Writer {
         !self.waker.is_direct()
     }
 
+    /// How many reader wake-ups this writer's own thread made (the rest, with many readers,
+    /// are the wake thread's); see [`crate::waker`].
+    pub fn readers_woken_by_writer(&self) -> u64 {
+        self.waker.woken_by_writer()
+    }
+
     /// Sets the state (with an error code and message for [`State::Error`]) and wakes readers.
     pub fn set_state(&self, state: State, code: u32, message: &str) {
         let h = self.header();
