@@ -3,18 +3,21 @@
 //! `FUTEX_WAKE` costs its caller about 1–3 µs per process it wakes, and the caller is the
 //! capture thread. So the writer wakes every reader itself only while the last wake woke at
 //! most [`DIRECT_ALL_MAX`] of them (the usual one to a handful of readers get no hop through
-//! another thread). When a wake woke more, the writer hands the wakes to a helper thread: it
-//! ORs the chunk's futex bits into a pending word and, only when that word was empty, wakes
-//! the helper (one futex wake of one thread of its own process, the cost of waking a single
-//! reader). The helper issues the `FUTEX_WAKE_BITSET` on the port's futex word for all
-//! pending bits. The writer goes back to waking everyone itself as soon as the helper's last
-//! wake found at most [`DIRECT_ALL_MAX`] readers. So with many readers the capture thread
-//! pays one wake per chunk however many wait: 64 readers cost it what one does.
+//! another thread). With more, the writer hands wakes to a helper thread: it ORs the chunk's
+//! futex bits into a pending word and, only when that word was empty, wakes the helper (one
+//! futex wake of one thread of its own process, the cost of waking a single reader); the
+//! helper issues the `FUTEX_WAKE_BITSET` on the port's futex word for all pending bits.
 //!
-//! Until 2026-12 the writer still woke the first 2 readers itself before the hand-over, so
-//! that they had no hop; that made the capture thread pay three wakes per chunk (64 readers
-//! 1.45–1.75× one reader) and bought nothing measurable: the 64 readers' wake latency against
-//! a raw futex was the same both ways (docs/performance.md, part 2, part 3 and the analysis).
+//! How much it hands over depends on how many wait. Up to [`HAND_ALL_MIN`] readers the writer
+//! first wakes [`SPLIT_DIRECT`] of them itself, so that the first readers have no hop: at 16
+//! readers waking all through the helper made each reader's wake 1.18–1.52× a raw futex's
+//! against 1.05–1.19× with the two direct wakes. Above it the writer wakes none itself: with
+//! that many readers on few cores each waits for the CPU time of those woken before it, the
+//! hop is lost in that (32 and 64 readers measured the same both ways), and the capture
+//! thread pays one wake per chunk however many read (64 readers 0.79–1.09× one reader,
+//! against 1.45–1.75× with the two direct wakes). The writer goes back to waking everyone
+//! itself once a wake found at most [`DIRECT_ALL_MAX`] readers. docs/performance.md (part 2,
+//! part 3 and the analysis) has the measurements.
 //!
 //! The helper is spawned the first time it is needed, from the writer's thread, so it
 //! inherits that thread's scheduling class (the capture thread's SCHED_FIFO priority); it is
@@ -31,6 +34,13 @@ use crate::sys;
 /// The writer wakes everyone itself while the last wake woke at most this many readers.
 pub(crate) const DIRECT_ALL_MAX: u32 = 8;
 
+/// With more readers than that, up to this many, the writer wakes this many itself before it
+/// hands the rest to the helper.
+pub(crate) const SPLIT_DIRECT: u32 = 2;
+
+/// With more readers than this the writer hands every wake to the helper.
+pub(crate) const HAND_ALL_MIN: u32 = 32;
+
 /// Wakes the readers of one port (owned by its writer).
 pub struct Waker {
     mapping: Arc<Mapping>,
@@ -38,6 +48,8 @@ pub struct Waker {
     helper: Option<Helper>,
     /// Readers the writer woke itself, over the waker's life (for tests and the benchmark).
     woken_by_writer: u64,
+    /// Readers the writer woke itself in its last handed-over wake (0 or [`SPLIT_DIRECT`]).
+    split_part: u32,
 }
 
 struct Helper {
@@ -49,9 +61,8 @@ struct Helper {
 struct Shared {
     /// Futex bits published but not yet woken by the helper; also the helper's futex word.
     pending: AtomicU32,
-    /// Set when the last wake by the helper woke so few readers that the writer can wake
-    /// them all itself again.
-    woke_few: AtomicBool,
+    /// How many readers the helper's last wake woke.
+    last_woken: AtomicU32,
     /// Tells the helper to exit.
     stop: AtomicBool,
 }
@@ -59,7 +70,7 @@ struct Shared {
 impl Waker {
     /// A waker for the port mapped by `mapping` (wakes directly until readers pile up).
     pub fn new(mapping: Arc<Mapping>) -> Waker {
-        Waker { mapping, direct: true, helper: None, woken_by_writer: 0 }
+        Waker { mapping, direct: true, helper: None, woken_by_writer: 0, split_part: 0 }
     }
 
     /// How many reader wake-ups the writer made itself (not through the helper) so far.
@@ -75,11 +86,16 @@ impl Waker {
     /// Wakes the readers waiting on `bits` of the port's futex word (after the writer
     /// incremented it).
     pub fn wake(&mut self, bits: u32) {
+        let futex = &self.mapping.header().futex;
         if self.direct {
-            let woken = sys::futex_wake_bits(&self.mapping.header().futex, bits);
+            let woken = sys::futex_wake_bits(futex, bits);
             self.woken_by_writer += u64::from(woken);
             if woken > DIRECT_ALL_MAX && self.ensure_helper() {
                 self.direct = false;
+                self.split_part = 0;
+                if let Some(h) = &self.helper {
+                    h.shared.last_woken.store(woken, Ordering::Relaxed);
+                }
             }
             return;
         }
@@ -87,15 +103,29 @@ impl Waker {
             self.direct = true;
             return self.wake(bits);
         };
-        // Many readers: the helper wakes them all. The writer wakes the helper only when no
-        // earlier hand-over is still pending (the helper takes every pending bit at once).
         let shared = &helper.shared;
+        // How many the last handed-over wake found: the writer's part and the helper's last
+        // count (a count of a few publishes ago if the helper lags: it only picks the mode).
+        let last = self.split_part + shared.last_woken.load(Ordering::Relaxed);
+        if last <= DIRECT_ALL_MAX {
+            // Few readers left: the writer alone is enough again (from this publish on).
+            self.direct = true;
+            return self.wake(bits);
+        }
+        self.split_part = 0;
+        if last <= HAND_ALL_MIN {
+            // The first readers straight away; the helper wakes the rest, if there may be more.
+            let n = sys::futex_wake_bits_n(futex, bits, SPLIT_DIRECT);
+            self.woken_by_writer += u64::from(n);
+            if n < SPLIT_DIRECT {
+                // Nobody else waited.
+                self.direct = true;
+                return;
+            }
+            self.split_part = n;
+        }
         if shared.pending.fetch_or(bits, Ordering::Release) == 0 {
             sys::futex_wake_bits(&shared.pending, u32::MAX);
-        }
-        // The helper's last wake found few readers: the writer alone is enough again.
-        if shared.woke_few.swap(false, Ordering::Relaxed) {
-            self.direct = true;
         }
     }
 
@@ -107,7 +137,7 @@ impl Waker {
         }
         let shared = Arc::new(Shared {
             pending: AtomicU32::new(0),
-            woke_few: AtomicBool::new(false),
+            last_woken: AtomicU32::new(0),
             stop: AtomicBool::new(false),
         });
         let (s, m) = (shared.clone(), self.mapping.clone());
@@ -130,9 +160,7 @@ fn run_helper(shared: &Shared, mapping: &Mapping) {
         }
         let bits = shared.pending.swap(0, Ordering::Acquire);
         if bits != 0 {
-            if sys::futex_wake_bits(futex, bits) <= DIRECT_ALL_MAX {
-                shared.woke_few.store(true, Ordering::Relaxed);
-            }
+            shared.last_woken.store(sys::futex_wake_bits(futex, bits), Ordering::Relaxed);
             continue;
         }
         // Returns at once if `pending` is no longer 0; the timeout only bounds a lost wake.
