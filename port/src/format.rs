@@ -331,6 +331,11 @@ pub struct Layout {
 }
 
 impl Geometry {
+    /// One chunk's duration at the nominal rate, in nanoseconds (at least 1).
+    pub fn chunk_ns(&self) -> u64 {
+        (u64::from(self.frames_per_chunk) * 1_000_000_000 / u64::from(self.sample_rate.max(1))).max(1)
+    }
+
     /// Checks the ranges and computes the layout, with overflow checks.
     pub fn layout(&self) -> Result<Layout, Error> {
         if self.channels == 0 || self.channels > MAX_CHANNELS {

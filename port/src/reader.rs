@@ -507,8 +507,11 @@ impl Port {
                 return Err(Error::Timeout { frame, last: lfi });
             }
             let nfpc = u64::from(self.geometry.frames_per_chunk.max(1));
-            let bits = sys::chunk_bit(frame.saturating_sub(1) / nfpc);
-            let slice = remaining.min(fresh_for.unwrap_or(LIVENESS_SLICE_NS));
+            // A frame 31 or more chunks ahead: a far sleep (`sys::FAR_BIT`), bounded by when
+            // its chunk is due.
+            let (bits, far) =
+                sys::wait_bits(frame.saturating_sub(1) / nfpc, lfi / nfpc, self.geometry.chunk_ns());
+            let slice = remaining.min(fresh_for.unwrap_or(LIVENESS_SLICE_NS)).min(far.unwrap_or(u64::MAX));
             match sys::futex_wait_bits_until(&h.futex, seq, now.saturating_add(slice), bits) {
                 FutexWait::Woken => check_writer = false,
                 FutexWait::TimedOut => check_writer = true,

@@ -19,6 +19,7 @@ use crate::shm::Mapping;
 use crate::sys;
 use crate::waker::Waker;
 
+mod lead;
 mod pending;
 mod replica;
 mod resume;
@@ -72,6 +73,8 @@ pub enum Backing {
 pub struct Writer {
     mapping: Arc<Mapping>,
     waker: Waker,
+    /// How far ahead of real time it publishes (for far waiters: `writer/lead.rs`).
+    lead: lead::Lead,
     file: File,
     backing: Backing,
     path: PathBuf,
@@ -349,14 +352,16 @@ impl Writer {
             h.state.store(State::Capturing as u32, Release);
             u32::MAX
         } else {
-            sys::chunk_bit(lfi / nfpc as u64)
+            sys::chunk_bit(lfi / nfpc as u64) | self.lead.take_far_bit()
         };
         h.futex.fetch_add(1, Release);
         self.waker.wake(bits);
         // After the wake, so that its clock read is not between the frames and the readers:
         // the heartbeat is a liveness sign, which waiting readers look at once per liveness
-        // slice (100 ms), not a timestamp of the chunk.
-        h.heartbeat_mono_ns.store(sys::monotonic_ns(), Relaxed);
+        // slice (100 ms), not a timestamp of the chunk; the lead is for the next publish.
+        let now = sys::monotonic_ns();
+        h.heartbeat_mono_ns.store(now, Relaxed);
+        self.lead.published(now);
         self.check_intact()?;
         Ok(new_lfi)
     }

@@ -142,9 +142,7 @@ impl super::Port {
         let h = self.header();
         let ns = h.writer_pid_ns.load(Relaxed);
         if ns != 0 && sys::own_pid_ns().is_some_and(|own| own != ns) {
-            let g = &self.geometry;
-            let chunk_ns = u64::from(g.frames_per_chunk) * 1_000_000_000 / u64::from(g.sample_rate.max(1));
-            let silence = FOREIGN_WRITER_SILENCE.as_nanos() as u64 + 2 * chunk_ns;
+            let silence = FOREIGN_WRITER_SILENCE.as_nanos() as u64 + 2 * self.geometry.chunk_ns();
             return now().saturating_sub(h.heartbeat_mono_ns.load(Relaxed)) < silence;
         }
         self.watch.alive(h.writer_pid.load(Relaxed), h.writer_start_time.load(Relaxed))

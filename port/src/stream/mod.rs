@@ -347,8 +347,8 @@ impl Stream {
         let port = &*self.port;
         let h = port.stream_header();
         let nfpc = u64::from(port.geometry().frames_per_chunk.max(1));
-        let bits = sys::chunk_bit(target.saturating_sub(1) / nfpc);
-        let slice_ns = STOP_SLICE.as_nanos() as u64;
+        let (target_chunk, chunk_ns) = (target.saturating_sub(1) / nfpc, port.geometry().chunk_ns());
+        let stop_slice_ns = STOP_SLICE.as_nanos() as u64;
         loop {
             if self.stop.is_stopped() {
                 return Ok(Some(End::StopAsked));
@@ -403,6 +403,10 @@ impl Stream {
                 }
                 None => return Err(Error::Corrupt(format!("state {state}"))),
             }
+            // A target 31 or more chunks ahead: a far sleep (`sys::FAR_BIT`), bounded by when
+            // its chunk is due.
+            let (bits, far) = sys::wait_bits(target_chunk, lfi / nfpc, chunk_ns);
+            let slice_ns = stop_slice_ns.min(far.unwrap_or(u64::MAX));
             match sys::futex_wait_bits_until(&h.futex, seq, now.saturating_add(slice_ns), bits) {
                 FutexWait::Woken | FutexWait::TimedOut | FutexWait::Interrupted => {}
             }

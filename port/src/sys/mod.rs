@@ -40,6 +40,36 @@ pub fn chunk_bit(chunk: u64) -> u32 {
     1 << (chunk % 31)
 }
 
+/// The futex bit no chunk's publish uses (chunks use bits 0 to 30): a waiter for a chunk
+/// [`FAR_CHUNKS`] or more ahead sleeps on it, since the bit of its own chunk would wake it
+/// every 31 chunks. Every state change wakes it (all bits), and so does a writer that runs
+/// ahead of real time (see `writer/lead.rs`); otherwise the far waiter sleeps by the port's
+/// nominal rate until its chunk is [`FAR_MARGIN`] chunks away, then on its chunk's bit.
+pub const FAR_BIT: u32 = 1 << 31;
+
+/// Chunks ahead (target chunk minus the next one to be published) from which a waiter
+/// sleeps on [`FAR_BIT`]; nearer, its chunk's bit is woken by no other chunk's publish before
+/// its own.
+pub const FAR_CHUNKS: u64 = 31;
+
+/// How many chunk periods before its chunk is due, by the port's nominal rate, a far waiter
+/// moves to its chunk's own bit. A writer wakes [`FAR_BIT`] once it has gained 16 chunks on
+/// real time (one publish later: 17), so a far waiter is never asleep on it when its chunk
+/// comes.
+pub const FAR_MARGIN: u64 = 20;
+
+/// What a waiter for chunk `target` sleeps on while chunk `next` is the next to be published,
+/// `chunk_ns` apart by the port's nominal rate: its chunk's bit, or [`FAR_BIT`] and how long
+/// it may sleep on it (ns).
+pub fn wait_bits(target: u64, next: u64, chunk_ns: u64) -> (u32, Option<u64>) {
+    let ahead = target.saturating_sub(next);
+    if ahead < FAR_CHUNKS {
+        (chunk_bit(target), None)
+    } else {
+        (FAR_BIT, Some((ahead - FAR_MARGIN).saturating_mul(chunk_ns)))
+    }
+}
+
 /// Like [`futex_wait`], but only woken by wakes whose bits intersect `bits` (0 waits for
 /// nothing and returns at once).
 pub fn futex_wait_bits(word: &AtomicU32, expected: u32, timeout: Duration, bits: u32) -> FutexWait {
@@ -147,5 +177,28 @@ pub fn writer_alive(pid: u32, start_time: u64) -> bool {
             Some(p) => matches!(rustix::process::test_kill_process(p), Ok(()) | Err(Errno::PERM)),
             None => false,
         },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_near_waiter_sleeps_on_a_bit_no_earlier_chunk_wakes_and_a_far_one_on_the_far_bit() {
+        for next in [0u64, 5, 1_000_000] {
+            for ahead in 0..FAR_CHUNKS {
+                let target = next + ahead;
+                let (bits, far) = wait_bits(target, next, 1000);
+                assert_eq!((bits, far), (chunk_bit(target), None));
+                assert!((next..target).all(|c| chunk_bit(c) & bits == 0), "chunk {target} from {next}");
+                assert_eq!(bits & FAR_BIT, 0);
+            }
+            assert_eq!(wait_bits(next + 31, next, 1000), (FAR_BIT, Some(11 * 1000)));
+            assert_eq!(wait_bits(next + 1500, next, 666_666), (FAR_BIT, Some(1480 * 666_666)));
+        }
+        // Already published (a frame behind the newest): its own bit, no far sleep.
+        assert_eq!(wait_bits(3, 10, 1000), (chunk_bit(3), None));
+        assert_eq!(wait_bits(u64::MAX, 0, u64::MAX), (FAR_BIT, Some(u64::MAX)));
     }
 }

@@ -119,6 +119,7 @@ impl PendingPort {
         Ok(Writer {
             mapping,
             waker,
+            lead: super::lead::Lead::new(self.geometry.chunk_ns()),
             file,
             backing,
             path: self.path.clone(),

@@ -115,6 +115,7 @@ impl Writer {
         Ok(Writer {
             mapping,
             waker,
+            lead: super::lead::Lead::new(v.geometry.chunk_ns()),
             file,
             backing: if sealed { Backing::Memfd } else { Backing::File },
             path: path.to_owned(),
