@@ -22,7 +22,9 @@ pub(super) fn read_section(r: &Results, md: &mut String) {
          the C ABI call and a plain `memcpy` of exactly the same ring segments into the same buffers \
          alternate in the same sample, in the order C ABI, memcpy, memcpy, C ABI over the two halves of its blocks (so \
          that neither always runs right after the other), then the Rust call. *Hot*: the newest block is read again and again (source in L1/L2). \
-         *Streaming*: successive blocks through the 10 s window, as a reader consuming the stream. GB/s = 10⁹ bytes/s; \
+         *Streaming*: successive blocks through the 10 s window, as a reader consuming the stream, after one untimed \
+         pass over them (the 3.5 MB window then sits in the last-level cache for both sides, as one the writer has just \
+         written does; before 2026-12-07 the side timed first paid for bringing it in, and that side was bass). GB/s = 10⁹ bytes/s; \
          median [min–max] of {} repetitions; ratio = memcpy time / `bass_get_audio_data` time.\n",
         r.read[0].ratio.len()
     );
