@@ -136,7 +136,7 @@ mod tests {
 
     /// The contract with far waiters, on a real port: a thread asleep on the port's futex
     /// word with [`sys::FAR_BIT`] is not woken by a writer at its nominal rate, and is woken
-    /// within 17 chunks once the writer runs 10x faster.
+    /// once the writer has gained 16 chunks of lead running 10x faster (the 19th publish).
     #[test]
     fn a_writer_running_ahead_wakes_a_thread_asleep_on_the_far_bit() {
         use crate::format::Geometry;
