@@ -26,8 +26,10 @@
 //!   capture thread's timer slack) and records its wake-up − target: the *timer part*. The
 //!   *dispatch part* (daemon awake → client awake) is the client delay's median minus it.
 //!
-//! Both are measured round by round, PipeWire then bass at 1, 8 and 64 clients, twice, so both
-//! see the same machine. No realtime scheduling on either side.
+//! Both are measured round by round, PipeWire then bass at 1, 8 and 64 clients, four times in a
+//! full run (twice in a quick one), so both see the same machine; the delay goals compare each
+//! bass round with the PipeWire round just before it and take the median of those ratios.
+//! First without realtime scheduling on either side, then (full runs) with SCHED_FIFO on both.
 
 use std::collections::BTreeMap;
 use std::path::Path;

@@ -118,11 +118,11 @@ const HOWTO: &str = "
 ## How to run
 
 - `make bench` builds the workspace in release mode and runs `scripts/bench.sh`, which runs
-  `target/release/bass-bench` and rewrites this file and `docs/perf-*.png` (about 8 minutes on 2 cores, 3 of them part 7).
+  `target/release/bass-bench` and rewrites this file and `docs/perf-*.png` (about 12 minutes on 2 cores, 5 of them part 7).
 - `target/release/bass-bench --parts 1,3 --docs /tmp/x` runs some parts only, elsewhere;
   `--quick` gives development numbers in well under a minute.
-- `target/release/bass-bench --parts 7 --docs /tmp/x` runs the PipeWire comparison alone (about 4 minutes:
-  2 rounds × 3 client counts × 2 systems × 5 s, without and with SCHED_FIFO, then the callback streams
+- `target/release/bass-bench --parts 7 --docs /tmp/x` runs the PipeWire comparison alone (about 5 minutes:
+  4 rounds × 3 client counts × 2 systems × 5 s, without and with SCHED_FIFO, then the callback streams
   against JACK process callbacks). It needs `pipewire`, `pw-link`
   and `libpipewire-0.3-dev` (`scripts/install-deps.sh --with-bench`, which `scripts/bench.sh` runs); without
   them the part says why it did not run. Its PipeWire daemon lives in a private runtime directory under

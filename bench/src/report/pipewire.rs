@@ -3,7 +3,7 @@
 use std::fmt::Write as _;
 
 use crate::pipewire::{pooled, Comparison, Round, Sched, Side, QUANTUM, RATE};
-use crate::stats::{fmt_ns, fmt_ratio, median, quantile};
+use crate::stats::{fmt_ns, fmt_ratio, median, quantile, spread};
 
 use super::goal::Goal;
 use super::Results;
@@ -31,10 +31,36 @@ pub(super) fn ratios(s: &Side) -> (f64, f64, f64) {
     (b50 / p50, b99 / p99, cpu(&s.bass) / cpu(&s.pw))
 }
 
+/// bass / PipeWire of `f`, round by round: each bass round against the PipeWire round
+/// measured just before it.
+fn round_ratios(s: &Side, f: impl Fn(&Round) -> f64) -> Vec<f64> {
+    s.bass.iter().zip(&s.pw).map(|(b, p)| f(b) / f(p)).collect()
+}
+
+/// The delay goals' verdict: the median of the per-round ratios. A disturbance of the shared
+/// host lasting a second or two lands in one system's round; pooled, it decides that
+/// system's p99 (the worst 1 % of its samples), while the median of the round pairs needs it
+/// in most rounds. The pooled ratio is given beside it.
+fn verdict_ratio(s: &Side, f: impl Fn(&Round) -> f64) -> f64 {
+    median(&round_ratios(s, f))
+}
+
 /// Whether the per-round ratios of `f` fall on both sides of 1.
 fn borderline(s: &Side, f: impl Fn(&Round) -> f64) -> bool {
-    let r: Vec<f64> = s.bass.iter().zip(&s.pw).map(|(b, p)| f(b) / f(p)).collect();
+    let r = round_ratios(s, f);
     r.iter().any(|&x| x <= 1.0) && r.iter().any(|&x| x > 1.0)
+}
+
+/// "pooled a vs b = x×; rounds x× [lo–hi]" for one client count's delay goal.
+fn delay_measure(s: &Side, pooled_of: impl Fn(&[Round]) -> f64, f: impl Fn(&Round) -> f64) -> String {
+    let (b, w) = (pooled_of(&s.bass), pooled_of(&s.pw));
+    format!(
+        "{} vs {} = {} pooled; per round {}",
+        fmt_ns(b),
+        fmt_ns(w),
+        fmt_ratio(b / w),
+        spread(&round_ratios(s, f), fmt_ratio)
+    )
 }
 
 /// "no RT" or "SCHED_FIFO".
@@ -89,25 +115,21 @@ fn comparison_goals(c: &Comparison) -> Vec<Goal> {
     g.push(Goal {
         part: "7 PipeWire",
         goal: format!(
-            "median delay (client awake − timer target), {how}: bass ≤ PipeWire at 1, 8 and 64 clients, same run"
+            "median delay (client awake − timer target), {how}: bass ≤ PipeWire at 1, 8 and 64 clients, same run \
+             (verdict: the median of the per-round ratios)"
         ),
-        measured: each(&|s| {
-            let (b, _) = p50_p99(&s.bass);
-            let (w, _) = p50_p99(&s.pw);
-            format!("{} vs {} = {}", fmt_ns(b), fmt_ns(w), fmt_ratio(b / w))
-        }),
-        met: Some(all(&|s| ratios(s).0 <= 1.0)),
+        measured: each(&|s| delay_measure(s, |r| p50_p99(r).0, Round::p50)),
+        met: Some(all(&|s| verdict_ratio(s, Round::p50) <= 1.0)),
         borderline: any(&|s| borderline(s, Round::p50)),
     });
     g.push(Goal {
         part: "7 PipeWire",
-        goal: format!("p99 delay, {how}: bass no worse than PipeWire at 1, 8 and 64 clients"),
-        measured: each(&|s| {
-            let (_, b) = p50_p99(&s.bass);
-            let (_, w) = p50_p99(&s.pw);
-            format!("{} vs {} = {}", fmt_ns(b), fmt_ns(w), fmt_ratio(b / w))
-        }),
-        met: Some(all(&|s| ratios(s).1 <= 1.0)),
+        goal: format!(
+            "p99 delay, {how}: bass no worse than PipeWire at 1, 8 and 64 clients (verdict: the median of the \
+             per-round ratios)"
+        ),
+        measured: each(&|s| delay_measure(s, |r| p50_p99(r).1, Round::p99)),
+        met: Some(all(&|s| verdict_ratio(s, Round::p99) <= 1.0)),
         borderline: any(&|s| borderline(s, Round::p99)),
     });
     g.push(Goal {
@@ -264,7 +286,9 @@ fn table(c: &Comparison, md: &mut String) {
     }
     let _ = writeln!(
         md,
-        "\nDelays in µs, p50/p99 of each round (·); the ratios pool both rounds. CPU per round; of it the daemons: {}.\n",
+        "\nDelays in µs, p50/p99 of each round (·); the ratios pool the rounds (the goals above judge the delays by \
+         the median of the per-round ratios, each bass round against the PipeWire round just before it). CPU per \
+         round; of it the daemons: {}.\n",
         c.sides
             .iter()
             .map(|(n, s)| format!(
@@ -313,6 +337,45 @@ mod tests {
         assert_eq!(slower[2].met, Some(true), "CPU still ahead");
         let dearer = goals(&results(round(&[10.0], 0.03), round(&[20.0], 0.02)));
         assert_eq!(dearer[2].met, Some(false), "CPU behind");
+    }
+
+    #[test]
+    fn the_delay_verdict_is_the_median_of_the_round_pairs_and_one_disturbed_round_does_not_decide_it() {
+        // Four rounds: bass 10/20 µs (p50/p99) against PipeWire's 15/30 µs, except one bass
+        // round that the host disturbed: its p99 is 400 µs, which decides the pooled p99.
+        let quiet = |base: f64| {
+            let mut d = vec![base; 98];
+            d.extend([2.0 * base, 2.0 * base]);
+            Round { delays: d, cycles: 100, daemon_cpu: 0.01, timer: vec![1.0], ..Round::default() }
+        };
+        let mut disturbed = quiet(10.0);
+        disturbed.delays[..8].fill(400.0);
+        let mut c = Comparison::default();
+        c.sides.insert(
+            8,
+            Side { pw: vec![quiet(15.0); 4], bass: vec![quiet(10.0), disturbed, quiet(10.0), quiet(10.0)] },
+        );
+        let r = Results {
+            pipewire: Some(PwResults { runs: vec![c.clone()], ..PwResults::default() }),
+            ..Results::default()
+        };
+        let g = goals(&r);
+        let p99 = &g[1];
+        assert!(p99.goal.starts_with("p99 delay"), "{}", p99.goal);
+        assert!(p99.measured.contains("400 ns vs 30 ns = 13.3× pooled"), "{}", p99.measured);
+        assert!(p99.measured.contains("per round 0.67× [0.67×–13.3×]"), "{}", p99.measured);
+        assert_eq!(p99.met, Some(true), "three quiet round pairs of four: bass ahead");
+        assert!(p99.borderline, "the rounds fall on both sides");
+        // Disturbed in three rounds of four: missed.
+        let side = c.sides.get_mut(&8).expect("side");
+        for b in &mut side.bass[2..] {
+            b.delays[..8].fill(400.0);
+        }
+        let r = Results {
+            pipewire: Some(PwResults { runs: vec![c], ..PwResults::default() }),
+            ..Results::default()
+        };
+        assert_eq!(goals(&r)[1].met, Some(false));
     }
 
     #[test]
