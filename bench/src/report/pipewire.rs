@@ -51,7 +51,7 @@ fn borderline(s: &Side, f: impl Fn(&Round) -> f64) -> bool {
     r.iter().any(|&x| x <= 1.0) && r.iter().any(|&x| x > 1.0)
 }
 
-/// "pooled a vs b = x×; rounds x× [lo–hi]" for one client count's delay goal.
+/// "a vs b = x× pooled; per round m× [lo–hi]" for one client count's delay goal.
 fn delay_measure(s: &Side, pooled_of: impl Fn(&[Round]) -> f64, f: impl Fn(&Round) -> f64) -> String {
     let (b, w) = (pooled_of(&s.bass), pooled_of(&s.pw));
     format!(
