@@ -76,7 +76,9 @@
 // Chunk flag: timestamps estimated from the sample clock.
 #define BASS_CHUNK_TIME_ESTIMATED 4
 
-// Chunk flag: delivered late, in a catch-up burst after the capture fell behind.
+// Chunk flag: delivered late, more than a chunk's duration (at least 1 ms) after its last
+// frame was due: the capture fell behind (a catch-up burst, or a thread held between its
+// device read and the port).
 #define BASS_CHUNK_LATE 8
 
 // `bass_chunk_ext.bound_ns` of a chunk whose timestamps have no known bound.

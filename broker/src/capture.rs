@@ -21,6 +21,7 @@ use bassport::reader::Port;
 use bassport::sys::{monotonic_ns, realtime_ns};
 use bassport::{ChunkMeta, Geometry, Source, Writer};
 
+use crate::device::sim::LATE_NS;
 use crate::device::{Capture, ReadEvent, RecordedChunk, StopSignal};
 use basskit::rate_estimator::RateDll;
 
@@ -316,6 +317,11 @@ struct Assembler<'a> {
     discontinuity: bool,
     /// The read that began the chunk came late (a catch-up burst): flag LATE, skip the DLL.
     late: bool,
+    /// CLOCK_MONOTONIC (ns) at which the device read that gave the frames being assembled
+    /// (or that found the gap being filled) returned: a chunk that reaches the port more than
+    /// [`Assembler::late_after_ns`] after it is flagged LATE too, whatever the device said
+    /// (the thread was held between its read and the port, see [`chunk_flags::LATE`]).
+    read_returned_ns: u64,
     dll: RateDll,
     published: u64,
     requested_ns: u64,
@@ -325,6 +331,13 @@ struct Assembler<'a> {
 impl Assembler<'_> {
     fn frames_ns(&self, frames: u64) -> u64 {
         frames.saturating_mul(1_000_000_000) / self.rate
+    }
+
+    /// How long after its newest frames were read a chunk may reach the port without being
+    /// LATE: a chunk's duration, at least [`LATE_NS`] (the simulated devices' rule for a
+    /// read, so that one definition holds wherever the time is lost).
+    fn late_after_ns(&self) -> u64 {
+        self.frames_ns(self.nfpc as u64).max(LATE_NS)
     }
 
     /// The bound of a chunk's stamp `mono` (docs/time.md, "Bounds"): from the rate loop's
@@ -382,8 +395,11 @@ impl Assembler<'_> {
         let (mono, estimated) = self.first.unwrap_or((monotonic_ns(), true));
         let realtime = realtime_ns().wrapping_add(mono).wrapping_sub(monotonic_ns());
         let mut flags = if estimated { chunk_flags::TIME_ESTIMATED } else { 0 };
+        // `late` (the device's word on the read that began the chunk) decides the rate loop's
+        // skip; LATE on the port is also a chunk held too long between its read and here.
         let late = std::mem::take(&mut self.late);
-        if late {
+        let held_ns = monotonic_ns().saturating_sub(self.read_returned_ns);
+        if late || held_ns > self.late_after_ns() {
             flags |= chunk_flags::LATE;
         }
         let all_zero = self.zeros == self.nfpc;
@@ -549,6 +565,7 @@ impl<'a> Assembler<'a> {
             observed: None,
             discontinuity: false,
             late: false,
+            read_returned_ns: 0,
             dll: RateDll::new(f64::from(g.sample_rate), g.frames_per_chunk),
             published: 0,
             requested_ns: p.requested_ns,
@@ -576,7 +593,8 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams, multi: Option<
         let want = nfpc - asm.filled;
         match dev.read(&mut scratch, want, &shared.stop) {
             ReadEvent::Frames { frames, first_mono_ns, time_estimated, observed_mono_ns, late } => {
-                shared.progress_ns.store(monotonic_ns(), Ordering::Release);
+                asm.read_returned_ns = monotonic_ns();
+                shared.progress_ns.store(asm.read_returned_ns, Ordering::Release);
                 shared.got_data.store(true, Ordering::Release);
                 timeline.before_frames(&mut asm, first_mono_ns, frames);
                 let samples = &scratch[..frames * channels];
@@ -611,5 +629,61 @@ fn run(shared: &Shared, dev: &mut dyn Capture, p: &CaptureParams, multi: Option<
         if shared.ended.load(Ordering::Acquire) {
             break;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use bassport::PortParams;
+
+    /// A capture thread held between a device read and the port (preempted, or waiting for
+    /// a CPU the host did not run: bench/analysis.md, "The tail on a shared host", traced one
+    /// held 5.2 ms after a read that came on time) publishes a chunk late: LATE says so, as
+    /// format.rs defines it, though the device's read was not late.
+    #[test]
+    fn a_chunk_held_between_its_read_and_the_port_is_flagged_late() {
+        let dir = std::env::temp_dir().join(format!("bass-capture-late-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        let path = dir.join("port");
+        let geometry =
+            Geometry { channels: 2, sample_rate: 48_000, frames_per_chunk: 48, chunks_on_port: 16 };
+        let params = PortParams { geometry: geometry.clone(), device: "test".into(), group: None };
+        let writer = Writer::create_at(&path, &params).expect("create the port");
+        let port = Port::open_path(&path).expect("open the port");
+        let shared = Shared {
+            writer: Mutex::new(writer),
+            stop: StopSignal::new().expect("stop signal"),
+            progress_ns: AtomicU64::new(monotonic_ns()),
+            ended: AtomicBool::new(false),
+            got_data: AtomicBool::new(false),
+            failure: Mutex::new(None),
+        };
+        let p = CaptureParams {
+            geometry,
+            rt_priority: 0,
+            requested_ns: monotonic_ns(),
+            stall_ms: 0,
+            resume_from_ns: None,
+            master_channels: 2,
+            followers: Vec::new(),
+        };
+        let mut asm = Assembler::new(&shared, &p, None);
+        let frames = vec![7i32; 48 * 2];
+        // Three reads of a chunk each, on time by the device's word; the second one's chunk
+        // waits 5 ms (five times the 1 ms bound) between the read and the port.
+        for hold_ms in [0u64, 5, 0] {
+            let t = monotonic_ns();
+            asm.read_returned_ns = t;
+            std::thread::sleep(Duration::from_millis(hold_ms));
+            asm.push_frames(&frames, t, false, t, false);
+        }
+        let flags: Vec<bool> = [1u64, 49, 97]
+            .iter()
+            .map(|&f| port.chunk_info(f).expect("chunk info").flags & chunk_flags::LATE != 0)
+            .collect();
+        drop(asm);
+        let _ = std::fs::remove_dir_all(&dir);
+        assert_eq!(flags, [false, true, false], "LATE on chunks 1..3 (the second held 5 ms)");
     }
 }

@@ -136,7 +136,9 @@ pub const BASS_CHUNK_GAP: u32 = 1;
 pub const BASS_CHUNK_DISCONTINUITY: u32 = 2;
 /// Chunk flag: timestamps estimated from the sample clock.
 pub const BASS_CHUNK_TIME_ESTIMATED: u32 = 4;
-/// Chunk flag: delivered late, in a catch-up burst after the capture fell behind.
+/// Chunk flag: delivered late, more than a chunk's duration (at least 1 ms) after its last
+/// frame was due: the capture fell behind (a catch-up burst, or a thread held between its
+/// device read and the port).
 pub const BASS_CHUNK_LATE: u32 = 8;
 /// `bass_chunk_ext.bound_ns` of a chunk whose timestamps have no known bound.
 pub const BASS_BOUND_UNKNOWN: u64 = u64::MAX;

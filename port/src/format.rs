@@ -161,9 +161,11 @@ pub mod chunk_flags {
     pub const DISCONTINUITY: u32 = 2;
     /// The timestamps are estimated (from the sample clock) rather than read from the device.
     pub const TIME_ESTIMATED: u32 = 4;
-    /// Delivered late, in a catch-up burst: the capture fell behind (its thread was starved
-    /// or stopped), so the chunk reached the port more than a chunk's duration after its
-    /// last frame was due. The rate estimate does not use its arrival time.
+    /// Delivered late: the chunk reached the port more than a chunk's duration (at least
+    /// 1 ms) after its last frame was due — the capture fell behind (its thread was starved
+    /// or stopped) and the device read came late, in a catch-up burst, or the thread was held
+    /// that long between the read that gave its last frames and the port. Its timestamp is
+    /// still the frames' capture time. The rate estimate does not use a late read's arrival.
     pub const LATE: u32 = 8;
 }
 

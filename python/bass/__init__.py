@@ -148,7 +148,8 @@ class ChunkInfo(collections.namedtuple(
     @property
     def flag_names(self):
         """The names of the flags set, in bit order, e.g. ("GAP",) for zero-filled frames the
-        device (or the network) did not deliver, ("LATE",) for a chunk of a catch-up burst."""
+        device (or the network) did not deliver, ("LATE",) for a chunk that reached the port
+        late (the capture fell behind)."""
         return tuple(name for name, bit in CHUNK_FLAGS.items() if self.flags & bit)
 
 

@@ -62,8 +62,8 @@ pub struct Round {
     /// Missed cycles, summed over the clients.
     pub missed: u64,
     /// bass only, of `missed`: chunks lost (overwritten before read), and wake-ups that found
-    /// two or more new chunks while the newest was flagged LATE (the broker woke late and
-    /// published what it owed at once).
+    /// two or more new chunks one of which was flagged LATE (the broker fell behind: its
+    /// pacing woke late, or its capture thread was held before the publish).
     pub lost: u64,
     /// See `lost`.
     pub broker_late: u64,
@@ -164,13 +164,13 @@ pub struct ReaderStats {
     pub missed: u64,
     /// Of them, lost chunks.
     pub lost: u64,
-    /// Wake-ups with two or more new chunks whose newest was flagged LATE.
+    /// Wake-ups with two or more new chunks one of which was flagged LATE.
     pub broker_late: u64,
 }
 
 /// Delays and missed chunks of one bass reader from its lines `WOKE DUE NEW LOST FLAGS` (woken
-/// at, the newest chunk's due time, chunks new at this wake-up, frames lost, the newest chunk's
-/// flags), keeping the wake-ups inside `window`. Missed: chunks beyond the first at one
+/// at, the newest chunk's due time, chunks new at this wake-up, frames lost, the new chunks'
+/// flags, or-ed), keeping the wake-ups inside `window`. Missed: chunks beyond the first at one
 /// wake-up, and lost chunks.
 pub fn bass_reader(lines: &[String], window: (u64, u64), nfpc: u64) -> ReaderStats {
     let mut r = ReaderStats::default();
@@ -323,12 +323,17 @@ pub fn child_reader(args: &[String]) {
             Ok(lfi) => {
                 let woke = monotonic_ns();
                 let newest = (lfi - 1) / nfpc * nfpc + 1;
-                let (due, flags) =
+                let (due, mut flags) =
                     port.chunk_info(newest).map(|c| (c.mono_ns + chunk_ns, c.flags)).unwrap_or((0, 0));
                 let mut bufs = [&mut l[..], &mut r[..]];
                 let got = port.get_audio_data(cap, &mut nfr, &mut bufs).expect("read");
                 let new = (lfi / nfpc).saturating_sub(last / nfpc);
                 last = lfi;
+                // Every new chunk's flags, not only the newest's: a chunk held in the broker
+                // is the older of the two a late wake-up finds.
+                for k in 1..new.min(8) {
+                    flags |= port.chunk_info(newest.saturating_sub(k * nfpc).max(1)).map_or(0, |c| c.flags);
+                }
                 if rec.len() < rec.capacity() {
                     rec.push([woke, due, new, got.loss, u64::from(flags)]);
                 }

@@ -163,8 +163,9 @@ pub(super) fn section(r: &Results, md: &mut String) {
          timerfd was set for; bass: the chunk's due time, the time the capture thread's pacing sleep was set to \
          end), CLOCK_MONOTONIC on both sides, every client every cycle. **Missed**: cycles a PipeWire client's \
          callback skipped (its clock position jumped), chunks a bass reader did not wake for (a wake-up \
-         found two or more new chunks) or lost; *broker late*: such wake-ups whose newest chunk bassd flagged LATE \
-         (its pacing woke more than a chunk late and published what it owed at once). **CPU**: \
+         found two or more new chunks) or lost; *broker late*: such wake-ups one of whose new chunks bassd flagged LATE \
+         (it reached the port more than a chunk after due: the pacing woke late, or the capture thread was held \
+         before its publish). **CPU**: \
          daemon (pipewire / bassd) + all clients, on-CPU time from /proc over the window, share of one core. \
          **Timer part**: a probe thread sleeping a random 3–6 ms at a time with each system's timer while that system is measured (PipeWire: \
          an absolute timerfd in `poll`; bass: bassd's pacing (`basskit::pacing::sleep_until`) on a thread with the capture thread's \
