@@ -1,4 +1,4 @@
-//! Part 6: memory. The port file is the header, the chunk table and the window, nothing
+//! Part 6: memory. The port file is the header, the chunk tables and the window, nothing
 //! more; resident memory of a writer and of readers, against the original design, where
 //! every reader holds a private copy of the whole port.
 
@@ -13,18 +13,25 @@ use crate::procs::{field, rss_of, spawn_ready, Child, Rss};
 /// Windows measured: (seconds, chunks of 2205 frames).
 pub const WINDOWS: &[(f64, u32)] = &[(1.0, 20), (10.0, 200), (60.0, 1200)];
 
+/// The measured port's geometry: 44.1 kHz stereo, `ncop` chunks of 2205 frames.
+pub fn geometry(ncop: u32) -> Geometry {
+    Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: 2205, chunks_on_port: ncop }
+}
+
 /// One window's numbers.
 #[derive(Clone, Debug)]
 pub struct MemRow {
     /// Window in seconds.
     pub window_s: f64,
+    /// Chunks on the port (nCOP).
+    pub chunks: u32,
     /// Window bytes: channels * nFOP * 4.
     pub window_bytes: u64,
     /// Port file size.
     pub file_bytes: u64,
     /// Bytes allocated for the file (st_blocks * 512) once the window is full.
     pub allocated_bytes: u64,
-    /// Header + chunk table bytes (file - window).
+    /// Header + chunk table + chunk extension table bytes (file - window).
     pub overhead_bytes: u64,
     /// The writer process (publishing).
     pub writer: Rss,
@@ -63,6 +70,7 @@ pub fn run() -> Vec<MemRow> {
         };
         let row = MemRow {
             window_s,
+            chunks: ncop,
             window_bytes: g("window"),
             file_bytes: g("file"),
             allocated_bytes: g("allocated"),
@@ -74,7 +82,7 @@ pub fn run() -> Vec<MemRow> {
             baseline: pick(&rl[0], "before "),
         };
         println!(
-            "  window {window_s:>4} s: window {} B, file {} B (header + chunk table {} B), allocated {} B; RSS KiB: writer {} / tail reader {} (shm {}) / full reader {} (shm {}) / original reader {} (anon {}) / baseline {}",
+            "  window {window_s:>4} s: window {} B, file {} B (header + chunk tables {} B), allocated {} B; RSS KiB: writer {} / tail reader {} (shm {}) / full reader {} (shm {}) / original reader {} (anon {}) / baseline {}",
             row.window_bytes,
             row.file_bytes,
             row.overhead_bytes,
@@ -99,8 +107,7 @@ pub fn child_writer(args: &[String]) {
     let name = &args[0];
     let ncop: u32 = args[1].parse().expect("ncop");
     let ms: u64 = args[2].parse().expect("ms");
-    let geometry = Geometry { channels: 2, sample_rate: 44100, frames_per_chunk: 2205, chunks_on_port: ncop };
-    let params = PortParams { geometry, device: "bench:memory".into(), group: None };
+    let params = PortParams { geometry: geometry(ncop), device: "bench:memory".into(), group: None };
     let mut w = Writer::create(name, &params).expect("create port");
     let data: Vec<i32> = (0..4410).collect();
     for _ in 0..ncop {

@@ -242,19 +242,24 @@ fn cpu_goals(e: &crate::e2e::E2eResults) -> Vec<Goal> {
     ]
 }
 
-/// Part 6: the shared memory is the header, the chunk table and the window, exactly.
+/// Part 6: the shared memory is the header, the chunk tables and the window, exactly: the
+/// port file is the size the format's layout gives its geometry (`Geometry::layout`), to the
+/// byte. (Until 2026-12-08 this check allowed the header and the chunk table only, and
+/// missed every run since port format 2.4 added the 32-byte-per-chunk extension table.)
 fn memory_goal(m: &[crate::memory::MemRow]) -> Goal {
-    let exact = m.iter().all(|x| {
-        x.file_bytes == x.window_bytes + x.overhead_bytes
-            && x.overhead_bytes <= 4096 + (x.window_s as u64 * 20 * 32).div_ceil(4096) * 4096
-    });
+    let layout_size =
+        |x: &crate::memory::MemRow| crate::memory::geometry(x.chunks).layout().map_or(0, |l| l.mapped_size);
+    let exact =
+        !m.is_empty() && m.iter().all(|x| x.file_bytes == layout_size(x) && x.file_bytes > x.window_bytes);
     let worst = m.iter().map(|x| x.overhead_bytes).max().unwrap_or(0);
     Goal {
         part: "6 memory",
         goal: "shared memory = header + window exactly".into(),
         measured: format!(
-            "file = window + 4 KiB header + chunk table (32 B per chunk, page-rounded): at most {} over the window",
-            fmt_bytes(worst as f64)
+            "file = window + 4 KiB header + chunk table (32 B per chunk, page-rounded) + chunk extension table (32 B \
+             per chunk): at most {} over the window; the format's layout to the byte: {}",
+            fmt_bytes(worst as f64),
+            if exact { "yes" } else { "no" }
         ),
         borderline: false,
         met: Some(exact),
@@ -311,5 +316,40 @@ fn stream_goal(ratios: &std::collections::BTreeMap<usize, Vec<f64>>, limit: f64,
             let (lo, hi) = min_max(v);
             lo <= limit && hi > limit
         }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::memory::MemRow;
+
+    fn row(chunks: u32, file_bytes: u64) -> MemRow {
+        let window_bytes = 2 * 4 * 2205 * u64::from(chunks);
+        MemRow {
+            window_s: f64::from(chunks) / 20.0,
+            chunks,
+            window_bytes,
+            file_bytes,
+            allocated_bytes: file_bytes,
+            overhead_bytes: file_bytes - window_bytes,
+            writer: Default::default(),
+            tail_reader: Default::default(),
+            full_reader: Default::default(),
+            orig_reader: Default::default(),
+            baseline: Default::default(),
+        }
+    }
+
+    /// The sizes of the 2026-12-08 01:00 run (1, 10 and 60 s windows), which the old check
+    /// called missed: the format's layout exactly. A file one page larger is not.
+    #[test]
+    fn the_memory_goal_is_the_formats_layout_to_the_byte() {
+        let measured = [row(20, 361_664), row(200, 3_546_688), row(1200, 21_251_456)];
+        assert_eq!(memory_goal(&measured).met, Some(true));
+        let mut bigger = measured.clone();
+        bigger[2] = row(1200, 21_251_456 + 4096);
+        assert_eq!(memory_goal(&bigger).met, Some(false));
+        assert_eq!(memory_goal(&[]).met, Some(false));
     }
 }

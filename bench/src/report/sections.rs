@@ -435,7 +435,7 @@ pub(super) fn memory_section(r: &Results, md: &mut String) {
          (KiB): RSS (of which shared memory = the port mapping, and anonymous = private). *Baseline* = this benchmark \
          binary before opening any port.\n"
     );
-    let _ = writeln!(md, "| window | window bytes | port file | header + chunk table | allocated (tmpfs) | writer RSS (shm / anon) | tail reader RSS (shm / anon) | full reader RSS (shm / anon) | original reader RSS (shm / anon) | baseline RSS |");
+    let _ = writeln!(md, "| window | window bytes | port file | header + chunk tables | allocated (tmpfs) | writer RSS (shm / anon) | tail reader RSS (shm / anon) | full reader RSS (shm / anon) | original reader RSS (shm / anon) | baseline RSS |");
     let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for x in m {
         let f = |s: &crate::procs::Rss| format!("{} ({} / {})", s.rss, s.shmem, s.anon);
