@@ -44,6 +44,17 @@ pub struct Shared {
 }
 
 impl Shared {
+    fn new(writer: Writer) -> std::io::Result<Shared> {
+        Ok(Shared {
+            writer: Mutex::new(writer),
+            stop: StopSignal::new()?,
+            progress_ns: AtomicU64::new(monotonic_ns()),
+            ended: AtomicBool::new(false),
+            got_data: AtomicBool::new(false),
+            failure: Mutex::new(None),
+        })
+    }
+
     fn writer(&self) -> MutexGuard<'_, Writer> {
         self.writer.lock().unwrap_or_else(|e| e.into_inner())
     }
@@ -132,14 +143,7 @@ impl Acquisition {
         // A few periods, but never less than 250 ms (scheduling noise on a loaded machine).
         let stall_ns = if p.stall_ms > 0 { p.stall_ms * 1_000_000 } else { (4 * period_ns).max(250_000_000) };
         let grace_ns = stall_ns.max(2_000_000_000);
-        let shared = Arc::new(Shared {
-            writer: Mutex::new(writer),
-            stop: StopSignal::new()?,
-            progress_ns: AtomicU64::new(monotonic_ns()),
-            ended: AtomicBool::new(false),
-            got_data: AtomicBool::new(false),
-            failure: Mutex::new(None),
-        });
+        let shared = Arc::new(Shared::new(writer)?);
         let format = dev.format_name().to_owned();
         let mut p = p;
         let specs = std::mem::take(&mut p.followers);
@@ -392,13 +396,14 @@ impl Assembler<'_> {
         if self.filled < self.nfpc {
             return;
         }
-        let (mono, estimated) = self.first.unwrap_or((monotonic_ns(), true));
-        let realtime = realtime_ns().wrapping_add(mono).wrapping_sub(monotonic_ns());
+        let now = monotonic_ns();
+        let (mono, estimated) = self.first.unwrap_or((now, true));
+        let realtime = realtime_ns().wrapping_add(mono).wrapping_sub(now);
         let mut flags = if estimated { chunk_flags::TIME_ESTIMATED } else { 0 };
         // `late` (the device's word on the read that began the chunk) decides the rate loop's
         // skip; LATE on the port is also a chunk held too long between its read and here.
         let late = std::mem::take(&mut self.late);
-        let held_ns = monotonic_ns().saturating_sub(self.read_returned_ns);
+        let held_ns = now.saturating_sub(self.read_returned_ns);
         if late || held_ns > self.late_after_ns() {
             flags |= chunk_flags::LATE;
         }
@@ -651,14 +656,7 @@ mod tests {
         let params = PortParams { geometry: geometry.clone(), device: "test".into(), group: None };
         let writer = Writer::create_at(&path, &params).expect("create the port");
         let port = Port::open_path(&path).expect("open the port");
-        let shared = Shared {
-            writer: Mutex::new(writer),
-            stop: StopSignal::new().expect("stop signal"),
-            progress_ns: AtomicU64::new(monotonic_ns()),
-            ended: AtomicBool::new(false),
-            got_data: AtomicBool::new(false),
-            failure: Mutex::new(None),
-        };
+        let shared = Shared::new(writer).expect("the capture's shared state");
         let p = CaptureParams {
             geometry,
             rt_priority: 0,
